@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# System packages the tests need on a fresh Debian machine (run as root):
+# offscreen OpenGL for rendering (EGL via Mesa, OSMesa as a fallback).
+set -euo pipefail
+export DEBIAN_FRONTEND=noninteractive
+apt-get update -qq
+apt-get install -y -qq --no-install-recommends \
+  libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 >/dev/null
