@@ -1,0 +1,116 @@
+"""The h1hand robot: a Unitree H1 body with two Shadow-style hands (61 position servos).
+
+The model lives in `assets/h1hand.xml`. Its kinematic tree, joint axes and ranges, masses and
+inertias, joint damping/armature, actuators (kp, kv, ctrlrange, forcerange, in action order),
+finger tendons, contact exclusions, sites and sensors are HumanoidBench's h1hand numbers.
+
+How it differs from HumanoidBench's model (see the README for the measured effect):
+- Collision shapes are primitives, not the 28 collision meshes: each mesh became a box or a
+  capsule fitted to the mesh's bounding box (capsules along the long axis of limb-like
+  meshes; boxes for pelvis, torso and feet; each foot's sole is flat at the height that
+  touches the floor at the keyframe). The hands' own primitive collision geoms are kept as
+  they are. There are no visual meshes: the same primitives are drawn.
+"""
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+ASSET_PATH = Path(__file__).resolve().parent / "assets" / "h1hand.xml"
+
+# Physics steps per environment step: 10 x 0.002 s = 50 Hz control, as in HumanoidBench.
+N_SUBSTEPS = 10
+# qpos/qvel sizes of the robot alone: free base (7 / 6) + 69 hinges.
+NQ_ROBOT = 76
+NV_ROBOT = 75
+
+_LEG = ("hip_yaw", "hip_roll", "hip_pitch", "knee", "ankle")
+_ARM = ("shoulder_pitch", "shoulder_roll", "shoulder_yaw", "elbow", "wrist_yaw")
+# Within a hand: wrist, thumb, then first/middle/ring/little finger. The xxJ0 actuators drive
+# the tendon J0 = J1 + J2 that couples a finger's two distal joints.
+_HAND = (
+    "WRJ2", "WRJ1", "THJ5", "THJ4", "THJ3", "THJ2", "THJ1", "FFJ4", "FFJ3", "FFJ0",
+    "MFJ4", "MFJ3", "MFJ0", "RFJ4", "RFJ3", "RFJ0", "LFJ5", "LFJ4", "LFJ3", "LFJ0",
+)  # fmt: skip
+
+# Actuator names in action order: action[i] drives ACTUATOR_NAMES[i].
+ACTUATOR_NAMES: tuple[str, ...] = (
+    *(f"left_{j}" for j in _LEG),
+    *(f"right_{j}" for j in _LEG),
+    "torso",
+    *(f"left_{j}" for j in _ARM),
+    *(f"right_{j}" for j in _ARM),
+    *(f"lh_A_{j}" for j in _HAND),
+    *(f"rh_A_{j}" for j in _HAND),
+)
+
+# Standing pose: pelvis 0.98 m above the floor, upright, knees bent, everything else at 0.
+_PELVIS_START = (0.0, 0.0, 0.98, 1.0, 0.0, 0.0, 0.0)
+_LEG_START = (0.0, 0.0, -0.4, 0.8, -0.4)
+KEYFRAME_QPOS: np.ndarray = np.concatenate(
+    [_PELVIS_START, _LEG_START, _LEG_START, np.zeros(NQ_ROBOT - 17)]
+)
+
+
+def robot_spec() -> mujoco.MjSpec:
+    """A fresh spec with physics options, floor, lights and the robot; tasks add the rest."""
+    return mujoco.MjSpec.from_file(str(ASSET_PATH))
+
+
+class H1Hand:
+    """Named read-outs of the robot inside a compiled scene (dm_control's Physics style).
+
+    Positions and velocities are those MuJoCo last computed into `data` (mj_step computes
+    them at the start of a step, so call mj_forward after changing the state by hand).
+    """
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        self.model = model
+        self.data = data
+        self._head = model.site("head").id
+        self._left_hand = model.site("left_hand").id
+        self._right_hand = model.site("right_hand").id
+        self._torso = model.body("torso_link").id
+        self._com_velocity_adr = model.sensor("pelvis_subtreelinvel").adr[0]
+        self._actuator_ids = np.array([model.actuator(n).id for n in ACTUATOR_NAMES])
+        ctrlrange = model.actuator_ctrlrange[self._actuator_ids]
+        self._ctrl_low = ctrlrange[:, 0].copy()
+        self._ctrl_span = ctrlrange[:, 1] - ctrlrange[:, 0]
+        base = model.joint("free_base")
+        self.qpos_slice = slice(int(base.qposadr[0]), int(base.qposadr[0]) + NQ_ROBOT)
+        self.qvel_slice = slice(int(base.dofadr[0]), int(base.dofadr[0]) + NV_ROBOT)
+        self._pelvis_z_adr = self.qpos_slice.start + 2
+
+    def head_height(self) -> float:
+        """Height of the `head` site above the floor (1.68 m at the keyframe)."""
+        return float(self.data.site_xpos[self._head, 2])
+
+    def torso_upright(self) -> float:
+        """zz entry of the torso's rotation matrix: 1 upright, 0 lying, -1 upside down."""
+        return float(self.data.xmat[self._torso, 8])
+
+    def pelvis_height(self) -> float:
+        """z of the pelvis (the free base's position)."""
+        return float(self.data.qpos[self._pelvis_z_adr])
+
+    def center_of_mass_velocity(self) -> np.ndarray:
+        """Linear velocity of the whole robot's centre of mass (pelvis subtree), (3,)."""
+        adr = self._com_velocity_adr
+        return self.data.sensordata[adr : adr + 3].copy()
+
+    def left_hand_position(self) -> np.ndarray:
+        """World position of the `left_hand` site (on the forearm, not the palm), (3,)."""
+        return self.data.site_xpos[self._left_hand].copy()
+
+    def right_hand_position(self) -> np.ndarray:
+        """World position of the `right_hand` site (on the forearm, not the palm), (3,)."""
+        return self.data.site_xpos[self._right_hand].copy()
+
+    def actuator_forces(self) -> np.ndarray:
+        """Force of each actuator in action order, (61,)."""
+        return self.data.actuator_force[self._actuator_ids]
+
+    def action_to_ctrl(self, action: np.ndarray) -> np.ndarray:
+        """Map an action in [-1, 1]^61 linearly onto the actuators' ctrlrange (action order)."""
+        return self._ctrl_low + (np.asarray(action) + 1.0) * 0.5 * self._ctrl_span
