@@ -1,0 +1,1 @@
+"""One module per task: its scene objects, reset, observation, reward and termination."""
