@@ -27,15 +27,13 @@ GRID_POINTS = 5001
 # Grid evaluations held in memory at once (rows x grid points): 32 MiB of float64.
 GRID_CHUNK_ELEMENTS = 2**22
 # Newton steps of the exact solver. From its starting point 4 steps already reach 1e-8 in y over
-# the whole range |mu| <= 20, sigma in [1e-6, 10] (tests/test_mode_search.py checks 1e-6); the
-# fifth is margin.
+# the whole range |mu| <= 20, sigma in [1e-6, 10] (tests/test_mode_search.py checks 1e-6 against
+# bisection); the fifth is margin.
 NEWTON_STEPS = 5
 _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
-def tanh_normal_log_prob(
-    y: torch.Tensor, mu: torch.Tensor, log_std: torch.Tensor
-) -> torch.Tensor:
+def tanh_normal_log_prob(y: torch.Tensor, mu: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
     """Elementwise log-density of y = tanh(u), u ~ N(mu, exp(log_std)^2); -inf outside (-1, 1).
 
     Stable up to |y| = the largest float below 1: artanh(y) and log(1 - y^2) are both built from
@@ -50,9 +48,7 @@ def tanh_normal_log_prob(
 
 
 @torch.no_grad()
-def mode_action(
-    mu: torch.Tensor, log_std: torch.Tensor, solver: str = "exact"
-) -> torch.Tensor:
+def mode_action(mu: torch.Tensor, log_std: torch.Tensor, solver: str = "exact") -> torch.Tensor:
     """The mode of tanh(N(mu, exp(log_std)^2)) per dimension, in (-1, 1).
 
     Returns a tensor with mu's dtype and device and the broadcast shape of mu and log_std. When
@@ -80,29 +76,26 @@ def _exact_mode(mu: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
     - log p(tanh x) - log p(tanh -x) = 2 x m / sigma^2 > 0 for x > 0, so the global mode has the
       sign of mu: no comparison between the two modes of the bimodal regime (c > 1) is needed.
     - On x > 0, g is convex with g(0) = -m <= 0: it has exactly one positive root r (the mode),
-      and m < r < U = m + c tanh(m + c). Newton on a convex increasing function converges
-      monotonically from the right, and from the left overshoots once to the right.
+      m <= r < m + c, and Newton converges to it monotonically from the right of r, and from
+      the left (above the minimum of g) overshoots once to the right.
     - Where r is small (sigma near 1/sqrt(2), |mu| small: nearly a double root, slow for Newton)
       tanh x ~ x - x^3/3 turns g into the cubic x^3 - a x - b, a = 3(c-1)/c, b = 3m/c, whose root
-      lies a little below r and has closed-form lower bounds: (a^1.5 + b)^(1/3) for a >= 0 and
-      b / (b^(2/3) - a) for a < 0. Newton starts there when that guess is below 1, else from U.
+      is close to r, at least (max(a, 0)^1.5 + b)^(1/3). Newton starts there when that is below
+      1, else from m + c.
     """
     m = mu.to(torch.float64).abs()
-    c = 2.0 * torch.exp(2.0 * log_std.to(torch.float64))
-    upper = m + c * torch.tanh(m + c)
-    a = 3.0 - 3.0 / c
-    b = 3.0 * m / c
-    cubic_root = torch.where(
-        a >= 0, (a.clamp(min=0.0) ** 1.5 + b) ** (1.0 / 3.0), b / (b ** (2.0 / 3.0) - a)
-    )
-    x = torch.where(cubic_root < 1.0, cubic_root, upper)
-    # 1e-300 keeps g' nonzero at the one point where it vanishes at the root (mu = 0, c = 1).
-    slope_at_zero = (1.0 + 1e-300) - c
+    c = torch.exp(2.0 * log_std.to(torch.float64) + math.log(2.0))
+    three_over_c = 3.0 / c
+    a, b = 3.0 - three_over_c, m * three_over_c
+    cubic_root = (a.clamp(min=0.0) ** 1.5 + b) ** (1.0 / 3.0)
+    x = torch.where(cubic_root < 1.0, cubic_root, m + c)
+    # + 1e-300 keeps g' nonzero where it vanishes at the root (mu = 0, c = 1; g = 0 there too).
+    slope_at_zero = (1.0 - c) + 1e-300
     for _ in range(NEWTON_STEPS):
         t = torch.tanh(x)
-        g = (x - m) - c * t
+        g = torch.addcmul(x - m, c, t, value=-1.0)
         g_prime = torch.addcmul(slope_at_zero, c, t * t)
-        x = torch.minimum(x - g / g_prime, upper)
+        x = torch.addcdiv(x, g, g_prime, value=-1.0)
     return torch.copysign(torch.tanh(x), mu)
 
 
@@ -113,11 +106,10 @@ def _grid_mode(mu: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
     mu, log_std = torch.broadcast_tensors(mu, log_std)
     flat_mu, flat_log_std = mu.reshape(-1, 1), log_std.reshape(-1, 1)
     rows = max(1, GRID_CHUNK_ELEMENTS // grid.numel())
-    best = torch.cat(
-        [
-            grid[tanh_normal_log_prob(grid, m, s).argmax(dim=1)]
-            for m, s in zip(flat_mu.split(rows), flat_log_std.split(rows), strict=True)
-        ]
-    ).reshape(mu.shape)
+    best = torch.empty_like(flat_mu[:, 0])
+    for i in range(0, flat_mu.shape[0], rows):
+        log_p = tanh_normal_log_prob(grid, flat_mu[i : i + rows], flat_log_std[i : i + rows])
+        best[i : i + rows] = grid[log_p.argmax(dim=1)]
+    best = best.reshape(mu.shape)
     # argmax over an all-NaN row would return a grid point; an undefined mode is NaN instead.
     return torch.where(torch.isnan(mu + log_std), math.nan, best)

@@ -39,8 +39,10 @@ def bench(batch: int, repeats: int) -> dict[str, float]:
     """Seconds per call of the four ways to get an evaluation action for `batch` states."""
     torch.manual_seed(0)
     actor = torch.nn.Sequential(
-        torch.nn.Linear(OBS_DIM, HIDDEN), torch.nn.ReLU(),
-        torch.nn.Linear(HIDDEN, HIDDEN), torch.nn.ReLU(),
+        torch.nn.Linear(OBS_DIM, HIDDEN),
+        torch.nn.ReLU(),
+        torch.nn.Linear(HIDDEN, HIDDEN),
+        torch.nn.ReLU(),
         torch.nn.Linear(HIDDEN, 2 * ACTION_DIM),
     )
     obs = torch.randn(batch, OBS_DIM)
