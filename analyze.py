@@ -1,0 +1,852 @@
+"""From a folder of SAC runs to the paper's statistics and figures (its Figures 5-8), with rliable.
+
+    python analyze.py runs/ --out report/
+
+Finds every run folder (a `config.json` next to an `eval.csv`, at any depth), groups the runs by
+task, algorithm and seed, aligns them on the evaluation steps they share, normalises the scores
+per task and hands them to rliable: stratified-bootstrap interval estimates of the aggregate
+IQM / median / mean / optimality gap, performance profiles, sample-efficiency curves and the
+probability of improvement. Runs of sac_corrected.py also carry the paired evaluation of the
+same actor with tanh(mu) on the same start states: it forms its own group, and the per-seed
+difference mode minus tanh(mu) is reported per task.
+
+Pipeline: load -> align -> normalise -> estimate -> plot -> tables.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import functools
+import json
+import math
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Literal
+
+import matplotlib
+
+matplotlib.use("Agg")  # figures only go to files: no display needed
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import seaborn as sns  # noqa: E402
+import tyro  # noqa: E402
+from rliable import library as rly  # noqa: E402
+from rliable import metrics, plot_utils  # noqa: E402
+
+# The run-folder format read here (CONTRACTS.md "Run folder"; the README documents it for users
+# who bring logs from elsewhere). Everything else in a run folder is ignored.
+CONFIG_FILE = "config.json"
+EVAL_FILE = "eval.csv"
+REQUIRED_CONFIG_KEYS = ("env_id", "seed", "algorithm")
+STEP_COLUMN = "global_step"
+RETURN_COLUMN = "return_mean"  # mean return of the script's own evaluation action
+REQUIRED_EVAL_COLUMNS = (STEP_COLUMN, RETURN_COLUMN)
+# Optional (sac_corrected.py): the same actor evaluated with tanh(mu) on the same start states.
+PAIRED_RETURN_COLUMN = "tanh_mu_return_mean"
+PAIRED_SUFFIX = " (tanh(mu) eval)"
+
+STANDARD, CORRECTED = "standard", "corrected"
+PAIRED_CORRECTED = CORRECTED + PAIRED_SUFFIX
+# Probability of improvement of the first over the second.
+COMPARISON = (CORRECTED, STANDARD)
+GROUP_ORDER = (STANDARD, CORRECTED, PAIRED_CORRECTED)
+LABELS = {
+    STANDARD: "Standard SAC",
+    CORRECTED: "Corrected SAC",
+    PAIRED_CORRECTED: "Corrected SAC (tanh(mu) eval)",
+}
+
+# HumanoidBench's success bars: the return at which a task counts as solved. Under the default
+# normalisation a score of 1.0 means "reached the bar".
+SUCCESS_BARS = {
+    "h1hand-stand-v0": 800.0,
+    "h1hand-powerlift-v0": 800.0,
+    "h1hand-cube-v0": 370.0,
+    "h1hand-bookshelf_simple-v0": 2000.0,
+    "h1hand-bookshelf_hard-v0": 2000.0,
+}
+NORMALIZATIONS = {
+    "success-bar": "score = return / HumanoidBench success bar (1.0 = solved)",
+    "min-max": "score = (return - task min) / (task max - task min), over every return logged "
+    "for the task in this folder (all algorithms, seeds and steps)",
+    "none": "raw returns",
+}
+AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
+CONFIDENCE = 0.95
+
+
+@dataclasses.dataclass
+class Args:
+    runs_dir: tyro.conf.Positional[Path]
+    """folder holding the run folders (config.json + eval.csv), searched at any depth"""
+    out: Path = Path("report")
+    """folder the figures, summary.md and summary.csv are written to"""
+    normalize: Literal["success-bar", "min-max", "none"] = "success-bar"
+    """per-task scores for aggregating: `success-bar` divides by HumanoidBench's success bar
+    (1.0 = solved), `min-max` maps each task's lowest and highest logged return to 0 and 1,
+    `none` keeps raw returns (one task only)"""
+    at_step: int | None = None
+    """score every run at this step instead of the last step all runs of its task share"""
+    reps: int = 50_000
+    """bootstrap replications for point estimates: the aggregate metrics, per-task final
+    returns and paired differences"""
+    curve_reps: int = 2_000
+    """bootstrap replications for the per-task reward curves, the sample-efficiency curves,
+    the performance profiles and the probability of improvement (as in rliable's examples)"""
+    curve_points: int = 21
+    """steps on the sample-efficiency curve (evenly spaced over the shared steps, the last one
+    included); its bootstrap cost grows linearly with it"""
+    seed: int = 0
+    """seed of NumPy's global generator, set before every bootstrap (rliable draws from it and
+    ignores its own random_state argument)"""
+    format: tuple[Literal["png", "pdf"], ...] = ("png",)
+    """figure file formats, e.g. `--format pdf` or `--format png pdf`"""
+
+
+class AnalysisError(Exception):
+    """A problem with the input that the user can fix: reported as one message, no traceback."""
+
+
+@dataclasses.dataclass
+class Curve:
+    """One run's evaluation returns, at the steps it logged, for one group."""
+
+    run_dir: Path
+    seed: int
+    steps: np.ndarray
+    returns: np.ndarray
+
+
+# task -> group -> curves sorted by seed; a group is an algorithm or a paired evaluation
+Runs = dict[str, dict[str, list[Curve]]]
+
+
+# ----------------------------------------------------------------------------- load
+def read_config(path: Path) -> dict:
+    """The run's config.json, checked for the keys analyze.py needs."""
+    try:
+        config = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise AnalysisError(f"{path} is not valid JSON ({error}); fix or remove that run") from None
+    if not isinstance(config, dict):
+        raise AnalysisError(f"{path} must hold a JSON object with keys {REQUIRED_CONFIG_KEYS}")
+    missing = [key for key in REQUIRED_CONFIG_KEYS if key not in config]
+    if missing:
+        raise AnalysisError(
+            f"{path} lacks key(s) {missing}; every config.json needs {list(REQUIRED_CONFIG_KEYS)}"
+        )
+    if not isinstance(config["seed"], int) or isinstance(config["seed"], bool):
+        raise AnalysisError(f"{path}: seed must be an integer, got {config['seed']!r}")
+    for key in ("env_id", "algorithm"):
+        if not isinstance(config[key], str) or not config[key]:
+            raise AnalysisError(f"{path}: {key} must be a non-empty string, got {config[key]!r}")
+    return config
+
+
+def read_eval_csv(path: Path) -> tuple[dict[str, np.ndarray], bool]:
+    """The columns analyze.py uses, as arrays, and whether an incomplete last line was dropped.
+
+    A run killed mid-write leaves a last line without its line end: it is dropped and every
+    complete row is kept.
+    """
+    lines = path.read_text(encoding="utf-8", errors="replace").splitlines(keepends=True)
+    partial = bool(lines) and not lines[-1].endswith(("\n", "\r"))
+    rows = [row for row in csv.reader(lines[:-1] if partial else lines) if row]
+    if not rows:
+        return {name: np.empty(0) for name in REQUIRED_EVAL_COLUMNS}, partial
+    header, body = [name.strip() for name in rows[0]], rows[1:]
+    missing = [name for name in REQUIRED_EVAL_COLUMNS if name not in header]
+    if missing:
+        raise AnalysisError(
+            f"{path} lacks column(s) {missing}; eval.csv needs a header row with at least "
+            f"{list(REQUIRED_EVAL_COLUMNS)} (see the README, section analyze.py)"
+        )
+    wanted = [*REQUIRED_EVAL_COLUMNS] + [PAIRED_RETURN_COLUMN] * (PAIRED_RETURN_COLUMN in header)
+    columns = {name: np.empty(len(body)) for name in wanted}
+    for i, row in enumerate(body):
+        if len(row) != len(header):
+            raise AnalysisError(
+                f"{path}, row {i + 2}: {len(row)} fields where the header has {len(header)}; "
+                "fix or delete that row"
+            )
+        for name in wanted:
+            columns[name][i] = _parse_number(row[header.index(name)], path, i + 2, name)
+    _check_columns(columns, path)
+    return columns, partial
+
+
+def _parse_number(text: str, path: Path, row: int, column: str) -> float:
+    if not text.strip() and column == PAIRED_RETURN_COLUMN:
+        return math.nan  # optional column: an empty cell means "not measured"
+    try:
+        value = float(text)
+    except ValueError:
+        raise AnalysisError(f"{path}, row {row}: {column} = {text!r} is not a number") from None
+    if not math.isfinite(value) and column != PAIRED_RETURN_COLUMN:
+        raise AnalysisError(f"{path}, row {row}: {column} = {text!r} is not a finite number")
+    return value
+
+
+def _check_columns(columns: dict[str, np.ndarray], path: Path) -> None:
+    steps = columns[STEP_COLUMN]
+    if np.any(steps != np.round(steps)):
+        raise AnalysisError(f"{path}: {STEP_COLUMN} must hold whole environment steps")
+    if np.any(np.diff(steps) <= 0):
+        row = int(np.argmax(np.diff(steps) <= 0)) + 3
+        raise AnalysisError(
+            f"{path}, row {row}: {STEP_COLUMN} does not increase (a resumed run whose log "
+            "was not truncated?); keep one row per evaluation step"
+        )
+
+
+def load_runs(root: Path) -> tuple[Runs, list[str]]:
+    """Every run under `root`, grouped by task and group, and notes on what was skipped."""
+    if not root.is_dir():
+        raise AnalysisError(f"{root} is not a folder; pass the folder that holds the run folders")
+    runs: Runs = {}
+    notes: list[str] = []
+    for config_path in sorted(root.rglob(CONFIG_FILE)):
+        run_dir = config_path.parent
+        if not (run_dir / EVAL_FILE).is_file():
+            notes.append(f"{run_dir}: no {EVAL_FILE} yet; skipped")
+            continue
+        config = read_config(config_path)
+        columns, partial = read_eval_csv(run_dir / EVAL_FILE)
+        if partial:
+            notes.append(
+                f"{run_dir / EVAL_FILE}: incomplete last line (killed mid-write?); "
+                "read up to the last complete row"
+            )
+        if columns[STEP_COLUMN].size == 0:
+            notes.append(f"{run_dir}: no complete evaluation row yet; skipped")
+            continue
+        task, algorithm, seed = config["env_id"], config["algorithm"], config["seed"]
+        steps = columns[STEP_COLUMN].astype(np.int64)
+        _add_curve(runs, task, algorithm, Curve(run_dir, seed, steps, columns[RETURN_COLUMN]))
+        paired = columns.get(PAIRED_RETURN_COLUMN)
+        if paired is not None and np.isfinite(paired).all():
+            curve = Curve(run_dir, seed, steps, paired)
+            _add_curve(runs, task, algorithm + PAIRED_SUFFIX, curve)
+        elif paired is not None:
+            notes.append(f"{run_dir}: {PAIRED_RETURN_COLUMN} has empty cells; paired eval left out")
+    if not runs:
+        raise AnalysisError(
+            f"no runs found under {root}: a run is a folder holding {CONFIG_FILE} (keys "
+            f"{list(REQUIRED_CONFIG_KEYS)}) and {EVAL_FILE} (columns "
+            f"{list(REQUIRED_EVAL_COLUMNS)}); see the README, section analyze.py"
+        )
+    for groups in runs.values():
+        for curves in groups.values():
+            curves.sort(key=lambda curve: curve.seed)
+    return runs, notes
+
+
+def _add_curve(runs: Runs, task: str, group: str, curve: Curve) -> None:
+    curves = runs.setdefault(task, {}).setdefault(group, [])
+    twin = next((other for other in curves if other.seed == curve.seed), None)
+    if twin is not None:
+        raise AnalysisError(
+            f"two runs of {task}, {group}, seed {curve.seed}: {twin.run_dir} and "
+            f"{curve.run_dir}; move one out of the folder"
+        )
+    curves.append(curve)
+
+
+def ordered_groups(runs: Runs) -> list[str]:
+    """Every group in the folder: the paper's first, in a fixed order (so colours stay put)."""
+    found = {group for groups in runs.values() for group in groups}
+    return [g for g in GROUP_ORDER if g in found] + sorted(found - set(GROUP_ORDER))
+
+
+# ----------------------------------------------------------------------------- align
+@dataclasses.dataclass
+class Task:
+    """A task's runs aligned on the evaluation steps all of them share."""
+
+    steps: np.ndarray  # (steps,) shared by every run of the task
+    returns: dict[str, np.ndarray]  # group -> (seeds, steps)
+    seeds: dict[str, list[int]]
+    scored_step: int  # the step final scores are taken at
+
+    def scored(self, group: str) -> np.ndarray:
+        """The group's returns at the scored step, one per seed."""
+        return self.returns[group][:, np.searchsorted(self.steps, self.scored_step)]
+
+
+def align(runs: Runs, at_step: int | None) -> tuple[dict[str, Task], list[str]]:
+    """Each task's runs on their shared steps, and notes on the runs that were cut."""
+    tasks, notes = {}, []
+    for task, groups in sorted(runs.items()):
+        curves = [curve for group in groups.values() for curve in group]
+        steps = functools.reduce(np.intersect1d, [curve.steps for curve in curves])
+        if steps.size == 0:
+            raise AnalysisError(
+                f"the runs of {task} share no evaluation step (different eval intervals or "
+                "step ranges); analyse runs logged on a common step grid"
+            )
+        scored_step = _scored_step(task, curves, steps, at_step)
+        notes += _alignment_notes(task, curves, steps, scored_step)
+        tasks[task] = Task(
+            steps=steps,
+            returns={g: np.stack([_at(c, steps) for c in cs]) for g, cs in groups.items()},
+            seeds={g: [c.seed for c in cs] for g, cs in groups.items()},
+            scored_step=scored_step,
+        )
+    return tasks, notes
+
+
+def _scored_step(task: str, curves: list[Curve], steps: np.ndarray, at_step: int | None) -> int:
+    if at_step is None:
+        return int(steps[-1])
+    if at_step not in steps:
+        lacking = [c for c in curves if at_step not in c.steps]
+        example = f" (e.g. {lacking[0].run_dir}, which stops at {lacking[0].steps[-1]})"
+        raise AnalysisError(
+            f"--at-step {at_step}: not every run of {task} was evaluated at that step"
+            f"{example if lacking else ''}; steps all its runs share: "
+            f"{_fmt(steps[0])} .. {_fmt(steps[-1])}, {steps.size} in all"
+        )
+    return at_step
+
+
+def _alignment_notes(
+    task: str, curves: list[Curve], steps: np.ndarray, scored_step: int
+) -> list[str]:
+    notes = []
+    for curve in curves:
+        if curve.steps[-1] > steps[-1]:
+            notes.append(
+                f"{task}: {curve.run_dir} was cut: it reached step {_fmt(curve.steps[-1])}, "
+                f"the runs of {task} share steps up to {_fmt(steps[-1])}"
+            )
+    unshared = [c for c in curves if np.setdiff1d(c.steps[c.steps <= steps[-1]], steps).size]
+    if unshared:
+        notes.append(
+            f"{task}: evaluation steps differ between runs ({len(unshared)} run(s) have steps "
+            f"others lack); curves and scores use the {steps.size} steps all runs share"
+        )
+    if scored_step != steps[-1]:
+        notes.append(f"{task}: final scores taken at --at-step {_fmt(scored_step)}")
+    return notes
+
+
+def _at(curve: Curve, steps: np.ndarray) -> np.ndarray:
+    return curve.returns[np.searchsorted(curve.steps, steps)]
+
+
+# ----------------------------------------------------------------------------- normalise
+def normalizers(tasks: dict[str, Task], mode: str) -> dict[str, tuple[float, float]]:
+    """Per task (offset, scale): score = (return - offset) / scale."""
+    if mode == "none":
+        if len(tasks) > 1:
+            raise AnalysisError(
+                f"{len(tasks)} tasks found ({', '.join(tasks)}) but --normalize none: raw "
+                "returns of different tasks cannot be aggregated. Use --normalize success-bar "
+                "or --normalize min-max, or point analyze.py at a folder with one task"
+            )
+        return {task: (0.0, 1.0) for task in tasks}
+    if mode == "success-bar":
+        unknown = [task for task in tasks if task not in SUCCESS_BARS]
+        if unknown:
+            raise AnalysisError(
+                f"no success bar known for {', '.join(unknown)} (known: "
+                f"{', '.join(SUCCESS_BARS)}); use --normalize min-max"
+                + (" or --normalize none" if len(tasks) == 1 else "")
+            )
+        return {task: (0.0, SUCCESS_BARS[task]) for task in tasks}
+    bounds = {}
+    for task, data in tasks.items():
+        everything = np.concatenate([returns.ravel() for returns in data.returns.values()])
+        low, high = float(everything.min()), float(everything.max())
+        bounds[task] = (low, high - low if high > low else 1.0)
+    return bounds
+
+
+def normalize(returns: np.ndarray, norm: tuple[float, float]) -> np.ndarray:
+    offset, scale = norm
+    return (returns - offset) / scale
+
+
+# ----------------------------------------------------------------------------- estimate
+def seed_bootstrap(seed: int) -> None:
+    """rliable's bootstraps draw from NumPy's legacy global generator (random_state is ignored)."""
+    np.random.seed(seed)  # noqa: NPY002
+
+
+def interval_estimates(
+    score_dict: dict, func: Callable[..., np.ndarray], reps: int, seed: int
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """rliable's stratified-bootstrap point and interval estimates, reproducible by `seed`."""
+    seed_bootstrap(seed)
+    return rly.get_interval_estimates(
+        score_dict, func, reps=reps, confidence_interval_size=CONFIDENCE
+    )
+
+
+def aggregate_metrics(scores: np.ndarray, gap: bool = True) -> np.ndarray:
+    """IQM, median, mean (and optimality gap) of a (runs x tasks) score matrix."""
+    values = [
+        metrics.aggregate_iqm(scores),
+        metrics.aggregate_median(scores),
+        metrics.aggregate_mean(scores),
+    ]
+    return np.array(values + [metrics.aggregate_optimality_gap(scores)] * gap)
+
+
+def iqm_per_step(scores: np.ndarray) -> np.ndarray:
+    """Aggregate IQM at each step of a (runs x tasks x steps) score array."""
+    return np.array([metrics.aggregate_iqm(scores[..., i]) for i in range(scores.shape[-1])])
+
+
+@dataclasses.dataclass
+class Aggregate:
+    """Normalised scores of the groups compared across tasks, as rliable wants them."""
+
+    tasks: list[str]
+    groups: list[str]
+    final: dict[str, np.ndarray]  # group -> (runs, tasks) at each task's scored step
+    frames: np.ndarray  # steps on the sample-efficiency curve
+    curves: dict[str, np.ndarray]  # group -> (runs, tasks, frames)
+
+
+def build_aggregate(
+    tasks: dict[str, Task], norms: dict, groups: list[str], curve_points: int
+) -> tuple[Aggregate | None, list[str]]:
+    """Score matrices over the tasks that every algorithm ran, and notes on what was left out."""
+    notes = []
+    algorithms = [g for g in groups if not g.endswith(PAIRED_SUFFIX)]
+    common = [t for t, data in tasks.items() if all(a in data.returns for a in algorithms)]
+    for task in sorted(set(tasks) - set(common)):
+        lacking = [a for a in algorithms if a not in tasks[task].returns]
+        notes.append(f"{task}: left out of the aggregate metrics (no {', '.join(lacking)} runs)")
+    if not common:
+        notes.append("no task was run by every algorithm: aggregate metrics skipped")
+        return None, notes
+    members = [g for g in groups if all(g in tasks[t].returns for t in common)]
+    for group in sorted(set(groups) - set(members), key=groups.index):
+        notes.append(f"{group}: left out of the aggregate metrics (missing on some tasks)")
+    runs = {g: min(tasks[t].returns[g].shape[0] for t in common) for g in members}
+    for g in members:
+        if any(tasks[t].returns[g].shape[0] > runs[g] for t in common):
+            notes.append(
+                f"{g}: tasks have different numbers of seeds; the aggregate uses the "
+                f"{runs[g]} lowest seeds of each task"
+            )
+    frames = functools.reduce(np.intersect1d, [tasks[t].steps for t in common])
+    frames = frames[np.unique(np.linspace(0, frames.size - 1, curve_points).round().astype(int))]
+    final = {
+        g: np.stack([normalize(tasks[t].scored(g)[: runs[g]], norms[t]) for t in common], axis=1)
+        for g in members
+    }
+    curves = {
+        g: np.stack([normalize(_on(tasks[t], g, frames)[: runs[g]], norms[t]) for t in common], 1)
+        for g in members
+    }
+    return Aggregate(common, members, final, frames, curves), notes
+
+
+def _on(task: Task, group: str, steps: np.ndarray) -> np.ndarray:
+    return task.returns[group][:, np.searchsorted(task.steps, steps)]
+
+
+def paired_differences(tasks: dict[str, Task]) -> dict[str, dict[str, np.ndarray]]:
+    """task -> algorithm -> per-seed (own eval minus tanh(mu) eval) at the scored step."""
+    differences: dict[str, dict[str, np.ndarray]] = {}
+    for task, data in tasks.items():
+        for group in data.returns:
+            algorithm = group.removesuffix(PAIRED_SUFFIX)
+            if group == algorithm or algorithm not in data.returns:
+                continue
+            own = dict(zip(data.seeds[algorithm], data.scored(algorithm), strict=True))
+            paired = dict(zip(data.seeds[group], data.scored(group), strict=True))
+            diffs = np.array([own[seed] - paired[seed] for seed in paired])
+            differences.setdefault(task, {})[algorithm] = diffs
+    return differences
+
+
+# ----------------------------------------------------------------------------- plot
+def group_colors(groups: list[str]) -> dict[str, tuple]:
+    palette = sns.color_palette("colorblind", n_colors=max(len(GROUP_ORDER) + len(groups), 10))
+    extra = iter(palette[len(GROUP_ORDER) :])
+    return {g: palette[GROUP_ORDER.index(g)] if g in GROUP_ORDER else next(extra) for g in groups}
+
+
+def label(group: str) -> str:
+    return LABELS.get(group, group)
+
+
+def _steps_axis(max_step: float) -> tuple[float, str]:
+    if max_step >= 1e6:
+        return 1e6, "Environment steps (millions)"
+    if max_step >= 1e3:
+        return 1e3, "Environment steps (thousands)"
+    return 1.0, "Environment steps"
+
+
+def save(fig: plt.Figure, out: Path, name: str, formats: Sequence[str]) -> list[Path]:
+    paths = [out / f"{name}.{fmt}" for fmt in formats]
+    for path in paths:
+        fig.savefig(path, dpi=150, bbox_inches="tight")
+    plt.close(fig)
+    return paths
+
+
+def plot_reward_curves(
+    tasks: dict[str, Task], curves: dict, colors: dict, groups: list[str]
+) -> plt.Figure:
+    """Figure 5: mean evaluation return per task with its 95% CI over seeds."""
+    ncols = math.ceil(math.sqrt(len(tasks)))
+    nrows = math.ceil(len(tasks) / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.8 * nrows), squeeze=False)
+    for ax in axes.flat[len(tasks) :]:
+        ax.set_visible(False)
+    for ax, (task, data) in zip(axes.flat, tasks.items(), strict=False):
+        unit, xlabel = _steps_axis(data.steps[-1])
+        for group in [g for g in groups if g in data.returns]:
+            mean, (low, high) = curves[task][group]
+            style = "--" if group.endswith(PAIRED_SUFFIX) else "-"
+            ax.plot(data.steps / unit, mean, style, color=colors[group], lw=1.8, label=label(group))
+            ax.fill_between(data.steps / unit, low, high, color=colors[group], alpha=0.2, lw=0)
+        if task in SUCCESS_BARS:
+            ax.axhline(SUCCESS_BARS[task], color="0.4", ls=":", lw=1.2, label="success bar")
+        ax.set_title(task)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("Evaluation return")
+        ax.grid(alpha=0.25)
+    handles = {h.get_label(): h for ax in axes.flat for h in ax.get_lines()}
+    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=len(handles),
+               bbox_to_anchor=(0.5, -0.02), frameon=False)
+    fig.suptitle("Mean evaluation return over seeds, 95% bootstrap CI")
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    return fig
+
+
+def plot_aggregate(point: dict, interval: dict, names: Sequence[str], colors: dict, xlabel: str):
+    """Figure 6: aggregate metrics with their stratified-bootstrap CIs (rliable's own plot)."""
+    fig, _ = plot_utils.plot_interval_estimates(
+        {label(g): v for g, v in point.items()},
+        {label(g): v for g, v in interval.items()},
+        metric_names=list(names),
+        algorithms=[label(g) for g in point],
+        colors={label(g): colors[g] for g in point},
+        xlabel=xlabel,
+        row_height=0.55,
+        xlabel_y_coordinate=-0.25,
+    )
+    return fig
+
+
+def plot_profiles(taus: np.ndarray, profiles: dict, cis: dict, colors: dict, xlabel: str):
+    """Figure 7: performance profiles (share of runs scoring above tau) with CIs."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    plot_utils.plot_performance_profiles(
+        {label(g): v for g, v in profiles.items()},
+        taus,
+        performance_profile_cis={label(g): v for g, v in cis.items()},
+        colors={label(g): colors[g] for g in profiles},
+        xlabel=rf"{xlabel} ($\tau$)",
+        ax=ax,
+        legend=True,
+        legendsize="large",
+        labelsize="large",
+        ticklabelsize="large",
+    )
+    return fig
+
+
+def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colors: dict,
+                           ylabel: str):
+    """Figure 8: aggregate IQM against environment steps with CIs."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    unit, xlabel = _steps_axis(frames[-1])
+    plot_utils.plot_sample_efficiency_curve(
+        frames / unit,
+        {label(g): v for g, v in point.items()},
+        {label(g): v for g, v in interval.items()},
+        colors={label(g): colors[g] for g in point},
+        xlabel=xlabel,
+        ylabel=ylabel,
+        ax=ax,
+        labelsize="large",
+        ticklabelsize="large",
+        legend=True,
+        legendsize="large",
+    )
+    return fig
+
+
+def plot_improvement(probability: float, ci: np.ndarray, x: str, y: str, color: tuple):
+    """Probability that a run of x beats a run of y on a random task (rliable's own plot)."""
+    fig, ax = plt.subplots(figsize=(6, 1.4))
+    pair = f"{label(x)};{label(y)}"
+    plot_utils.plot_probability_of_improvement(
+        {pair: probability}, {pair: ci}, pair_separator=";", ax=ax, colors=[color],
+        xticks=[0, 0.25, 0.5, 0.75, 1.0], xlabel="P(X > Y)", ticklabelsize="large",
+        labelsize="large",
+    )
+    ax.set_xlim(0, 1)
+    ax.axvline(0.5, color="0.5", ls=":", lw=1)
+    return fig
+
+
+def plot_paired(differences: dict, estimates: dict, norms: dict, colors: dict, xlabel: str):
+    """Per-seed difference mode minus tanh(mu) of the same actor, per task, with its mean's CI."""
+    rows = [(task, algorithm) for task in differences for algorithm in differences[task]]
+    fig, ax = plt.subplots(figsize=(7, 0.7 * len(rows) + 1.2))
+    rng = np.random.default_rng(0)  # vertical jitter of the dots only
+    for i, (task, algorithm) in enumerate(rows):
+        scale = norms[task][1]
+        point, low, high = (v / scale for v in estimates[task][algorithm])
+        dots = differences[task][algorithm] / scale
+        color = colors[algorithm]
+        ax.barh(i, high - low, left=low, height=0.5, color=color, alpha=0.35)
+        ax.vlines(point, i - 0.25, i + 0.25, color="k")
+        ax.scatter(dots, i + rng.uniform(-0.15, 0.15, dots.size), s=14, color=color, zorder=3)
+    ax.axvline(0, color="0.4", ls=":", lw=1)
+    ax.set_yticks(range(len(rows)))
+    ax.set_yticklabels([f"{t}\n{label(a)}" if len(differences[t]) > 1 else t for t, a in rows])
+    ax.invert_yaxis()
+    ax.set_xlabel(xlabel)
+    ax.set_title("Own evaluation minus tanh(mu) evaluation: same actor, same start states\n"
+                 "dots: seeds; bar: 95% bootstrap CI of the mean; tick: mean", fontsize="medium")
+    ax.grid(axis="x", alpha=0.25)
+    return fig
+
+
+# ----------------------------------------------------------------------------- tables
+def _fmt(step: int | float) -> str:
+    step = int(step)
+    if step and step % 1_000_000 == 0:
+        return f"{step // 1_000_000}M"
+    if step and step % 1_000 == 0:
+        return f"{step // 1_000:,}k"
+    return f"{step:,}"
+
+
+def _ci(point: float, low: float, high: float, digits: int = 3) -> str:
+    return f"{point:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(map(str, row)) + " |" for row in rows])
+
+
+def found_table(runs: Runs, groups: list[str]) -> str:
+    """Tasks x groups: how many seeds, and the last step they reached."""
+    rows = []
+    for task, by_group in sorted(runs.items()):
+        cells = []
+        for group in groups:
+            last = [curve.steps[-1] for curve in by_group.get(group, [])]
+            if not last:
+                cells.append("-")
+                continue
+            span = _fmt(min(last)) + (f"-{_fmt(max(last))}" if max(last) > min(last) else "")
+            cells.append(f"{len(last)} seeds, to step {span}")
+        rows.append([task, *cells])
+    return markdown_table(["task", *groups], rows)
+
+
+def csv_row(section: str, task: str, group: str, metric: str, step: int | str, runs: int | str,
+            estimate: float, low: float, high: float) -> dict:
+    return dict(section=section, task=task, group=group, metric=metric, step=step, n_runs=runs,
+                estimate=float(estimate), ci_low=float(low), ci_high=float(high))
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    with path.open("w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+# ----------------------------------------------------------------------------- pipeline
+def validate(args: Args) -> None:
+    for name in ("reps", "curve_reps"):
+        if getattr(args, name) < 1:
+            raise AnalysisError(f"--{name.replace('_', '-')} must be at least 1")
+    if args.curve_points < 2:
+        raise AnalysisError("--curve-points must be at least 2")
+    if not args.format:
+        raise AnalysisError("--format needs at least one of png, pdf")
+
+
+def per_task_estimates(tasks: dict[str, Task], reps: int, seed: int, at_scored: bool) -> dict:
+    """task -> group -> (mean, (low, high)) over seeds: at every shared step, or the scored one."""
+    estimates = {}
+    for task, data in tasks.items():
+        columns = data.steps == data.scored_step if at_scored else slice(None)
+        scores = {g: r[:, None, columns] for g, r in data.returns.items()}
+        point, interval = interval_estimates(scores, metrics.aggregate_mean, reps, seed)
+        estimates[task] = {g: (point[g], interval[g]) for g in scores}
+    return estimates
+
+
+def analyze(args: Args) -> list[Path]:
+    """The whole analysis; returns the files written."""
+    validate(args)
+    runs, notes = load_runs(args.runs_dir)
+    groups = ordered_groups(runs)
+    n_runs = sum(len(curves) for by_group in runs.values()
+                 for group, curves in by_group.items() if not group.endswith(PAIRED_SUFFIX))
+    found = f"Found {n_runs} runs under {args.runs_dir}:\n\n" + found_table(runs, groups)
+    print(found + "\n")
+    tasks, more_notes = align(runs, args.at_step)
+    notes += more_notes
+    norms = normalizers(tasks, args.normalize)
+    aggregate, more_notes = build_aggregate(tasks, norms, groups, args.curve_points)
+    notes += more_notes
+    score_name = {"success-bar": "Success-bar normalised score",
+                  "min-max": "Min-max normalised score", "none": "Return"}[args.normalize]
+    args.out.mkdir(parents=True, exist_ok=True)
+    colors = group_colors(groups)
+    rows: list[dict] = []
+    md: list[str] = []
+    figures: list[Path] = []
+
+    print(f"per-task curves and final returns ({args.curve_reps:,} / {args.reps:,} reps) ...")
+    curves = per_task_estimates(tasks, args.curve_reps, args.seed, at_scored=False)
+    figures += save(plot_reward_curves(tasks, curves, colors, groups), args.out,
+                    "reward_curves", args.format)
+    finals = per_task_estimates(tasks, args.reps, args.seed, at_scored=True)
+    rows_md = []
+    for task, data in tasks.items():
+        for group in [g for g in groups if g in data.returns]:
+            (point,), ((low,), (high,)) = finals[task][group]
+            n, step = data.returns[group].shape[0], data.scored_step
+            scores = normalize(np.array([point, low, high]), norms[task])
+            rows.append(csv_row("task_final", task, group, "return", step, n, point, low, high))
+            rows.append(csv_row("task_final", task, group, "score", step, n, *scores))
+            rows_md.append([task, _fmt(step), label(group), n, _ci(point, low, high, 1),
+                            _ci(*scores)])
+    md += ["## Final evaluation return per task (mean over seeds, 95% CI)", "",
+           markdown_table(["task", "step", "group", "seeds", "return", "score"], rows_md), ""]
+
+    if aggregate is not None:
+        md += aggregate_outputs(args, aggregate, colors, score_name, rows, figures, notes)
+    else:
+        notes.append("aggregate metrics, profiles and sample-efficiency curves skipped")
+
+    differences = paired_differences(tasks)
+    if differences:
+        md += paired_outputs(args, tasks, differences, norms, colors, score_name, rows, figures)
+    else:
+        notes.append(f"no run carries the paired evaluation ({PAIRED_RETURN_COLUMN}): "
+                     "paired differences skipped")
+
+    write_csv(args.out / "summary.csv", rows)
+    header = [
+        f"# Analysis of {args.runs_dir}", "",
+        f"Normalisation `{args.normalize}`: {NORMALIZATIONS[args.normalize]}.",
+        f"Intervals: 95% stratified bootstrap (rliable), {args.reps:,} replications for point "
+        f"estimates, {args.curve_reps:,} for curves, profiles and probability of improvement; "
+        f"NumPy seed {args.seed}.", "", found, "",
+    ]
+    notes_md = ["## Notes", "", *([f"- {note}" for note in notes] or ["- none"]), ""]
+    figure_list = ["## Figures", "", *[f"- `{path.name}`" for path in figures]]
+    (args.out / "summary.md").write_text("\n".join(header + notes_md + md + figure_list) + "\n")
+    print("\n".join(["", *notes_md, *md]))
+    written = figures + [args.out / "summary.md", args.out / "summary.csv"]
+    print(f"wrote {len(written)} files to {args.out}")
+    return written
+
+
+def aggregate_outputs(args: Args, agg: Aggregate, colors: dict, score_name: str,
+                      rows: list[dict], figures: list[Path], notes: list[str]) -> list[str]:
+    """Figures 6-8 and the probability of improvement; returns their summary.md section."""
+    names = AGGREGATE_METRICS if args.normalize != "none" else AGGREGATE_METRICS[:3]
+    print(f"aggregate metrics over {len(agg.tasks)} task(s) ({args.reps:,} reps) ...")
+    point, interval = interval_estimates(
+        agg.final, functools.partial(aggregate_metrics, gap=args.normalize != "none"),
+        args.reps, args.seed)
+    figures += save(plot_aggregate(point, interval, names, colors, score_name), args.out,
+                    "aggregate_metrics", args.format)
+    md = [f"## Aggregate metrics over {len(agg.tasks)} task(s) ({', '.join(agg.tasks)})", "",
+          f"{score_name}s at each task's scored step, 95% CIs.", ""]
+    table = []
+    for g in agg.groups:
+        runs = agg.final[g].shape[0]
+        for i, name in enumerate(names):
+            rows.append(csv_row("aggregate", "all", g, name, "", runs, point[g][i],
+                                *interval[g][:, i]))
+        table.append([label(g), runs] + [_ci(point[g][i], *interval[g][:, i]) for i in
+                                         range(len(names))])
+    md += [markdown_table(["group", "runs per task", *names], table), ""]
+
+    print(f"performance profiles and sample-efficiency curves ({args.curve_reps:,} reps) ...")
+    everything = np.concatenate([s.ravel() for s in agg.final.values()])
+    top = max(everything.max(), 1.0) if args.normalize != "none" else everything.max()
+    taus = np.linspace(min(everything.min(), 0.0), top, 101)
+    seed_bootstrap(args.seed)
+    profiles, cis = rly.create_performance_profile(agg.final, taus, reps=args.curve_reps)
+    figures += save(plot_profiles(taus, profiles, cis, colors, score_name), args.out,
+                    "performance_profiles", args.format)
+    point, interval = interval_estimates(agg.curves, iqm_per_step, args.curve_reps, args.seed)
+    figures += save(plot_sample_efficiency(agg.frames, point, interval, colors,
+                                           f"IQM {score_name.lower()}"),
+                    args.out, "sample_efficiency", args.format)
+
+    x, y = COMPARISON
+    if x not in agg.groups or y not in agg.groups:
+        notes.append(f"probability of improvement needs both {x} and {y} runs: skipped")
+        return md
+    print(f"probability of improvement ({args.curve_reps:,} reps) ...")
+    pair = f"{x} > {y}"
+    point, interval = interval_estimates({pair: [agg.final[x], agg.final[y]]},
+                                         metrics.probability_of_improvement,
+                                         args.curve_reps, args.seed)
+    low, high = interval[pair].ravel()
+    rows.append(csv_row("probability_of_improvement", "all", pair, "P(X > Y)", "",
+                        f"{agg.final[x].shape[0]} vs {agg.final[y].shape[0]}", point[pair],
+                        low, high))
+    figures += save(plot_improvement(point[pair], (low, high), x, y, colors[x]), args.out,
+                    "probability_of_improvement", args.format)
+    md += ["## Probability of improvement", "",
+           f"P({label(x)} > {label(y)}) = {_ci(point[pair], low, high)}: the chance that a run "
+           f"of {label(x)} scores higher than a run of {label(y)} on a task drawn at random "
+           "(Mann-Whitney per task, averaged over tasks).", ""]
+    return md
+
+
+def paired_outputs(args: Args, tasks: dict[str, Task], differences: dict, norms: dict,
+                   colors: dict, score_name: str, rows: list[dict],
+                   figures: list[Path]) -> list[str]:
+    """Own evaluation minus tanh(mu) evaluation of the same actors; returns its md section."""
+    print(f"paired differences ({args.reps:,} reps) ...")
+    estimates: dict = {}
+    table = []
+    for task, by_algorithm in differences.items():
+        scores = {a: d[:, None] for a, d in by_algorithm.items()}
+        point, interval = interval_estimates(scores, metrics.aggregate_mean, args.reps, args.seed)
+        for a, d in by_algorithm.items():
+            values = (float(point[a]), *interval[a].ravel())
+            estimates.setdefault(task, {})[a] = values
+            scaled = [v / norms[task][1] for v in values]
+            step = tasks[task].scored_step
+            rows.append(csv_row("paired_difference", task, a, "return", step, d.size, *values))
+            rows.append(csv_row("paired_difference", task, a, "score", step, d.size, *scaled))
+            table.append([task, _fmt(step), label(a), d.size, _ci(*values, 1), _ci(*scaled)])
+    figures += save(plot_paired(differences, estimates, norms, colors,
+                                f"Difference in {score_name.lower()}"),
+                    args.out, "paired_difference", args.format)
+    return ["## Paired evaluation: own action minus tanh(mu), same actor, same start states", "",
+            "Per-seed differences at the scored step; mean over seeds with 95% CI.", "",
+            markdown_table(["task", "step", "algorithm", "seeds", "return difference",
+                            "score difference"], table), ""]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = tyro.cli(Args, args=argv, description=__doc__.split("\n\n")[0])
+    try:
+        analyze(args)
+    except AnalysisError as error:
+        print(f"analyze.py: error: {error}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
