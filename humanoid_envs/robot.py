@@ -1,15 +1,32 @@
 """The h1hand robot: a Unitree H1 body with two Shadow-style hands (61 position servos).
 
 The model lives in `assets/h1hand.xml`. Its kinematic tree, joint axes and ranges, masses and
-inertias, joint damping/armature, actuators (kp, kv, ctrlrange, forcerange, in action order),
-finger tendons, contact exclusions, sites and sensors are HumanoidBench's h1hand numbers.
+inertias, joint damping and armature, actuators (kp, kv, ctrlrange, forcerange, gear 1, in
+action order), finger tendons (J0 = J1 + J2), contact exclusions, sites, sensors and physics
+options (0.002 s, Newton, 100/50 iterations, Euler, pyramidal cone) are HumanoidBench's
+h1hand numbers.
 
-How it differs from HumanoidBench's model (see the README for the measured effect):
-- Collision shapes are primitives, not the 28 collision meshes: each mesh became a box or a
-  capsule fitted to the mesh's bounding box (capsules along the long axis of limb-like
-  meshes; boxes for pelvis, torso and feet; each foot's sole is flat at the height that
-  touches the floor at the keyframe). The hands' own primitive collision geoms are kept as
-  they are. There are no visual meshes: the same primitives are drawn.
+How it differs from HumanoidBench's model, each choice made for speed while keeping the
+tasks solvable (feet stand on the floor, hands and arms touch objects):
+1. Collision shapes are primitives instead of 28 collision meshes: each mesh became a box or
+   a capsule fitted to the mesh's bounding box (capsules along the long axis of limb-like
+   meshes, boxes for pelvis, torso and feet; each foot's sole is flat at the height that
+   touches the floor at the keyframe). The hands' own primitive collision geoms are kept.
+   Nothing is drawn but these primitives (plus a visor on the head).
+2. No robot self-collisions: robot geoms have contype 1, conaffinity 0, so they touch the
+   floor and task objects (MuJoCo's default conaffinity 1) but not each other. Task objects
+   must keep conaffinity bit 1 to be touched by the robot.
+3. No friction loss on the 48 hand joints (HumanoidBench: 0.01 N m each, which adds ~48
+   always-active constraint rows). Their damping (0.05 N m s fingers, 0.5 wrist) is
+   unchanged and already exceeds 0.01 N m above 0.2 rad/s.
+
+Measured bare physics (10 x mj_step per env step, uniform random ctrl, reset to the keyframe
+when the pelvis drops below 0.2 m; thread CPU time, median of 5 runs of 1500 env steps, on
+the 2-core dev machine, robot + floor + a 104 kg primitive dumbbell as in powerlift):
+    self-collisions and hand friction loss as in HumanoidBench   1056 env steps/s (nefc 84)
+    self-collisions off                                          1409 env steps/s (nefc 72)
+    self-collisions off, no hand friction loss (this model)      1866 env steps/s (nefc 26)
+Robot + floor alone: 1161 (HumanoidBench's choices) vs 2225 env steps/s (this model).
 """
 
 from pathlib import Path
@@ -51,6 +68,9 @@ _LEG_START = (0.0, 0.0, -0.4, 0.8, -0.4)
 KEYFRAME_QPOS: np.ndarray = np.concatenate(
     [_PELVIS_START, _LEG_START, _LEG_START, np.zeros(NQ_ROBOT - 17)]
 )
+# Position targets (action order) that hold the keyframe's joint angles; note that it is not
+# the ctrl of action 0, which is the middle of each ctrlrange.
+KEYFRAME_CTRL: np.ndarray = np.concatenate([_LEG_START, _LEG_START, np.zeros(51)])
 
 
 def robot_spec() -> mujoco.MjSpec:
