@@ -22,6 +22,23 @@ def _sigmoid(d: np.ndarray | float, value_at_margin: float, sigmoid: str) -> np.
     return np.maximum(0.0, 1.0 - d**2 * (1.0 - value_at_margin))
 
 
+def _check_tolerance_arguments(
+    lower: float, upper: float, margin: float, sigmoid: str, value_at_margin: float
+) -> None:
+    if lower > upper:
+        raise ValueError(f"tolerance: lower bound {lower} is above upper bound {upper}")
+    if margin < 0:
+        raise ValueError(f"tolerance: margin must be >= 0, got {margin}")
+    if sigmoid not in _SIGMOIDS:
+        raise ValueError(f"tolerance: sigmoid must be one of {_SIGMOIDS}, got {sigmoid!r}")
+    if not (0.0 < value_at_margin < 1.0 or (value_at_margin == 0.0 and sigmoid != "gaussian")):
+        smallest = "(0" if sigmoid == "gaussian" else "[0"
+        raise ValueError(
+            f"tolerance: value_at_margin must be in {smallest}, 1) for the {sigmoid} sigmoid, "
+            f"got {value_at_margin}"
+        )
+
+
 def tolerance(
     x: np.ndarray | float,
     bounds: tuple[float, float] = (0.0, 0.0),
@@ -33,28 +50,22 @@ def tolerance(
     bound that falls to `value_at_margin` at distance `margin` (an indicator if margin is 0).
 
     Sigmoids (d = distance / margin, v = value_at_margin): gaussian exp(-0.5 (d sqrt(-2 ln v))^2),
-    linear max(0, 1 - d (1 - v)), quadratic max(0, 1 - d^2 (1 - v)). Returns a float for a
-    scalar x, an array of x's shape otherwise.
+    linear max(0, 1 - d (1 - v)), quadratic max(0, 1 - d^2 (1 - v)). x is a number (returns a
+    float) or an array (returns an array of its shape).
     """
     lower, upper = bounds
-    if lower > upper:
-        raise ValueError(f"tolerance: lower bound {lower} is above upper bound {upper}")
-    if margin < 0:
-        raise ValueError(f"tolerance: margin must be >= 0, got {margin}")
-    if sigmoid not in _SIGMOIDS:
-        raise ValueError(f"tolerance: sigmoid must be one of {_SIGMOIDS}, got {sigmoid!r}")
-    smallest = "(0" if sigmoid == "gaussian" else "[0"
-    if not (0.0 < value_at_margin < 1.0 or (value_at_margin == 0.0 and sigmoid != "gaussian")):
-        raise ValueError(
-            f"tolerance: value_at_margin must be in {smallest}, 1) for the {sigmoid} sigmoid, "
-            f"got {value_at_margin}"
-        )
-    distance = np.maximum(np.maximum(lower - x, x - upper), 0.0)
-    if margin == 0:
-        value = np.where(distance > 0.0, 0.0, 1.0)
+    _check_tolerance_arguments(lower, upper, margin, sigmoid, value_at_margin)
+    is_array = isinstance(x, np.ndarray)
+    # Plain Python for numbers: rewards call this several times per env step.
+    if is_array:
+        distance = np.maximum(np.maximum(lower - x, x - upper), 0.0)
     else:
-        value = np.where(distance > 0.0, _sigmoid(distance / margin, value_at_margin, sigmoid), 1.0)
-    return float(value) if np.ndim(value) == 0 else value
+        distance = max(lower - x, x - upper, 0.0)
+    if margin == 0:
+        return np.where(distance > 0.0, 0.0, 1.0) if is_array else float(distance == 0.0)
+    # Every sigmoid is 1 at distance 0, so inside the bounds needs no special case.
+    value = _sigmoid(distance / margin, value_at_margin, sigmoid)
+    return value if is_array else float(value)
 
 
 def stand(head_height: float, upright: float, height_margin: float, min_upright: float) -> float:
@@ -71,9 +82,9 @@ def small_control(actuator_forces: np.ndarray) -> float:
     """HumanoidBench's control term: (4 + mean quadratic tolerance of the actuator forces, zero
     at |force| = 10 N) / 5, so it lies in [0.8, 1] and only ever scales the other terms."""
     per_actuator = tolerance(actuator_forces, margin=10.0, sigmoid="quadratic", value_at_margin=0.0)
-    return (4.0 + float(np.mean(per_actuator))) / 5.0
+    return (4.0 + float(per_actuator.sum()) / per_actuator.size) / 5.0
 
 
-def dont_move(horizontal_velocity: np.ndarray) -> float:
+def dont_move(velocity_x: float, velocity_y: float) -> float:
     """Mean over x and y of a gaussian tolerance of the centre-of-mass velocity, 0.1 at 2 m/s."""
-    return float(np.mean(tolerance(horizontal_velocity, margin=2.0)))
+    return (tolerance(velocity_x, margin=2.0) + tolerance(velocity_y, margin=2.0)) / 2.0

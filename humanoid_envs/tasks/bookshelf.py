@@ -4,6 +4,7 @@ simple: always the trophy, book_c, chalk, book_e, book_b, to the goals in order;
 the twelve objects drawn without replacement, and the goals permuted, every episode.
 """
 
+import math
 from typing import Any, NamedTuple
 
 import mujoco
@@ -207,13 +208,12 @@ class Bookshelf(Task):
             robot.head_height(), robot.torso_upright(), rewards.STAND_HEIGHT / 4, 0.9
         )
         small_control = rewards.small_control(robot.actuator_forces())
-        distance = float(np.linalg.norm(obj - goal))
+        distance = math.dist(obj, goal)
         placed = rewards.tolerance(distance, (0, _PLACED_DISTANCE), margin=1, sigmoid="linear")
         hand_distance = min(
-            np.linalg.norm(robot.left_hand_position() - obj),
-            np.linalg.norm(robot.right_hand_position() - obj),
+            math.dist(robot.left_hand_position(), obj), math.dist(robot.right_hand_position(), obj)
         )
-        reach = float(np.exp(-hand_distance))
+        reach = math.exp(-hand_distance)
         reward = 0.2 * stand * small_control + 0.4 * placed + 0.4 * reach
         bonus = 0.0
         if distance < _PLACED_DISTANCE:

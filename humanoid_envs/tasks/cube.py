@@ -1,5 +1,6 @@
 """cube: hold a cube on each palm and turn both to the target cube's orientation."""
 
+import math
 from typing import Any
 
 import mujoco
@@ -62,7 +63,7 @@ class Cube(Task):
 
     def bind(self, model, data, robot) -> None:
         super().bind(model, data, robot)
-        self._cubes = [model.body(name).id for name in _CUBE_START]
+        self._cubes = tuple(model.body(name).id for name in _CUBE_START)  # left, right
         self._target = model.body("target_cube").id
 
     def initialize_episode(self, np_random: np.random.Generator) -> None:
@@ -83,13 +84,14 @@ class Cube(Task):
             robot.head_height(), robot.torso_upright(), rewards.STAND_HEIGHT / 4, 0.9
         )
         small_control = rewards.small_control(robot.actuator_forces())
-        dont_move = rewards.dont_move(robot.center_of_mass_velocity()[:2])
+        dont_move = rewards.dont_move(*robot.center_of_mass_velocity()[:2])
         target = self.model.body_quat[self._target]
-        orientation_errors = np.linalg.norm(xquat[self._cubes] - target, axis=1)
-        orient = float(np.mean(rewards.tolerance(orientation_errors, margin=0.3)))
-        hands = np.stack((robot.left_hand_position(), robot.right_hand_position()))
-        hand_distances = np.linalg.norm(hands - xpos[self._cubes], axis=1)
-        close = float(np.mean(rewards.tolerance(hand_distances, (0, _CLOSE_DISTANCE), 0.5)))
+        hands = (robot.left_hand_position(), robot.right_hand_position())
+        orient = close = 0.0
+        for cube, hand in zip(self._cubes, hands, strict=True):
+            orient += rewards.tolerance(math.dist(xquat[cube], target), margin=0.3) / 2
+            distance = math.dist(hand, xpos[cube])
+            close += rewards.tolerance(distance, (0.0, _CLOSE_DISTANCE), margin=0.5) / 2
         reward = 0.2 * small_control * stand * dont_move + 0.5 * orient + 0.3 * close
         return reward, {
             "stand": stand,
@@ -100,10 +102,10 @@ class Cube(Task):
         }
 
     def should_terminate(self) -> bool:
-        cube_heights = self.data.xpos[self._cubes, 2]
+        xpos = self.data.xpos
         return bool(
             self.robot.pelvis_height() < _FALLEN_PELVIS_HEIGHT
-            or cube_heights.min() < _DROPPED_CUBE_HEIGHT
+            or min(xpos[cube, 2] for cube in self._cubes) < _DROPPED_CUBE_HEIGHT
         )
 
 

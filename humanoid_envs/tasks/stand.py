@@ -31,7 +31,7 @@ class Stand(Task):
             robot.head_height(), robot.torso_upright(), rewards.STAND_HEIGHT / 4, 0.9
         )
         small_control = rewards.small_control(robot.actuator_forces())
-        dont_move = rewards.dont_move(robot.center_of_mass_velocity()[:2])
+        dont_move = rewards.dont_move(*robot.center_of_mass_velocity()[:2])
         reward = small_control * stand * dont_move
         return reward, {"stand": stand, "small_control": small_control, "dont_move": dont_move}
 
