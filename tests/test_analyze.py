@@ -1,0 +1,345 @@
+"""analyze.py on synthetic run folders written exactly as CONTRACTS.md's "Run folder" says."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+import analyze
+
+EVAL_COLUMNS = ["global_step", "wall_time", "eval_round", "return_mean", "return_std",
+                "return_min", "return_max", "length_mean", "success_rate"]
+# sac_corrected.py appends the paired tanh(mu) evaluation and the shift statistics.
+CORRECTED_EXTRA_COLUMNS = ["tanh_mu_return_mean", "tanh_mu_return_std", "tanh_mu_return_min",
+                           "tanh_mu_return_max", "tanh_mu_length_mean", "tanh_mu_success_rate",
+                           "mode_shift_abs_mean", "mode_shift_abs_sum", "sigma_mean",
+                           "bimodal_fraction"]
+TASKS = ["h1hand-powerlift-v0", "h1hand-cube-v0", "h1hand-bookshelf_simple-v0",
+         "h1hand-bookshelf_hard-v0"]
+
+
+def write_run(root: Path, env_id: str, algorithm: str, seed: int, steps: np.ndarray,
+              returns: np.ndarray, paired: np.ndarray | None = None,
+              name: str | None = None) -> Path:
+    """One run folder as the SAC scripts write it: config.json and eval.csv (paired columns
+    when `paired` is given)."""
+    run_dir = root / (name or f"{env_id}__{algorithm}__seed{seed}__20261121-120000")
+    run_dir.mkdir(parents=True)
+    config = {"env_id": env_id, "seed": seed, "algorithm": algorithm,
+              "script": f"sac_{algorithm}.py", "total_timesteps": int(steps[-1]),
+              "eval_interval": int(steps[1] - steps[0]) if len(steps) > 1 else 0,
+              "obs_dim": 164, "action_dim": 61, "git_commit": None,
+              "versions": {"python": "3.11", "numpy": np.__version__},
+              "start_time": "2026-11-21T12:00:00"}
+    (run_dir / "config.json").write_text(json.dumps(config, indent=2))
+    header = EVAL_COLUMNS + CORRECTED_EXTRA_COLUMNS * (paired is not None)
+    with (run_dir / "eval.csv").open("w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(header)
+        for i, (step, value) in enumerate(zip(steps, returns, strict=True)):
+            row = [int(step), 3.5 * i, i, value, 5.0, value - 9, value + 9, 1000.0, ""]
+            if paired is not None:
+                row += [paired[i], 5.0, paired[i] - 9, paired[i] + 9, 1000.0, "",
+                        0.12, 7.3, 0.45, 0.03]
+            writer.writerow(row)
+    return run_dir
+
+
+def learning_curve(rng: np.random.Generator, steps: np.ndarray, final: float,
+                   noise: float) -> np.ndarray:
+    """A saturating learning curve with evaluation noise."""
+    return final * (1 - np.exp(-4 * steps / steps[-1])) + rng.normal(0, noise, steps.size)
+
+
+def write_paper_like_folder(root: Path, seeds: int = 5, evaluations: int = 100,
+                            interval: int = 10_000, seed: int = 0) -> Path:
+    """2 algorithms x 4 tasks x `seeds` seeds; corrected ~10% of the bar better than standard,
+    its paired tanh(mu) evaluation ~5% worse than its mode evaluation."""
+    rng = np.random.default_rng(seed)
+    steps = interval * np.arange(1, evaluations + 1)
+    for t, task in enumerate(TASKS):
+        bar = analyze.SUCCESS_BARS[task]
+        level = 0.3 + 0.2 * t
+        for s in range(seeds):
+            luck = rng.normal(0, 0.08)
+            standard = learning_curve(rng, steps, bar * (level + luck), 0.03 * bar)
+            corrected = learning_curve(rng, steps, bar * (level + 0.1 + luck), 0.03 * bar)
+            paired = corrected - 0.05 * bar * (1 - np.exp(-4 * steps / steps[-1]))
+            paired += rng.normal(0, 0.01 * bar, steps.size)
+            write_run(root, task, "standard", s, steps, standard)
+            write_run(root, task, "corrected", s, steps, corrected, paired)
+    return root
+
+
+FAST = ["--reps", "300", "--curve-reps", "50", "--curve-points", "5"]
+
+
+def run_analysis(runs: Path, out: Path, *flags: str) -> int:
+    return analyze.main([str(runs), "--out", str(out), *FAST, *flags])
+
+
+def read_summary(out: Path) -> dict[tuple[str, str, str, str], dict]:
+    """summary.csv keyed by (section, task, group, metric)."""
+    with (out / "summary.csv").open() as file:
+        return {(r["section"], r["task"], r["group"], r["metric"]): r for r in csv.DictReader(file)}
+
+
+def estimate(summary: dict, *key: str) -> tuple[float, float, float]:
+    row = summary[key]
+    return float(row["estimate"]), float(row["ci_low"]), float(row["ci_high"])
+
+
+def write_offset_folder(root: Path, offset: float, paired_gap: float = 0.05, seeds: int = 5,
+                        evaluations: int = 12) -> dict:
+    """Corrected = standard + offset x bar on every task, seed and step (same noise); its paired
+    tanh(mu) evaluation = corrected - paired_gap x bar. Returns standard's returns by task."""
+    rng = np.random.default_rng(1)
+    steps = 10_000 * np.arange(1, evaluations + 1)
+    standard_returns = {}
+    for task in TASKS:
+        bar = analyze.SUCCESS_BARS[task]
+        standard_returns[task] = []
+        for seed in range(seeds):
+            standard = bar * (0.4 + rng.uniform(-0.05, 0.05, steps.size))
+            corrected = standard + offset * bar
+            write_run(root, task, "standard", seed, steps, standard)
+            write_run(root, task, "corrected", seed, steps, corrected, corrected - paired_gap * bar)
+            standard_returns[task].append(standard)
+    return {task: np.array(r) for task, r in standard_returns.items()}
+
+
+def test_offset_gives_certain_improvement_and_iqm_gap(tmp_path):
+    standard = write_offset_folder(tmp_path / "runs", offset=0.3)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    summary = read_summary(tmp_path / "out")
+    p, low, high = estimate(summary, "probability_of_improvement", "all",
+                            "corrected > standard", "P(X > Y)")
+    assert p == 1.0 and low == 1.0 and high == 1.0
+    for metric, shift in [("IQM", 0.3), ("Median", 0.3), ("Mean", 0.3), ("Optimality Gap", -0.3)]:
+        s = estimate(summary, "aggregate", "all", "standard", metric)
+        c = estimate(summary, "aggregate", "all", "corrected", metric)
+        assert np.isclose(c[0] - s[0], shift), metric
+        assert s[1] <= s[0] <= s[2]
+    # The paired evaluation is its own group, 0.05 below corrected, and the paired difference
+    # is exactly 0.05 x bar on every task and seed.
+    tanh_mu = estimate(summary, "aggregate", "all", "corrected (tanh(mu) eval)", "Mean")[0]
+    corrected = estimate(summary, "aggregate", "all", "corrected", "Mean")[0]
+    assert np.isclose(tanh_mu, corrected - 0.05)
+    for task in TASKS:
+        bar = analyze.SUCCESS_BARS[task]
+        assert np.allclose(estimate(summary, "paired_difference", task, "corrected", "return"),
+                           0.05 * bar)
+        assert np.allclose(estimate(summary, "paired_difference", task, "corrected", "score"), 0.05)
+        # Per-task final returns are the seed means at the last step; CIs bracket them.
+        mean, low, high = estimate(summary, "task_final", task, "standard", "return")
+        assert np.isclose(mean, standard[task][:, -1].mean())
+        assert low <= mean <= high and low >= standard[task][:, -1].min()
+        assert np.isclose(estimate(summary, "task_final", task, "standard", "score")[0],
+                          mean / bar)
+        assert summary[("task_final", task, "standard", "return")]["step"] == "120000"
+    names = {p.name for p in (tmp_path / "out").iterdir()}
+    assert names == {"summary.csv", "summary.md", "reward_curves.png", "aggregate_metrics.png",
+                     "performance_profiles.png", "sample_efficiency.png",
+                     "probability_of_improvement.png", "paired_difference.png"}
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert "P(Corrected SAC > Standard SAC) = 1.000 [1.000, 1.000]" in text
+    assert "| h1hand-cube-v0 | 5 seeds, to step 120k | 5 seeds, to step 120k |" in text
+
+
+def test_identical_algorithms_give_even_odds(tmp_path):
+    write_offset_folder(tmp_path / "runs", offset=0.0)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    summary = read_summary(tmp_path / "out")
+    p, low, high = estimate(summary, "probability_of_improvement", "all",
+                            "corrected > standard", "P(X > Y)")
+    assert p == 0.5 and low < 0.5 < high
+    for metric in analyze.AGGREGATE_METRICS:
+        assert estimate(summary, "aggregate", "all", "standard", metric)[0] == \
+            estimate(summary, "aggregate", "all", "corrected", metric)[0]
+
+
+def test_independent_draws_of_one_algorithm_are_near_even(tmp_path):
+    """Two groups drawn from the same distribution: P(X > Y) near 0.5, its CI covers 0.5."""
+    rng = np.random.default_rng(7)
+    steps = 10_000 * np.arange(1, 6)
+    for task in TASKS:
+        for algorithm in ("standard", "corrected"):
+            for seed in range(10):
+                write_run(tmp_path / "runs", task, algorithm, seed, steps,
+                          rng.normal(300, 50, steps.size))
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    p, low, high = estimate(read_summary(tmp_path / "out"), "probability_of_improvement", "all",
+                            "corrected > standard", "P(X > Y)")
+    assert 0.35 < p < 0.65 and low < 0.5 < high
+
+
+def test_same_seed_same_report_other_seed_other_intervals(tmp_path):
+    write_paper_like_folder(tmp_path / "runs", seeds=3, evaluations=10)
+    for name, seed in [("a", "0"), ("b", "0"), ("c", "1")]:
+        assert run_analysis(tmp_path / "runs", tmp_path / name, "--seed", seed) == 0
+    first = (tmp_path / "a" / "summary.csv").read_text()
+    assert first == (tmp_path / "b" / "summary.csv").read_text()
+    assert first != (tmp_path / "c" / "summary.csv").read_text()
+    # The seed moves the intervals only, never the point estimates.
+    a, c = read_summary(tmp_path / "a"), read_summary(tmp_path / "c")
+    assert all(a[key]["estimate"] == c[key]["estimate"] for key in a)
+
+
+def test_ragged_runs_are_cut_to_shared_steps_and_reported(tmp_path):
+    runs = tmp_path / "runs"
+    steps = 10_000 * np.arange(1, 11)
+    task = "h1hand-cube-v0"
+    for seed in range(3):
+        write_run(runs, task, "standard", seed, steps, np.full(10, 100.0 + seed))
+    # Corrected: one run still going (6 evaluations), one evaluated every 5,000 steps.
+    write_run(runs, task, "corrected", 0, steps[:6], np.arange(6) * 10.0)
+    write_run(runs, task, "corrected", 1, steps, np.full(10, 200.0))
+    fine = 5_000 * np.arange(1, 21)
+    write_run(runs, task, "corrected", 2, fine, fine / 1_000.0)
+    assert run_analysis(runs, tmp_path / "out") == 0
+    summary = read_summary(tmp_path / "out")
+    row = summary[("task_final", task, "corrected", "return")]
+    assert row["step"] == "60000" and row["n_runs"] == "3"
+    assert np.isclose(float(row["estimate"]), np.mean([50.0, 200.0, 60.0]))
+    assert summary[("task_final", task, "standard", "return")]["step"] == "60000"
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert "standard__seed1__20261121-120000 was cut: it reached step 100k" in text
+    assert "share steps up to 60k" in text
+    assert "evaluation steps differ between runs (1 run(s)" in text
+    assert "| h1hand-cube-v0 | 3 seeds, to step 100k | 3 seeds, to step 60k-100k |" in text
+
+
+def test_disjoint_eval_steps_are_a_clear_error(tmp_path, capsys):
+    runs = tmp_path / "runs"
+    write_run(runs, "h1hand-cube-v0", "standard", 0, np.array([1000, 2000]), np.ones(2))
+    write_run(runs, "h1hand-cube-v0", "corrected", 0, np.array([1500, 2500]), np.ones(2))
+    assert run_analysis(runs, tmp_path / "out") == 2
+    assert "share no evaluation step" in capsys.readouterr().err
+
+
+def test_incomplete_last_line_is_dropped(tmp_path):
+    write_offset_folder(tmp_path / "runs", offset=0.1, seeds=2, evaluations=5)
+    eval_csv = next((tmp_path / "runs").glob("h1hand-cube-v0__standard__seed0*/eval.csv"))
+    last_value = float(eval_csv.read_text().splitlines()[-1].split(",")[3])
+    with eval_csv.open("a") as file:
+        file.write("60000,21.0,5,99")  # killed mid-write: no line end
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    summary = read_summary(tmp_path / "out")
+    assert summary[("task_final", "h1hand-cube-v0", "standard", "return")]["step"] == "50000"
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert "incomplete last line" in text and str(eval_csv) in text
+    columns, partial = analyze.read_eval_csv(eval_csv)
+    assert partial and columns["global_step"][-1] == 50_000
+    assert columns["return_mean"][-1] == last_value
+
+
+def test_run_without_rows_or_eval_csv_is_skipped_with_a_note(tmp_path):
+    write_offset_folder(tmp_path / "runs", offset=0.1, seeds=2, evaluations=4)
+    started = tmp_path / "runs" / "just_started"
+    started.mkdir()
+    (started / "config.json").write_text(json.dumps(
+        {"env_id": "h1hand-cube-v0", "algorithm": "standard", "seed": 9}))
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    assert f"{started}: no eval.csv yet; skipped" in (tmp_path / "out" / "summary.md").read_text()
+    (started / "eval.csv").write_text(",".join(EVAL_COLUMNS) + "\n")
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    assert "no complete evaluation row yet" in (tmp_path / "out" / "summary.md").read_text()
+
+
+def test_one_algorithm_only_skips_comparisons_and_says_so(tmp_path):
+    steps = 10_000 * np.arange(1, 6)
+    for task in TASKS[:2]:
+        for seed in range(3):
+            values = np.linspace(100, 300, 5) + seed
+            write_run(tmp_path / "runs", task, "corrected", seed, steps, values, values - 10)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    names = {p.name for p in (tmp_path / "out").iterdir()}
+    assert "probability_of_improvement.png" not in names
+    assert {"aggregate_metrics.png", "paired_difference.png", "summary.csv"} <= names
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert "probability of improvement needs both corrected and standard runs: skipped" in text
+    summary = read_summary(tmp_path / "out")
+    assert np.allclose(estimate(summary, "paired_difference", TASKS[0], "corrected", "return"), 10)
+
+
+def test_min_max_and_none_normalisation(tmp_path):
+    runs = tmp_path / "runs"
+    steps = 10_000 * np.arange(1, 4)
+    write_run(runs, "Pendulum-v1", "standard", 0, steps, np.array([-1500.0, -900.0, -500.0]))
+    write_run(runs, "Pendulum-v1", "corrected", 0, steps, np.array([-1400.0, -600.0, -200.0]))
+    assert run_analysis(runs, tmp_path / "mm", "--normalize", "min-max") == 0
+    summary = read_summary(tmp_path / "mm")
+    # min -1500, max -200 over every logged return of the task.
+    assert np.isclose(estimate(summary, "task_final", "Pendulum-v1", "standard", "score")[0],
+                      1000 / 1300)
+    assert np.isclose(estimate(summary, "aggregate", "all", "corrected", "Mean")[0], 1.0)
+    assert run_analysis(runs, tmp_path / "raw", "--normalize", "none") == 0
+    summary = read_summary(tmp_path / "raw")
+    assert estimate(summary, "aggregate", "all", "standard", "IQM")[0] == -500.0
+    assert ("aggregate", "all", "standard", "Optimality Gap") not in summary
+
+
+def test_at_step_and_pdf_output(tmp_path):
+    standard = write_offset_folder(tmp_path / "runs", offset=0.2, seeds=2, evaluations=6)
+    out = tmp_path / "out"
+    assert run_analysis(tmp_path / "runs", out, "--at-step", "30000", "--format", "pdf") == 0
+    summary = read_summary(out)
+    task = "h1hand-powerlift-v0"
+    assert np.isclose(estimate(summary, "task_final", task, "standard", "return")[0],
+                      standard[task][:, 2].mean())
+    assert {p.suffix for p in out.iterdir()} == {".pdf", ".md", ".csv"}
+    assert run_analysis(tmp_path / "runs", out, "--at-step", "35000") == 2
+
+
+def write_config(run_dir: Path, **config) -> None:
+    run_dir.mkdir(parents=True)
+    (run_dir / "config.json").write_text(json.dumps(config))
+
+
+def test_bad_inputs_give_one_clear_message(tmp_path, capsys):
+    cases = {}
+    cases["empty"] = ([], "no runs found under")
+    cases["missing_column"] = ([("h1hand-cube-v0", "standard", 0, "global_step,return\n10,1\n")],
+                               "lacks column(s) ['return_mean']")
+    cases["mixed_raw"] = ([("h1hand-cube-v0", "standard", 0, None),
+                           ("h1hand-stand-v0", "standard", 0, None)],
+                          "--normalize none: raw returns of different tasks cannot be aggregated")
+    cases["unknown_task"] = ([("Hopper-v5", "standard", 0, None)],
+                             "no success bar known for Hopper-v5")
+    cases["twin_seeds"] = ([("h1hand-cube-v0", "standard", 0, None),
+                            ("h1hand-cube-v0", "standard", 0, None)],
+                           "two runs of h1hand-cube-v0, standard, seed 0")
+    cases["bad_number"] = ([("h1hand-cube-v0", "standard", 0, "global_step,return_mean\n10,x\n")],
+                           "return_mean = 'x' is not a number")
+    cases["short_row"] = ([("h1hand-cube-v0", "standard", 0,
+                            "global_step,return_mean\n10\n20,2\n")], "row 2: 1 fields")
+    for name, (runs, message) in cases.items():
+        root = tmp_path / name
+        root.mkdir()
+        for i, (task, algorithm, seed, text) in enumerate(runs):
+            if text is None:
+                write_run(root, task, algorithm, seed, np.array([10, 20]), np.ones(2),
+                          name=f"run{i}")
+            else:
+                write_config(root / f"run{i}", env_id=task, algorithm=algorithm, seed=seed)
+                (root / f"run{i}" / "eval.csv").write_text(text)
+        flags = ["--normalize", "none"] if name == "mixed_raw" else []
+        assert run_analysis(root, tmp_path / "out", *flags) == 2, name
+        assert message in capsys.readouterr().err, name
+    write_config(tmp_path / "no_seed" / "run", env_id="h1hand-cube-v0", algorithm="standard")
+    (tmp_path / "no_seed" / "run" / "eval.csv").write_text("global_step,return_mean\n10,1\n")
+    assert run_analysis(tmp_path / "no_seed", tmp_path / "out") == 2
+    assert "lacks key(s) ['seed']" in capsys.readouterr().err
+
+
+def test_command_line_error_exits_nonzero_without_traceback(tmp_path):
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, "analyze.py", str(tmp_path / "nowhere")],
+                            cwd=Path(analyze.__file__).parent, capture_output=True, text=True)
+    assert result.returncode == 2
+    assert "is not a folder" in result.stderr and "Traceback" not in result.stderr
