@@ -1,0 +1,724 @@
+"""Run a grid of training runs (env ids x seeds x scripts) on this machine or on a Slurm cluster.
+
+Each run gets its own folder under --output-dir, named after its identity (env id, algorithm,
+seed and a hash of the arguments after `--`). Running the same command again skips finished
+runs, resumes interrupted ones (`--resume`) and starts missing ones. On Slurm the grid is one
+job array submitted through submitit; a job that is preempted or reaches its time limit
+checkpoints its run and is requeued, and the requeued job continues it with `--resume`.
+
+    python sweep.py --env-ids Pendulum-v1 --seeds 0 1 --output-dir runs -- --total-timesteps 2000
+    python sweep.py --preset paper --launcher slurm --partition gpu --output-dir runs
+    python sweep.py status runs
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import hashlib
+import importlib
+import importlib.util
+import json
+import os
+import shlex
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Literal
+
+import tyro
+
+ROOT = Path(__file__).resolve().parent
+PAPER_ENV_IDS = (
+    "h1hand-powerlift-v0",
+    "h1hand-cube-v0",
+    "h1hand-bookshelf_simple-v0",
+    "h1hand-bookshelf_hard-v0",
+)
+PAPER_SEEDS = (0, 1, 2, 3, 4)
+# The scripts' defaults are the paper's protocol (Tables I and II), so the preset adds nothing.
+PAPER_EXTRA_ARGS: tuple[str, ...] = ()
+DEFAULT_SCRIPTS = ("sac_standard.py", "sac_corrected.py")
+# sweep.py sets these for every run itself; the same flags after `--` would contradict them.
+SWEEP_FLAGS = (
+    "--env-id", "--seed", "--output-dir", "--run-name", "--resume", "--checkpoint-interval",
+)
+# The training scripts' exit code after a graceful stop on a signal: "resume with --resume".
+EXIT_INTERRUPTED = 3
+# Training speed of one run (env steps/s, gradient update per step) for the compute estimate;
+# placeholder until measured with the real scripts.
+DEFAULT_STEPS_PER_SECOND = 100.0
+IDENTITY_FILE = "sweep_run.json"
+ATTEMPT_FILE = "sweep_attempt.json"
+LOG_FILE = "sweep.log"
+SLURM_POLL_SECONDS = 2.0
+LOG_TAIL_LINES = 8
+
+
+class SweepError(Exception):
+    """Bad input or an unusable output folder: a message naming the problem and the fix."""
+
+
+@dataclass
+class Args:
+    env_ids: list[str] = field(default_factory=list)
+    """gymnasium env ids of the grid (e.g. h1hand-powerlift-v0)"""
+    seeds: list[int] = field(default_factory=list)
+    """seeds of the grid"""
+    scripts: list[str] = field(default_factory=lambda: list(DEFAULT_SCRIPTS))
+    """training scripts of the grid (paths, or names of the project's scripts)"""
+    preset: Literal["paper"] | None = None
+    """`paper`: the paper's grid (four tasks, seeds 0-4, both scripts, the scripts' defaults);
+    --env-ids / --seeds given as well replace the preset's lists"""
+    output_dir: str = "runs"
+    """folder that holds one folder per run"""
+    launcher: Literal["local", "slurm"] = "local"
+    """`local`: runs on this machine, --workers at a time; `slurm`: one Slurm job array"""
+    workers: int = 1
+    """local launcher: how many runs at a time (each its own process)"""
+    checkpoint_interval: int = 100_000
+    """env steps between the runs' checkpoints (bounds the work a node failure loses)"""
+    dry_run: bool = False
+    """print the grid, the run folders, what exists and a compute estimate; start nothing"""
+    steps_per_second: float = DEFAULT_STEPS_PER_SECOND
+    """training speed of one run for the compute estimate (env steps per second)"""
+    analyze: str | None = None
+    """when all runs are done, run analyze.py on the output folder into this report folder"""
+    wait: bool = False
+    """slurm launcher: wait until the job array has finished (implied by --analyze)"""
+    partition: str | None = None
+    """slurm: partition (default: the cluster's default partition)"""
+    time_min: int = 1440
+    """slurm: time limit of one job in minutes; a job that reaches it is checkpointed and
+    requeued"""
+    cpus_per_task: int = 2
+    """slurm: CPUs per run"""
+    gpus_per_task: int = 0
+    """slurm: GPUs per run"""
+    mem_gb: int = 16
+    """slurm: memory per run in GB"""
+    account: str | None = None
+    """slurm: account to charge"""
+    sbatch: list[str] = field(default_factory=list)
+    """slurm: further sbatch options as KEY=VALUE or KEY (e.g. qos=high constraint=a100)"""
+    max_parallel: int = 256
+    """slurm: how many runs of the array may run at once"""
+    signal_delay_s: int = 180
+    """slurm: seconds before the time limit at which a job is told to checkpoint"""
+    max_requeues: int = 100
+    """slurm: how often a run may be requeued after reaching the time limit"""
+
+
+@dataclass
+class StatusArgs:
+    output_dir: Annotated[str, tyro.conf.Positional]
+    """the sweep's output folder"""
+
+
+@dataclass(frozen=True)
+class Run:
+    """One cell of the grid: a script trained on one env id with one seed."""
+
+    script: Path
+    env_id: str
+    seed: int
+    extra_args: tuple[str, ...]
+    output_dir: Path
+    checkpoint_interval: int
+
+    @property
+    def algorithm(self) -> str:
+        return self.script.stem.removeprefix("sac_")
+
+    @property
+    def name(self) -> str:
+        return f"{self.env_id}__{self.algorithm}__seed{self.seed}__{args_hash(self.extra_args)}"
+
+    @property
+    def run_dir(self) -> Path:
+        return self.output_dir / self.name
+
+    def identity(self) -> dict:
+        return {
+            "script": self.script.name,
+            "env_id": self.env_id,
+            "seed": self.seed,
+            "extra_args": list(self.extra_args),
+        }
+
+
+def args_hash(extra_args: tuple[str, ...]) -> str:
+    """Short stable hash of the arguments every run of a sweep gets."""
+    return hashlib.sha256(json.dumps(list(extra_args)).encode()).hexdigest()[:8]
+
+
+# ---------------------------------------------------------------------------------------------
+# Files
+
+
+def write_json(path: Path, data: dict) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2) + "\n")
+    os.replace(tmp, path)
+
+
+def read_json(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
+
+
+def log_tail(run_dir: Path, lines: int = LOG_TAIL_LINES) -> list[str]:
+    try:
+        return (run_dir / LOG_FILE).read_text(errors="replace").splitlines()[-lines:]
+    except FileNotFoundError:
+        return []
+
+
+def last_eval_step(run_dir: Path) -> int | None:
+    try:
+        with open(run_dir / "eval.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+    except FileNotFoundError:
+        return None
+    return int(float(rows[-1]["global_step"])) if rows else None
+
+
+# ---------------------------------------------------------------------------------------------
+# The grid and its checks (nothing is written until all of them pass)
+
+
+def resolve_script(script: str) -> Path:
+    for candidate in (Path(script), ROOT / script):
+        if candidate.is_file():
+            return candidate.resolve()
+    raise SweepError(
+        f"unknown script {script!r}: no such file here or in {ROOT}; "
+        f"the project's scripts are {' and '.join(DEFAULT_SCRIPTS)}"
+    )
+
+
+def check_env_ids(env_ids: list[str]) -> None:
+    import gymnasium
+
+    importlib.import_module("humanoid_envs")  # registers the h1hand-* ids
+    known = list(gymnasium.registry)
+    for env_id in env_ids:
+        if env_id not in known:
+            close = difflib.get_close_matches(env_id, known, n=3)
+            hint = f"did you mean {', '.join(close)}?" if close else "check its spelling"
+            raise SweepError(f"unknown env id {env_id!r}: {hint}")
+
+
+def check_extra_args(extra_args: tuple[str, ...]) -> None:
+    for arg in extra_args:
+        flag = arg.split("=", 1)[0]
+        if flag in SWEEP_FLAGS:
+            raise SweepError(
+                f"{flag} after `--` is set by sweep.py for every run: use --env-ids, --seeds, "
+                "--output-dir or --checkpoint-interval of sweep.py instead"
+            )
+
+
+def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
+    """The runs of the sweep, seed-major so that every cell gets its first seed early."""
+    env_ids = args.env_ids or (list(PAPER_ENV_IDS) if args.preset == "paper" else [])
+    seeds = args.seeds or (list(PAPER_SEEDS) if args.preset == "paper" else [])
+    if args.preset == "paper":
+        extra_args = PAPER_EXTRA_ARGS + extra_args
+    if not env_ids:
+        raise SweepError("no env ids: pass --env-ids ID [ID ...] (or --preset paper)")
+    if not seeds:
+        raise SweepError("no seeds: pass --seeds 0 1 2 (or --preset paper)")
+    if not args.scripts:
+        raise SweepError(f"no scripts: pass --scripts {' '.join(DEFAULT_SCRIPTS)}")
+    if args.workers < 1:
+        raise SweepError(f"--workers must be at least 1, got {args.workers}")
+    scripts = [resolve_script(script) for script in dict.fromkeys(args.scripts)]
+    check_env_ids(env_ids)
+    check_extra_args(extra_args)
+    output_dir = Path(args.output_dir).resolve()
+    return [
+        Run(script, env_id, seed, extra_args, output_dir, args.checkpoint_interval)
+        for seed in dict.fromkeys(seeds)
+        for env_id in dict.fromkeys(env_ids)
+        for script in scripts
+    ]
+
+
+def check_output_dir(runs: list[Run]) -> None:
+    """Refuse a folder that holds runs made with other arguments: they would mix in analysis."""
+    output_dir = runs[0].output_dir
+    if not output_dir.is_dir():
+        return
+    extra_args = list(runs[0].extra_args)
+    others = []
+    for run_dir in sorted(output_dir.iterdir()):
+        if run_dir.name.startswith(".") or not run_dir.is_dir():
+            continue
+        identity = read_json(run_dir / IDENTITY_FILE)
+        if identity is None and (run_dir / "config.json").exists():
+            others.append(f"{run_dir.name} (not made by sweep.py)")
+        elif identity is not None and identity["extra_args"] != extra_args:
+            others.append(f"{run_dir.name} (arguments: {shlex.join(identity['extra_args'])})")
+    if others:
+        listing = "\n  ".join(others[:10] + ([f"... {len(others) - 10} more"] * (len(others) > 10)))
+        raise SweepError(
+            f"{output_dir} holds runs made with other arguments than this sweep's "
+            f"({shlex.join(extra_args) or 'none'}):\n  {listing}\n"
+            "Use another --output-dir, or rerun with the same arguments after `--`."
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# State of a run
+
+
+def slurm_job_state(job_id: str) -> str | None:
+    """squeue's state of a queued or running job, None when it is no longer in the queue."""
+    if shutil.which("squeue") is None:
+        return None
+    result = subprocess.run(
+        ["squeue", "-h", "-j", job_id, "-o", "%T"], capture_output=True, text=True, timeout=60
+    )
+    states = result.stdout.split()
+    return states[0].lower() if result.returncode == 0 and states else None
+
+
+def process_alive(attempt: dict) -> bool:
+    if attempt.get("host") != socket.gethostname() or attempt.get("returncode") is not None:
+        return False
+    try:
+        os.kill(attempt["pid"], 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def run_state(run_dir: Path) -> str:
+    """done, running, pending (queued on Slurm), interrupted, failed or not started."""
+    if (run_dir / "done.json").exists():
+        return "done"
+    identity = read_json(run_dir / IDENTITY_FILE) or {}
+    if identity.get("slurm_job_id"):
+        queued = slurm_job_state(identity["slurm_job_id"])
+        if queued is not None:
+            return "running" if queued in ("running", "completing") else "pending"
+    attempt = read_json(run_dir / ATTEMPT_FILE) or {}
+    if process_alive(attempt):
+        return "running"
+    returncode = attempt.get("returncode")
+    if returncode is not None and returncode != EXIT_INTERRUPTED and returncode >= 0:
+        return "failed"
+    if (run_dir / "config.json").exists():
+        return "interrupted"
+    return "not started"
+
+
+def progress(run_dir: Path) -> str:
+    config = read_json(run_dir / "config.json") or {}
+    step = last_eval_step(run_dir)
+    total = config.get("total_timesteps")
+    return f"{step if step is not None else 0}/{total if total is not None else '?'}"
+
+
+# ---------------------------------------------------------------------------------------------
+# Starting one run (shared by both launchers)
+
+
+def run_command(run: Run) -> tuple[str, list[str]]:
+    """Resume a run that has started (its config.json exists), else start it."""
+    python = [sys.executable, str(run.script)]
+    if (run.run_dir / "config.json").exists():
+        return "resume", [*python, "--resume", str(run.run_dir)]
+    return "start", [
+        *python,
+        "--env-id", run.env_id,
+        "--seed", str(run.seed),
+        "--output-dir", str(run.output_dir),
+        "--run-name", run.name,
+        "--checkpoint-interval", str(run.checkpoint_interval),
+        *run.extra_args,
+    ]
+
+
+def start_run(run: Run, *, new_session: bool, block_user_signals: bool) -> subprocess.Popen:
+    """Start or resume the run in its own process, its output appended to its log file."""
+    action, command = run_command(run)
+    job_id = slurm_array_task_id()
+    where = f"{socket.gethostname()}" + (f", Slurm job {job_id}" if job_id else "")
+    with open(run.run_dir / LOG_FILE, "a") as log:
+        log.write(f"=== sweep.py {action} on {where} at {time.strftime('%F %T')}: "
+                  f"{shlex.join(command)}\n")
+    log = open(run.run_dir / LOG_FILE, "a")
+    # On Slurm the signal before the time limit reaches every process of the job; the child
+    # must get it only once, through checkpoint(), or it would take a second signal as "exit now".
+    preexec = _block_user_signals if block_user_signals else None
+    child = subprocess.Popen(
+        command, stdout=log, stderr=subprocess.STDOUT, start_new_session=new_session,
+        preexec_fn=preexec, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    log.close()
+    write_json(run.run_dir / ATTEMPT_FILE, {
+        "action": action, "host": socket.gethostname(), "pid": child.pid,
+        "slurm_job_id": job_id, "started": time.time(), "returncode": None,
+    })
+    return child
+
+
+def _block_user_signals() -> None:
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGUSR1, signal.SIGUSR2})
+
+
+def record_exit(run: Run, returncode: int | None) -> None:
+    attempt = read_json(run.run_dir / ATTEMPT_FILE) or {}
+    attempt.update(returncode=returncode, ended=time.time())
+    write_json(run.run_dir / ATTEMPT_FILE, attempt)
+    with open(run.run_dir / LOG_FILE, "a") as log:
+        log.write(f"=== sweep.py: exit code {returncode} at {time.strftime('%F %T')}\n")
+
+
+def slurm_array_task_id() -> str | None:
+    array_job = os.environ.get("SLURM_ARRAY_JOB_ID")
+    if array_job:
+        return f"{array_job}_{os.environ['SLURM_ARRAY_TASK_ID']}"
+    return os.environ.get("SLURM_JOB_ID")
+
+
+def prepare_run_dir(run: Run, **extra: str) -> None:
+    run.run_dir.mkdir(parents=True, exist_ok=True)
+    write_json(run.run_dir / IDENTITY_FILE, {**run.identity(), "run_name": run.name, **extra})
+
+
+# ---------------------------------------------------------------------------------------------
+# Local launcher
+
+
+def launch_local(runs: list[Run], workers: int) -> None:
+    """Run on this machine, `workers` at a time. SIGINT/SIGTERM: every running run checkpoints
+    at its next episode end and stops (a second signal stops them at once)."""
+    stopping = threading.Event()
+    children: set[subprocess.Popen] = set()
+
+    def stop(signum: int, frame: object) -> None:
+        print(f"sweep.py: {signal.Signals(signum).name}: stopping the runs (checkpointing)",
+              flush=True)
+        stopping.set()
+        for child in list(children):
+            child.send_signal(signal.SIGTERM)
+
+    def work(run: Run) -> None:
+        if stopping.is_set():
+            return
+        # Own session: a Ctrl-C at the terminal reaches the children once, through stop().
+        child = start_run(run, new_session=True, block_user_signals=False)
+        children.add(child)
+        if stopping.is_set():
+            child.send_signal(signal.SIGTERM)
+        returncode = child.wait()
+        children.discard(child)
+        record_exit(run, returncode)
+        print(f"{run.name}: {run_state(run.run_dir)} (exit code {returncode})", flush=True)
+
+    for run in runs:
+        prepare_run_dir(run)
+    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            list(pool.map(work, runs))
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+# ---------------------------------------------------------------------------------------------
+# Slurm launcher
+
+
+class SlurmRun:
+    """A run as one task of a Slurm job array (submitit's checkpointable callable).
+
+    On preemption or near the time limit Slurm signals the job; submitit calls checkpoint(),
+    which makes the script checkpoint at its next episode end and exit, and requeues the job;
+    the requeued job calls this again, which resumes the run."""
+
+    def __init__(self) -> None:
+        self._child: subprocess.Popen | None = None
+        self._returncode: int | None = None
+
+    def __getstate__(self) -> dict:
+        return {}  # a fresh instance for each job; a process cannot travel
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__()
+
+    def __call__(self, run: Run) -> str:
+        if (run.run_dir / "done.json").exists():
+            return str(run.run_dir)
+        self._child = start_run(run, new_session=False, block_user_signals=True)
+        # Poll with os.waitpid, not Popen.wait: checkpoint() runs in a signal handler on this
+        # same thread, and Popen.wait holds a lock there that it would wait on forever.
+        while self._reap(block=False) is None:
+            time.sleep(1.0)
+        record_exit(run, self._returncode)
+        if self._returncode == 0:
+            return str(run.run_dir)
+        tail = "\n".join(log_tail(run.run_dir))
+        if self._returncode == EXIT_INTERRUPTED:
+            raise RuntimeError(f"{run.name} was interrupted: rerun the sweep to resume it")
+        raise RuntimeError(f"{run.name} failed (exit code {self._returncode}):\n{tail}")
+
+    def checkpoint(self, run: Run):  # -> submitit.helpers.DelayedSubmission
+        import submitit
+
+        if self._child is not None and self._returncode is None:
+            self._child.send_signal(signal.SIGTERM)
+            self._reap(block=True)
+            record_exit(run, self._returncode)
+        return submitit.helpers.DelayedSubmission(SlurmRun(), run)
+
+    def _reap(self, block: bool) -> int | None:
+        if self._returncode is None:
+            try:
+                pid, status = os.waitpid(self._child.pid, 0 if block else os.WNOHANG)
+            except ChildProcessError:  # reaped by the frame this signal handler interrupted
+                return EXIT_INTERRUPTED
+            if pid:
+                self._returncode = os.waitstatus_to_exitcode(status)
+                self._child.returncode = self._returncode
+        return self._returncode
+
+
+def check_slurm(partition: str | None) -> None:
+    """Fail before anything is written when Slurm is not there or not answering."""
+    for tool in ("sbatch", "squeue", "srun", "sinfo"):
+        if shutil.which(tool) is None:
+            raise SweepError(
+                f"Slurm not found: `{tool}` is not on PATH. Run sweep.py on a login node of "
+                "the cluster, or use --launcher local."
+            )
+    try:
+        result = subprocess.run(
+            ["sinfo", "-h", "-o", "%P"], capture_output=True, text=True, timeout=60
+        )
+    except subprocess.TimeoutExpired as error:
+        raise SweepError("Slurm not reachable: `sinfo` did not answer within 60 s") from error
+    if result.returncode != 0:
+        raise SweepError(
+            f"Slurm not reachable: `sinfo` failed: {result.stderr.strip()}\n"
+            "Check that slurmctld is up (`scontrol ping`), or use --launcher local."
+        )
+    partitions = [name.rstrip("*") for name in result.stdout.split()]
+    if partition is not None and partition not in partitions:
+        raise SweepError(
+            f"unknown Slurm partition {partition!r}: this cluster has {', '.join(partitions)}"
+        )
+
+
+def sbatch_options(options: list[str]) -> dict[str, str | bool]:
+    parsed: dict[str, str | bool] = {}
+    for option in options:
+        key, sep, value = option.removeprefix("--").partition("=")
+        parsed[key.replace("-", "_")] = value if sep else True
+    return parsed
+
+
+def launch_slurm(runs: list[Run], args: Args) -> str:
+    """Submit the runs as one job array; returns the array's job id."""
+    import submitit
+
+    executor = submitit.SlurmExecutor(
+        folder=runs[0].output_dir / ".submitit" / "%j", max_num_timeout=args.max_requeues
+    )
+    optional = {"partition": args.partition, "account": args.account}
+    executor.update_parameters(
+        job_name="sweep",
+        time=args.time_min,
+        cpus_per_task=args.cpus_per_task,
+        mem=f"{args.mem_gb}GB",
+        signal_delay_s=args.signal_delay_s,
+        array_parallelism=args.max_parallel,
+        stderr_to_stdout=True,
+        # The job unpickles SlurmRun from this file, wherever the sweep was started from.
+        setup=[f"export PYTHONPATH={shlex.quote(str(ROOT))}${{PYTHONPATH:+:$PYTHONPATH}}"],
+        additional_parameters=sbatch_options(args.sbatch),
+        **({"gpus_per_task": args.gpus_per_task} if args.gpus_per_task else {}),
+        **{key: value for key, value in optional.items() if value is not None},
+    )
+    for run in runs:
+        prepare_run_dir(run)
+    jobs = executor.map_array(SlurmRun(), runs)
+    for run, job in zip(runs, jobs, strict=True):
+        prepare_run_dir(run, slurm_job_id=job.job_id)
+    return jobs[0].job_id.split("_")[0]
+
+
+def wait_for_slurm(job_id: str) -> None:
+    last = None
+    while True:
+        result = subprocess.run(
+            ["squeue", "-h", "-j", job_id, "-o", "%T"], capture_output=True, text=True, timeout=60
+        )
+        states = result.stdout.split()
+        if result.returncode == 0 and not states:
+            return
+        summary = ", ".join(f"{states.count(s)} {s.lower()}" for s in sorted(set(states)))
+        if summary != last:
+            print(f"Slurm job {job_id}: {summary}", flush=True)
+            last = summary
+        time.sleep(SLURM_POLL_SECONDS)
+
+
+# ---------------------------------------------------------------------------------------------
+# Reports
+
+
+def total_timesteps(run: Run) -> int:
+    """The run's step budget: from the arguments after `--`, else the script's default."""
+    for i, arg in enumerate(run.extra_args):
+        if arg == "--total-timesteps" and i + 1 < len(run.extra_args):
+            return int(run.extra_args[i + 1])
+        if arg.startswith("--total-timesteps="):
+            return int(arg.split("=", 1)[1])
+    return script_default_total_timesteps(run.script)
+
+
+def script_default_total_timesteps(script: Path) -> int:
+    spec = importlib.util.spec_from_file_location(f"_sweep_{script.stem}", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.Args().total_timesteps
+
+
+def print_plan(runs: list[Run], args: Args) -> None:
+    n_env = len({r.env_id for r in runs})
+    n_seed = len({r.seed for r in runs})
+    n_script = len({r.script for r in runs})
+    print(f"grid: {n_env} env ids x {n_seed} seeds x {n_script} scripts = {len(runs)} runs, "
+          f"arguments after --: {shlex.join(runs[0].extra_args) or '(none)'}")
+    print(f"output folder: {runs[0].output_dir}")
+    steps_left = 0
+    for run in runs:
+        state = run_state(run.run_dir)
+        budget = total_timesteps(run)
+        done_steps = budget if state == "done" else (last_eval_step(run.run_dir) or 0)
+        steps_left += budget - done_steps
+        print(f"  {run.name:<60} {state:<12} {action_for(state)}")
+    total = sum(total_timesteps(run) for run in runs)
+    hours = steps_left / args.steps_per_second / 3600
+    print(f"compute: {len(runs)} runs, {total:,} env steps in all, {steps_left:,} still to run; "
+          f"at {args.steps_per_second:g} steps/s per run that is {hours:,.1f} run-hours "
+          f"({hours / len(runs):,.1f} h per run)")
+
+
+def action_for(state: str) -> str:
+    return {
+        "done": "skip", "running": "skip (running)", "pending": "skip (queued)",
+        "interrupted": "resume", "failed": "retry",
+    }.get(state, "start")
+
+
+def print_status(output_dir: Path) -> None:
+    run_dirs = [
+        d for d in sorted(output_dir.iterdir())
+        if d.is_dir() and not d.name.startswith(".")
+        and ((d / IDENTITY_FILE).exists() or (d / "config.json").exists())
+    ]
+    if not run_dirs:
+        raise SweepError(f"{output_dir} holds no runs")
+    width = max(len(d.name) for d in run_dirs)
+    print(f"{'run':<{width}}  {'state':<12} progress (last eval step / total)")
+    counts: dict[str, int] = {}
+    for run_dir in run_dirs:
+        state = run_state(run_dir)
+        counts[state] = counts.get(state, 0) + 1
+        print(f"{run_dir.name:<{width}}  {state:<12} {progress(run_dir)}")
+        if state == "failed":
+            for line in log_tail(run_dir):
+                print(f"    | {line}")
+    print(", ".join(f"{n} {state}" for state, n in counts.items()))
+
+
+def run_analysis(output_dir: Path, report_dir: str) -> int:
+    command = [sys.executable, str(ROOT / "analyze.py"), str(output_dir), "--out", report_dir]
+    print(f"all runs done: {shlex.join(command)}", flush=True)
+    return subprocess.run(command).returncode
+
+
+# ---------------------------------------------------------------------------------------------
+# Entry points
+
+
+def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
+    runs = build_grid(args, extra_args)
+    check_output_dir(runs)
+    if args.launcher == "slurm" and not args.dry_run:
+        check_slurm(args.partition)
+    if args.dry_run:
+        print_plan(runs, args)
+        return 0
+    states = {run: run_state(run.run_dir) for run in runs}
+    todo = [run for run in runs if action_for(states[run]) in ("start", "resume", "retry")]
+    print(f"{len(runs)} runs: {len(runs) - len(todo)} done or under way, {len(todo)} to launch")
+    if todo and args.launcher == "local":
+        launch_local(todo, args.workers)
+    elif todo:
+        job_id = launch_slurm(todo, args)
+        print(f"submitted Slurm job array {job_id} ({len(todo)} runs); "
+              f"follow it with: python sweep.py status {runs[0].output_dir}")
+        if not (args.wait or args.analyze):
+            return 0
+        wait_for_slurm(job_id)
+    return finish(runs, args)
+
+
+def finish(runs: list[Run], args: Args) -> int:
+    states = [run_state(run.run_dir) for run in runs]
+    print(", ".join(f"{states.count(s)} {s}" for s in sorted(set(states))))
+    for run, state in zip(runs, states, strict=True):
+        if state == "failed":
+            print(f"{run.name} failed; last lines of {run.run_dir / LOG_FILE}:")
+            print("\n".join(f"    | {line}" for line in log_tail(run.run_dir)))
+    if all(state == "done" for state in states):
+        return run_analysis(runs[0].output_dir, args.analyze) if args.analyze else 0
+    if args.analyze:
+        print("not all runs are done: analysis skipped; run this command again to finish them")
+    return 1 if "failed" in states else EXIT_INTERRUPTED
+
+
+def main(argv: list[str]) -> int:
+    """`sweep.py status DIR` or `sweep.py [OPTIONS] [-- ARGS FOR EVERY RUN]`; the exit code."""
+    if argv[:1] == ["status"]:
+        status_args = tyro.cli(StatusArgs, args=argv[1:], prog="sweep.py status")
+        print_status(Path(status_args.output_dir))
+        return 0
+    own, extra = (argv[: argv.index("--")], argv[argv.index("--") + 1 :]) if "--" in argv \
+        else (argv, [])
+    args = tyro.cli(Args, args=own, prog="sweep.py", description=__doc__)
+    return sweep(args, tuple(extra))
+
+
+def cli() -> int:
+    try:
+        return main(sys.argv[1:])
+    except SweepError as error:
+        print(f"sweep.py: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    # Run as the module `sweep`, not `__main__`: what is pickled for a Slurm job then refers
+    # to `sweep.SlurmRun` and `sweep.Run`, which the job imports from this file.
+    import sweep
+
+    sys.exit(sweep.cli())
