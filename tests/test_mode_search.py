@@ -1,4 +1,7 @@
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -265,3 +268,23 @@ def test_mode_solves_the_stationarity_condition() -> None:
     y = mode_action(torch.from_numpy(mu), torch.from_numpy(np.log(sigma))).numpy()
     x = np.arctanh(y)
     np.testing.assert_allclose(x, mu + 2 * sigma**2 * np.tanh(x), atol=1e-9)
+
+
+def test_figures_command_writes_the_five_pngs(tmp_path) -> None:
+    root = Path(__file__).resolve().parent.parent
+    out = subprocess.run(
+        [sys.executable, str(root / "mode_search.py"), "--figures", str(tmp_path / "figs")],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=tmp_path,
+    )
+    written = sorted(Path(line) for line in out.stdout.split())
+    assert [p.name for p in written] == [
+        "fig1_gaussian_vs_tanh.png",
+        "fig2_distribution_shift.png",
+        "fig3_action_bias.png",
+        "fig4_2d_example.png",
+        "fig5_shift_vs_dimensions.png",
+    ]
+    assert all(p.read_bytes().startswith(b"\x89PNG") and p.stat().st_size > 10_000 for p in written)
