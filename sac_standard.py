@@ -136,7 +136,8 @@ def read_run_config(run_dir: Path) -> dict:
                          "made by sac_standard.py or sac_corrected.py")
     config = json.loads(path.read_text())
     if config.get("algorithm") != ALGORITHM:
-        raise SystemExit(f"{run_dir} is a run of {config.get('script')}; resume it with that script")
+        raise SystemExit(f"{run_dir} is a run of {config.get('script')}; resume it with that "
+                         "script")
     return config
 
 
@@ -149,11 +150,12 @@ def make_env(env_id: str, render: bool = False) -> gym.Env:
     env = gym.make(env_id, render_mode="rgb_array" if render else None)
     space = env.action_space
     if not isinstance(space, gym.spaces.Box):
-        raise SystemExit(f"{env_id} has a {type(space).__name__} action space; SAC here needs a Box")
+        raise SystemExit(f"{env_id} has a {type(space).__name__} action space; SAC needs a Box")
     if not (np.isfinite(space.low).all() and np.isfinite(space.high).all()):
         raise SystemExit(f"{env_id} has unbounded actions; SAC squashes into finite bounds")
-    if not isinstance(env.observation_space, gym.spaces.Box) or len(env.observation_space.shape) != 1:
-        raise SystemExit(f"{env_id} observations are not a flat Box; flatten them with a wrapper")
+    obs_space = env.observation_space
+    if not isinstance(obs_space, gym.spaces.Box) or len(obs_space.shape) != 1:
+        raise SystemExit(f"{env_id} observations are not a flat Box; flatten them first")
     return env
 
 
@@ -179,7 +181,8 @@ class Actor(nn.Module):
         return self.fc_mean(h), self.fc_logstd(h).clamp(self.log_std_min, self.log_std_max)
 
     def get_action(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """A reparameterised sample scale * tanh(u) + bias, u ~ N(mu, sigma^2), and its log-density."""
+        """A reparameterised sample scale * tanh(u) + bias, u ~ N(mu, sigma^2), and its
+        log-density."""
         mu, log_std = self(obs)
         noise = torch.randn_like(mu)
         u = mu + noise * log_std.exp()
@@ -285,7 +288,8 @@ def evaluate(actor: Actor, env: gym.Env, select: Callable, seeds: list[int],
             mus.append(mu)
             log_stds.append(log_std)
             obs, reward, terminated, truncated, info = env.step(action)
-            episode_return, length, done = episode_return + reward, length + 1, terminated or truncated
+            episode_return, length = episode_return + reward, length + 1
+            done = terminated or truncated
         returns.append(episode_return)
         lengths.append(length)
         successes.append(info.get("success"))
@@ -374,7 +378,8 @@ class StopRequest:
 
 
 def rng_states(env: gym.Env) -> dict:
-    return {"python": random.getstate(), "numpy": np.random.get_state(),
+    # Nothing of ours draws from the global numpy and python generators; libraries might.
+    return {"python": random.getstate(), "numpy": np.random.get_state(),  # noqa: NPY002
             "torch": torch.get_rng_state(),
             "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
             "env": env.unwrapped.np_random.bit_generator.state,
@@ -383,7 +388,7 @@ def rng_states(env: gym.Env) -> dict:
 
 def set_rng_states(states: dict, env: gym.Env) -> None:
     random.setstate(states["python"])
-    np.random.set_state(states["numpy"])
+    np.random.set_state(states["numpy"])  # noqa: NPY002
     torch.set_rng_state(states["torch"])
     if states["cuda"] is not None and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(states["cuda"])
@@ -411,7 +416,7 @@ if __name__ == "__main__":
         sys.exit(0)
 
     random.seed(args.seed)
-    np.random.seed(args.seed)
+    np.random.seed(args.seed)  # noqa: NPY002
     torch.manual_seed(args.seed)
     torch.backends.cudnn.deterministic = args.torch_deterministic
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
@@ -486,8 +491,8 @@ if __name__ == "__main__":
             action = env.action_space.sample()
         else:
             with torch.no_grad():
-                action, _ = actor.get_action(torch.as_tensor(obs, device=device)[None])
-            action = action[0].cpu().numpy()
+                obs_tensor = torch.as_tensor(obs, dtype=torch.float32, device=device)
+                action = actor.get_action(obs_tensor[None])[0][0].cpu().numpy()
             check_finite(action, "action")
         next_obs, reward, terminated, truncated, info = env.step(action)
         global_step += 1

@@ -1,0 +1,630 @@
+"""Soft Actor-Critic, corrected: evaluates with the mode of the tanh-squashed Gaussian policy.
+
+Defaults are the paper's protocol (its Tables I and II) and HumanoidBench's SAC details. The run
+folder layout (config.json, eval.csv, train.csv, TensorBoard, checkpoint.pt, final_model.pt,
+done.json) is described in README.md. Training is sac_standard.py's, step for step; only the
+evaluation action changes: `diff` the two files to see the correction. Each evaluation round also
+acts with tanh(mu) from the same start states (a paired comparison on the same actor) and logs how
+far the mode is from tanh(mu): the paper's distribution shift, measured during training.
+"""
+
+import csv
+import dataclasses
+import difflib
+import json
+import os
+import platform
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import torch
+import torch.nn as nn
+import tyro
+from torch.utils.tensorboard import SummaryWriter
+
+import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
+from mode_search import mode_action
+
+ALGORITHM = "corrected"
+
+
+@dataclass
+class Args:
+    env_id: str = "h1hand-stand-v0"
+    """the environment id of the task (any gymnasium env with a Box action space)"""
+    seed: int = 0
+    """seed of the experiment (the paper uses seeds 0-4)"""
+    total_timesteps: int = 10_000_000
+    """total environment steps of the run"""
+    buffer_size: int = 1_000_000
+    """the replay buffer size (observations stored, about one per transition)"""
+    gamma: float = 0.99
+    """the discount factor gamma"""
+    tau: float = 0.005
+    """target network smoothing coefficient"""
+    batch_size: int = 64
+    """the batch size of each gradient update"""
+    learning_starts: int = 10_000
+    """steps of uniform random actions before the first gradient update"""
+    policy_lr: float = 3e-4
+    """the learning rate of the actor's optimizer"""
+    q_lr: float = 3e-4
+    """the learning rate of the twin critics' optimizer"""
+    alpha_lr: float = 3e-4
+    """the learning rate of the temperature's optimizer"""
+    alpha_init: float = 1.0
+    """the initial entropy temperature alpha (learned)"""
+    target_entropy_scale: float = 0.5
+    """target entropy = -target_entropy_scale * |A| (HumanoidBench: -|A|/2)"""
+    hidden_sizes: tuple[int, ...] = (256, 256)
+    """hidden layer widths of the actor and of each critic"""
+    log_std_min: float = -10.0
+    """lower clip of the actor's log sigma (clipped, as HumanoidBench; not tanh-rescaled)"""
+    log_std_max: float = 2.0
+    """upper clip of the actor's log sigma"""
+    eval_interval: int = 10_000
+    """evaluate every this many environment steps"""
+    eval_episodes: int = 10
+    """episodes per evaluation round"""
+    log_interval: int = 1000
+    """write a train.csv / TensorBoard row every this many steps"""
+    print_interval: int = 10_000
+    """print a progress line every this many steps"""
+    output_dir: str = "runs"
+    """the folder that holds run folders"""
+    run_name: str | None = None
+    """the run folder's name (default: {env_id}__{algorithm}__seed{seed}__{date-time})"""
+    resume: str | None = None
+    """continue the run in this run folder from its checkpoint, with its stored arguments"""
+    checkpoint_interval: int = 100_000
+    """checkpoint at the first episode end after every this many steps (0: off)"""
+    cuda: bool = True
+    """use a CUDA GPU if there is one"""
+    torch_threads: int = 1
+    """torch CPU threads (1 is fastest for batch 64 on small CPUs; see README)"""
+    torch_deterministic: bool = True
+    """if toggled, `torch.backends.cudnn.deterministic=True`"""
+    capture_video: bool = False
+    """write a video of the first episode of each evaluation round into the run folder"""
+    mode_solver: Literal["exact", "grid"] = "exact"
+    """how to find the mode: "exact" (iterative solve) or "grid" (the paper's Algorithm 1)"""
+
+
+# Flags that may differ when resuming: they change where and how fast, not what is computed.
+RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "print_interval",
+                  "cuda", "torch_threads", "capture_video")
+EVAL_STATS = ("return_mean", "return_std", "return_min", "return_max", "length_mean",
+              "success_rate")
+TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
+                 "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
+                 "episode_return_mean", "episode_length_mean")
+SHIFT_COLUMNS = ("mode_shift_abs_mean", "mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
+INTERRUPTED_EXIT_CODE = 3
+
+
+def eval_selectors(args: Args) -> dict[str, Callable]:
+    """Evaluation actions in (-1, 1)^A by eval.csv column prefix: the mode, and tanh(mu) paired."""
+    return {"": lambda mu, log_std: mode_action(mu, log_std, args.mode_solver),
+            "tanh_mu_": lambda mu, log_std: torch.tanh(mu)}
+
+
+def shift_statistics(mu: torch.Tensor, log_std: torch.Tensor, solver: str) -> dict[str, float]:
+    """How far the mode is from tanh(mu) at the given states (rows), and how wide sigma is:
+    2 sigma^2 > 1 is the regime where the squashed density can have two modes."""
+    shift = (mode_action(mu, log_std, solver) - torch.tanh(mu)).abs()
+    sigma = log_std.exp()
+    return {"mode_shift_abs_mean": shift.mean().item(),
+            "mode_shift_abs_sum": shift.sum(1).mean().item(), "sigma_mean": sigma.mean().item(),
+            "bimodal_fraction": (2 * sigma**2 > 1).float().mean().item()}
+
+
+def parse_args() -> Args:
+    """Parses the flags; with --resume, the run's stored arguments are the defaults and a flag
+    that contradicts them is an error."""
+    args = tyro.cli(Args)
+    if args.resume is None:
+        return args
+    config = read_run_config(Path(args.resume))
+    stored = {f.name: config[f.name] for f in dataclasses.fields(Args)
+              if f.name in config and f.name not in RUNTIME_FIELDS}
+    stored["hidden_sizes"] = tuple(stored.get("hidden_sizes", args.hidden_sizes))
+    resumed = tyro.cli(Args, default=dataclasses.replace(args, **stored))
+    changed = [k for k, v in stored.items() if getattr(resumed, k) != v]
+    if changed:
+        raise SystemExit(f"--resume {args.resume}: flags {changed} contradict the run's stored "
+                         "arguments; drop them or start a new run")
+    return resumed
+
+
+def read_run_config(run_dir: Path) -> dict:
+    """The config.json of a run folder made by this script, or a clear error."""
+    path = run_dir / "config.json"
+    if not path.is_file():
+        raise SystemExit(f"{run_dir} is not a run folder (no config.json); give --resume a folder "
+                         "made by sac_standard.py or sac_corrected.py")
+    config = json.loads(path.read_text())
+    if config.get("algorithm") != ALGORITHM:
+        raise SystemExit(f"{run_dir} is a run of {config.get('script')}; resume it with that "
+                         "script")
+    return config
+
+
+def make_env(env_id: str, render: bool = False) -> gym.Env:
+    """The gymnasium env, with a clear error for an id or a space that SAC cannot use."""
+    if env_id not in gym.registry:
+        close = difflib.get_close_matches(env_id, list(gym.registry), n=5, cutoff=0.5)
+        ours = sorted(k for k in gym.registry if k.startswith("h1hand-"))
+        raise SystemExit(f"unknown env id {env_id!r}; close matches: {close}; our tasks: {ours}")
+    env = gym.make(env_id, render_mode="rgb_array" if render else None)
+    space = env.action_space
+    if not isinstance(space, gym.spaces.Box):
+        raise SystemExit(f"{env_id} has a {type(space).__name__} action space; SAC needs a Box")
+    if not (np.isfinite(space.low).all() and np.isfinite(space.high).all()):
+        raise SystemExit(f"{env_id} has unbounded actions; SAC squashes into finite bounds")
+    obs_space = env.observation_space
+    if not isinstance(obs_space, gym.spaces.Box) or len(obs_space.shape) != 1:
+        raise SystemExit(f"{env_id} observations are not a flat Box; flatten them first")
+    return env
+
+
+class Actor(nn.Module):
+    def __init__(self, obs_dim: int, hidden: tuple[int, ...], action_space: gym.spaces.Box,
+                 log_std_min: float, log_std_max: float):
+        super().__init__()
+        sizes = (obs_dim, *hidden)
+        self.trunk = nn.Sequential(*[m for i, o in zip(sizes, sizes[1:], strict=False)
+                                     for m in (nn.Linear(i, o), nn.ReLU())])
+        action_dim = int(np.prod(action_space.shape))
+        self.fc_mean = nn.Linear(sizes[-1], action_dim)
+        self.fc_logstd = nn.Linear(sizes[-1], action_dim)
+        low, high = (torch.as_tensor(b, dtype=torch.float32) for b in (action_space.low,
+                                                                      action_space.high))
+        self.register_buffer("action_scale", (high - low) / 2)
+        self.register_buffer("action_bias", (high + low) / 2)
+        self.log_std_min, self.log_std_max = log_std_min, log_std_max
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """mu and log sigma of the Gaussian before the tanh squashing."""
+        h = self.trunk(obs)
+        return self.fc_mean(h), self.fc_logstd(h).clamp(self.log_std_min, self.log_std_max)
+
+    def get_action(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A reparameterised sample scale * tanh(u) + bias, u ~ N(mu, sigma^2), and its
+        log-density."""
+        mu, log_std = self(obs)
+        noise = torch.randn_like(mu)
+        u = mu + noise * log_std.exp()
+        # log N(u) - log|d tanh(u)/du| - log(scale), with the stable form of log(1 - tanh(u)^2).
+        log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * np.log(2 * np.pi)
+                    - 2 * (np.log(2) - u - nn.functional.softplus(-2 * u))
+                    - self.action_scale.log())
+        return self.scale(torch.tanh(u)), log_prob.sum(1)
+
+    def scale(self, y: torch.Tensor) -> torch.Tensor:
+        """Maps a squashed action in (-1, 1)^A to the env's bounds."""
+        return y * self.action_scale + self.action_bias
+
+
+class TwinQ(nn.Module):
+    """Both critics in one network: every layer is one batched matmul over a leading dim of 2,
+    which halves the number of ops of two separate critics (the update is op-overhead bound)."""
+
+    def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...]):
+        super().__init__()
+        sizes = (obs_dim + action_dim, *hidden, 1)
+        self.weights = nn.ParameterList(nn.Parameter(torch.empty(2, i, o))
+                                        for i, o in zip(sizes, sizes[1:], strict=False))
+        self.biases = nn.ParameterList(nn.Parameter(torch.empty(2, 1, o)) for o in sizes[1:])
+        for w, b in zip(self.weights, self.biases, strict=True):  # nn.Linear's default init
+            bound = w.shape[1] ** -0.5
+            nn.init.uniform_(w, -bound, bound)
+            nn.init.uniform_(b, -bound, bound)
+
+    def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Q1 and Q2 of each (obs, action), shape (2, batch)."""
+        x = torch.cat([obs, action], 1).expand(2, -1, -1)
+        for w, b in zip(self.weights[:-1], self.biases[:-1], strict=True):
+            x = torch.relu(torch.baddbmm(b, x, w))
+        return torch.baddbmm(self.biases[-1], x, self.weights[-1]).squeeze(-1)
+
+
+class ReplayBuffer:
+    """Stores each observation once, in float32: slot i's next observation is in slot i + 1.
+
+    An episode's last transition is followed by a slot holding only its final observation (never
+    sampled), so a truncated episode keeps its true final observation for bootstrapping and no
+    transition spans a reset."""
+
+    def __init__(self, size: int, obs_dim: int, action_dim: int, seed: int):
+        self.size, self.ptr, self.filled = size, 0, 0
+        self.obs = np.zeros((size, obs_dim), np.float32)
+        self.actions = np.zeros((size, action_dim), np.float32)
+        self.rewards = np.zeros(size, np.float32)
+        self.terminated = np.zeros(size, np.float32)
+        self.valid = np.zeros(size, bool)  # slot i holds a transition whose next obs is slot i + 1
+        self.rng = np.random.default_rng(seed)
+
+    def add(self, obs, action, reward, terminated, next_obs, episode_end: bool) -> None:
+        i, j = self.ptr, (self.ptr + 1) % self.size
+        self.obs[i], self.actions[i], self.rewards[i] = obs, action, reward
+        self.terminated[i], self.valid[i] = terminated, True
+        self.obs[j], self.valid[j] = next_obs, False
+        self.ptr = (j + 1) % self.size if episode_end else j
+        self.filled = self.size if j == 0 else max(self.filled, j + 1)
+
+    def sample(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
+        """Uniform over stored transitions: obs, actions, rewards, next_obs, 1 - terminated."""
+        idx = self.rng.integers(0, self.filled, batch_size)
+        while not (ok := self.valid[idx]).all():  # redraw the final-observation slots
+            idx[~ok] = self.rng.integers(0, self.filled, int((~ok).sum()))
+        arrays = (self.obs[idx], self.actions[idx], self.rewards[idx],
+                  self.obs[(idx + 1) % self.size], 1 - self.terminated[idx])
+        return tuple(torch.from_numpy(a).to(device) for a in arrays)
+
+    def state_dict(self) -> dict:
+        n = self.filled  # tensors share the arrays' memory, so saving copies nothing first
+        return {"ptr": self.ptr, "filled": n, "rng": self.rng.bit_generator.state,
+                **{k: torch.from_numpy(getattr(self, k)[:n]) for k in self.ARRAYS}}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.ptr, self.filled = state["ptr"], state["filled"]
+        self.rng.bit_generator.state = state["rng"]
+        for k in self.ARRAYS:
+            getattr(self, k)[: self.filled] = state[k].numpy()
+
+    ARRAYS = ("obs", "actions", "rewards", "terminated", "valid")
+
+
+def evaluate(actor: Actor, env: gym.Env, select: Callable, seeds: list[int],
+             video_path: Path | None = None) -> tuple[dict, torch.Tensor, torch.Tensor]:
+    """One episode per reset seed, acting with scale * select(mu, log_std) + bias.
+
+    Returns eval.csv's statistics and the policy's mu and log sigma at every visited state. Uses
+    only the evaluation env and the actor's forward pass: no training random stream is touched."""
+    returns, lengths, successes, mus, log_stds, frames = [], [], [], [], [], []
+    device = actor.action_scale.device
+    for episode, seed in enumerate(seeds):
+        obs, info = env.reset(seed=seed)
+        done, episode_return, length = False, 0.0, 0
+        while not done:
+            if video_path is not None and episode == 0:
+                frames.append(env.render())
+            with torch.no_grad():
+                mu, log_std = actor(torch.as_tensor(obs, dtype=torch.float32, device=device)[None])
+                action = actor.scale(select(mu, log_std))[0].cpu().numpy()
+            check_finite(action, "evaluation action")
+            mus.append(mu)
+            log_stds.append(log_std)
+            obs, reward, terminated, truncated, info = env.step(action)
+            episode_return, length = episode_return + reward, length + 1
+            done = terminated or truncated
+        returns.append(episode_return)
+        lengths.append(length)
+        successes.append(info.get("success"))
+    if frames:
+        import imageio
+
+        imageio.mimsave(video_path, frames, fps=env.metadata.get("render_fps", 30))
+    stats = {"return_mean": np.mean(returns), "return_std": np.std(returns),
+             "return_min": np.min(returns), "return_max": np.max(returns),
+             "length_mean": np.mean(lengths),
+             "success_rate": None if None in successes else np.mean(successes)}
+    return {k: None if v is None else float(v) for k, v in stats.items()}, torch.cat(mus), \
+        torch.cat(log_stds)
+
+
+def eval_seeds(seed: int, eval_round: int, episodes: int) -> list[int]:
+    """Reset seeds from (run seed, round, episode): every run with this seed sees these starts."""
+    return [int(np.random.SeedSequence([seed, eval_round, e]).generate_state(1)[0])
+            for e in range(episodes)]
+
+
+def check_finite(x: np.ndarray, what: str) -> None:
+    if not np.isfinite(x).all():
+        raise SystemExit(f"non-finite {what} (NaN/inf): training diverged; try lower learning "
+                         "rates or resume from an earlier checkpoint")
+
+
+def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
+    """An append-mode CSV writer. Resuming keeps the whole rows up to the checkpoint's step, so
+    the file ends up with no duplicate or missing rows."""
+    kept = []
+    if keep_until_step is not None and path.exists():
+        lines = path.read_text().splitlines(keepends=True)[1:]
+        kept = [r for r in lines if r.endswith("\n") and int(r.split(",")[0]) <= keep_until_step]
+    atomic_write(path, lambda tmp: tmp.write_text(",".join(columns) + "\n" + "".join(kept)))
+    f = open(path, "a", newline="")  # noqa: SIM115  (kept open for the whole run)
+    return f, csv.DictWriter(f, columns)
+
+
+def write_row(f, writer: csv.DictWriter, tb: SummaryWriter, group: str, row: dict) -> None:
+    writer.writerow(row)
+    f.flush()
+    for k, v in row.items():
+        if v is not None and k not in ("global_step", "wall_time"):
+            tb.add_scalar(f"{group}/{k}", v, row["global_step"])
+
+
+def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
+    """Writes via a temporary file and os.replace: a kill leaves the old file or the new one."""
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def run_metadata(args: Args, obs_dim: int, action_dim: int) -> dict:
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
+                                capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = None
+    return {**dataclasses.asdict(args), "algorithm": ALGORITHM, "script": Path(__file__).name,
+            "obs_dim": obs_dim, "action_dim": action_dim, "git_commit": commit,
+            "versions": {"python": platform.python_version(), "torch": torch.__version__,
+                         "numpy": np.__version__, "gymnasium": gym.__version__,
+                         "mujoco": mujoco.__version__},
+            "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+
+
+class StopRequest:
+    """SIGTERM/SIGUSR1/SIGUSR2 ask for a graceful stop at the next episode end; a second signal
+    exits at once (the last checkpoint stays valid)."""
+
+    def __init__(self):
+        self.requested = False
+        for s in (signal.SIGTERM, signal.SIGUSR1, signal.SIGUSR2):
+            signal.signal(s, self.handle)
+
+    def handle(self, signum, frame) -> None:
+        if self.requested:
+            print("second signal: exiting now; resume with --resume from the last checkpoint",
+                  flush=True)
+            os._exit(INTERRUPTED_EXIT_CODE)
+        self.requested = True
+        print(f"{signal.Signals(signum).name}: checkpointing at the end of this episode, then "
+              "exiting", flush=True)
+
+
+def rng_states(env: gym.Env) -> dict:
+    # Nothing of ours draws from the global numpy and python generators; libraries might.
+    return {"python": random.getstate(), "numpy": np.random.get_state(),  # noqa: NPY002
+            "torch": torch.get_rng_state(),
+            "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
+            "env": env.unwrapped.np_random.bit_generator.state,
+            "action_space": env.action_space.np_random.bit_generator.state}
+
+
+def set_rng_states(states: dict, env: gym.Env) -> None:
+    random.setstate(states["python"])
+    np.random.set_state(states["numpy"])  # noqa: NPY002
+    torch.set_rng_state(states["torch"])
+    if states["cuda"] is not None and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(states["cuda"])
+    env.unwrapped.np_random.bit_generator.state = states["env"]
+    env.action_space.np_random.bit_generator.state = states["action_space"]
+
+
+if __name__ == "__main__":
+    args = parse_args()
+    torch.set_num_threads(args.torch_threads)
+    if args.batch_size > args.buffer_size:
+        raise SystemExit(f"--batch-size {args.batch_size} exceeds --buffer-size "
+                         f"{args.buffer_size}; lower the batch or raise the buffer")
+    if args.resume is not None:
+        run_dir = Path(args.resume)
+    else:
+        run_name = args.run_name or (f"{args.env_id}__{ALGORITHM}__seed{args.seed}__"
+                                     f"{time.strftime('%Y%m%d-%H%M%S')}")
+        run_dir = Path(args.output_dir) / run_name
+        if (run_dir / "config.json").exists():
+            raise SystemExit(f"{run_dir} already holds a run; continue it with --resume {run_dir} "
+                             "or choose another --run-name")
+    if (run_dir / "done.json").exists():
+        print(f"{run_dir} has already finished (done.json); nothing to do")
+        sys.exit(0)
+
+    random.seed(args.seed)
+    np.random.seed(args.seed)  # noqa: NPY002
+    torch.manual_seed(args.seed)
+    torch.backends.cudnn.deterministic = args.torch_deterministic
+    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    print(f"device: {device}" + (" (no CUDA GPU found)" if args.cuda and device.type == "cpu"
+                                 else ""), flush=True)
+
+    env = make_env(args.env_id)
+    eval_env = make_env(args.env_id, render=args.capture_video)
+    env.action_space.seed(args.seed)
+    obs_dim, action_dim = env.observation_space.shape[0], int(np.prod(env.action_space.shape))
+
+    actor = Actor(obs_dim, args.hidden_sizes, env.action_space, args.log_std_min,
+                  args.log_std_max).to(device)
+    qf = TwinQ(obs_dim, action_dim, args.hidden_sizes).to(device)
+    qf_target = TwinQ(obs_dim, action_dim, args.hidden_sizes).to(device)
+    qf_target.load_state_dict(qf.state_dict())
+    q_optimizer = torch.optim.Adam(qf.parameters(), lr=args.q_lr)
+    actor_optimizer = torch.optim.Adam(actor.parameters(), lr=args.policy_lr)
+    target_entropy = -args.target_entropy_scale * action_dim
+    log_alpha = torch.tensor(float(np.log(args.alpha_init)), device=device, requires_grad=True)
+    alpha_optimizer = torch.optim.Adam([log_alpha], lr=args.alpha_lr)
+    rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim, args.seed)
+
+    # A run folder: fresh, or resumed from its checkpoint, or restarted if it has none yet.
+    checkpoint_path = run_dir / "checkpoint.pt"
+    ckpt = torch.load(checkpoint_path, weights_only=False, mmap=True) \
+        if args.resume is not None and checkpoint_path.exists() else None
+    if ckpt is not None:
+        config_args = {k: v for k, v in ckpt["args"].items() if k not in RUNTIME_FIELDS}
+        wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}
+        if config_args != wanted:
+            raise SystemExit(f"{checkpoint_path} was made with other arguments than "
+                             f"{run_dir / 'config.json'}; the run folder is inconsistent")
+        for module, key in ((actor, "actor"), (qf, "qf"), (qf_target, "qf_target"),
+                            (q_optimizer, "q_optimizer"), (actor_optimizer, "actor_optimizer"),
+                            (alpha_optimizer, "alpha_optimizer"), (rb, "buffer")):
+            module.load_state_dict(ckpt[key])
+        with torch.no_grad():
+            log_alpha.copy_(ckpt["log_alpha"])
+        set_rng_states(ckpt["rng"], env)
+        global_step, elapsed, progress = ckpt["global_step"], ckpt["elapsed"], ckpt["progress"]
+        obs, _ = env.reset()  # the checkpoint was taken at an episode end, before this reset
+        print(f"resuming {run_dir} at step {global_step}", flush=True)
+    else:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        for old in run_dir.glob("events.out.tfevents.*"):  # a restart from step 0
+            old.unlink()
+        global_step, elapsed = 0, 0.0
+        progress = {"episode_returns": [], "episode_lengths": [], "last_eval": None}
+        atomic_write(run_dir / "config.json", lambda tmp: tmp.write_text(json.dumps(
+            run_metadata(args, obs_dim, action_dim), indent=2)))
+        obs, _ = env.reset(seed=args.seed)
+    keep = global_step if args.resume is not None else None
+    selectors = eval_selectors(args)
+    eval_columns = ["global_step", "wall_time", "eval_round",
+                    *[p + s for p in selectors for s in EVAL_STATS], *SHIFT_COLUMNS]
+    eval_file, eval_csv = open_csv(run_dir / "eval.csv", eval_columns, keep)
+    train_file, train_csv = open_csv(run_dir / "train.csv", list(TRAIN_COLUMNS), keep)
+    tb = SummaryWriter(run_dir, purge_step=global_step + 1 if ckpt is not None else None)
+    if ckpt is None:
+        tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
+            f"|{k}|{v}|" for k, v in dataclasses.asdict(args).items()))
+    del ckpt
+
+    stop = StopRequest()
+    session_start, row_start, row_step = time.time(), time.time(), global_step
+    episode_return, episode_length, losses = 0.0, 0, None
+    next_checkpoint = (global_step // args.checkpoint_interval + 1) * args.checkpoint_interval \
+        if args.checkpoint_interval > 0 else None
+    while global_step < args.total_timesteps:
+        if global_step < args.learning_starts:
+            action = env.action_space.sample()
+        else:
+            with torch.no_grad():
+                obs_tensor = torch.as_tensor(obs, dtype=torch.float32, device=device)
+                action = actor.get_action(obs_tensor[None])[0][0].cpu().numpy()
+            check_finite(action, "action")
+        next_obs, reward, terminated, truncated, info = env.step(action)
+        global_step += 1
+        episode_return, episode_length = episode_return + float(reward), episode_length + 1
+        episode_end = terminated or truncated
+        rb.add(obs, action, reward, terminated, next_obs, episode_end)
+        obs = next_obs
+
+        if global_step >= args.learning_starts:
+            b_obs, b_actions, b_rewards, b_next_obs, b_not_done = rb.sample(args.batch_size, device)
+            alpha = log_alpha.exp().detach()
+            with torch.no_grad():
+                next_actions, next_log_pi = actor.get_action(b_next_obs)
+                min_qf_next = qf_target(b_next_obs, next_actions).min(0).values
+                next_q_value = b_rewards + b_not_done * args.gamma * (
+                    min_qf_next - alpha * next_log_pi)
+            qf_values = qf(b_obs, b_actions)
+            qf_losses = (qf_values - next_q_value).pow(2).mean(1)
+            q_optimizer.zero_grad()
+            qf_losses.sum().backward()
+            q_optimizer.step()
+
+            pi, log_pi = actor.get_action(b_obs)
+            actor_loss = (alpha * log_pi - qf(b_obs, pi).min(0).values).mean()
+            actor_optimizer.zero_grad()
+            actor_loss.backward()
+            actor_optimizer.step()
+
+            alpha_loss = -(log_alpha.exp() * (log_pi.detach() + target_entropy)).mean()
+            alpha_optimizer.zero_grad()
+            alpha_loss.backward()
+            alpha_optimizer.step()
+
+            with torch.no_grad():
+                for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
+                    p_target.lerp_(p, args.tau)
+            losses = (qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi)
+
+        if global_step % args.log_interval == 0:
+            now = time.time()
+            returns, lengths = progress["episode_returns"], progress["episode_lengths"]
+            row = {"global_step": global_step, "wall_time": elapsed + now - session_start,
+                   "sps": (global_step - row_step) / (now - row_start), "episodes": len(returns),
+                   "episode_return_mean": np.mean(returns) if returns else None,
+                   "episode_length_mean": np.mean(lengths) if lengths else None}
+            if losses is not None:
+                qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi = losses
+                check_finite(qf_losses.detach().cpu().numpy(), "critic loss")
+                row |= {"qf1_loss": qf_losses[0].item(), "qf2_loss": qf_losses[1].item(),
+                        "qf1_value": qf_values[0].mean().item(),
+                        "qf2_value": qf_values[1].mean().item(),
+                        "actor_loss": actor_loss.item(), "alpha": alpha.item(),
+                        "alpha_loss": alpha_loss.item(), "entropy": -log_pi.mean().item()}
+            write_row(train_file, train_csv, tb, "train", row)
+            returns.clear()
+            lengths.clear()
+            row_start, row_step = now, global_step
+
+        if global_step % args.eval_interval == 0:
+            eval_round = global_step // args.eval_interval
+            seeds = eval_seeds(args.seed, eval_round, args.eval_episodes)
+            video = run_dir / "videos" / f"eval_step{global_step}.mp4" \
+                if args.capture_video else None
+            if video is not None:
+                video.parent.mkdir(exist_ok=True)
+            row = {"global_step": global_step, "eval_round": eval_round}
+            for prefix, select in selectors.items():
+                stats, mu, log_std = evaluate(actor, eval_env, select, seeds,
+                                              video if prefix == "" else None)
+                row |= {prefix + k: v for k, v in stats.items()}
+                if prefix == "":  # the shift at the states that the mode policy visits
+                    row |= shift_statistics(mu, log_std, args.mode_solver)
+            row["wall_time"] = elapsed + time.time() - session_start
+            write_row(eval_file, eval_csv, tb, "eval", row)
+            progress["last_eval"] = (global_step, row["return_mean"])
+
+        if global_step % args.print_interval == 0:
+            last = progress["last_eval"]
+            print(f"step {global_step:,}/{args.total_timesteps:,} | "
+                  f"{global_step / (elapsed + time.time() - session_start):.0f} SPS overall | "
+                  + (f"last eval {last[1]:.1f} at step {last[0]:,}" if last else "no eval yet"),
+                  flush=True)
+
+        if episode_end:
+            progress["episode_returns"].append(episode_return)
+            progress["episode_lengths"].append(episode_length)
+            episode_return, episode_length = 0.0, 0
+            if stop.requested or (next_checkpoint is not None and global_step >= next_checkpoint):
+                state = {"args": dataclasses.asdict(args), "global_step": global_step,
+                         "elapsed": elapsed + time.time() - session_start, "progress": progress,
+                         "actor": actor.state_dict(), "qf": qf.state_dict(),
+                         "qf_target": qf_target.state_dict(), "log_alpha": log_alpha.detach(),
+                         "q_optimizer": q_optimizer.state_dict(),
+                         "actor_optimizer": actor_optimizer.state_dict(),
+                         "alpha_optimizer": alpha_optimizer.state_dict(),
+                         "buffer": rb.state_dict(), "rng": rng_states(env)}
+                atomic_write(checkpoint_path, lambda tmp, state=state: torch.save(state, tmp))
+                del state
+                if next_checkpoint is not None:
+                    next_checkpoint = (global_step // args.checkpoint_interval + 1) \
+                        * args.checkpoint_interval
+                if stop.requested:
+                    tb.close()
+                    print(f"interrupted at step {global_step}; resume with --resume {run_dir}",
+                          flush=True)
+                    sys.exit(INTERRUPTED_EXIT_CODE)
+            obs, _ = env.reset()
+
+    atomic_write(run_dir / "final_model.pt", lambda tmp: torch.save(
+        {"actor": actor.state_dict(), "qf": qf.state_dict()}, tmp))
+    tb.close()
+    eval_file.close()
+    train_file.close()
+    wall_time = elapsed + time.time() - session_start
+    atomic_write(run_dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
+        {"global_step": global_step, "wall_time": wall_time})))
+    print(f"finished {global_step} steps in {wall_time:.0f} s: {run_dir}", flush=True)

@@ -1,0 +1,235 @@
+"""The two SAC scripts, run as subprocesses with tiny budgets (learning always starts)."""
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parent.parent
+# A short Pendulum run: updates start at step 500, evaluation every 500 steps.
+SHORT = ["--env-id", "Pendulum-v1", "--total-timesteps", "1500", "--learning-starts", "500",
+         "--eval-interval", "500", "--eval-episodes", "2", "--log-interval", "100",
+         "--print-interval", "500", "--checkpoint-interval", "0"]
+
+
+def command(script: str, *args: str) -> list[str]:
+    return [sys.executable, str(ROOT / script), *args]
+
+
+def run(script: str, *args: str, check: bool = True) -> subprocess.CompletedProcess:
+    result = subprocess.run(command(script, *args), capture_output=True, text=True, cwd=ROOT)
+    if check:
+        assert result.returncode == 0, result.stderr
+    return result
+
+
+def read_csv(path: Path, drop: tuple[str, ...] = ("wall_time", "sps")) -> list[dict]:
+    with open(path, newline="") as f:
+        return [{k: v for k, v in row.items() if k not in drop} for row in csv.DictReader(f)]
+
+
+def wait_for(predicate, timeout: float = 120) -> None:
+    deadline = time.time() + timeout
+    while not predicate():
+        assert time.time() < deadline, "timed out waiting for the run"
+        time.sleep(0.05)
+
+
+@pytest.fixture(scope="module")
+def standard_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("runs")
+    run("sac_standard.py", *SHORT, "--output-dir", str(out), "--run-name", "std")
+    return out / "std"
+
+
+@pytest.fixture(scope="module")
+def corrected_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("runs")
+    run("sac_corrected.py", *SHORT, "--output-dir", str(out), "--run-name", "cor")
+    return out / "cor"
+
+
+def test_learning_on_pendulum(tmp_path):
+    run("sac_standard.py", "--env-id", "Pendulum-v1", "--total-timesteps", "6000",
+        "--learning-starts", "1000", "--eval-interval", "6000", "--eval-episodes", "5",
+        "--log-interval", "1000", "--output-dir", str(tmp_path), "--run-name", "learn")
+    train = read_csv(tmp_path / "learn" / "train.csv")
+    random_return = float(train[0]["episode_return_mean"])  # episodes of the random start steps
+    final_return = float(read_csv(tmp_path / "learn" / "eval.csv")[-1]["return_mean"])
+    assert random_return < -900
+    assert final_return > -600 and final_return > random_return + 500
+
+
+def test_scripts_train_identically_and_pair_evaluations(standard_run, corrected_run):
+    standard, corrected = (read_csv(r / "train.csv") for r in (standard_run, corrected_run))
+    assert len(standard) == 15 and standard == corrected
+    losses = [float(row["qf1_loss"]) for row in standard if row["qf1_loss"]]
+    assert len(losses) == 11 and len(set(losses)) == 11  # updates ran and changed the critic
+    # The corrected run's tanh(mu) evaluation is the standard run's evaluation, start for start.
+    standard_eval, corrected_eval = (read_csv(r / "eval.csv") for r in (standard_run,
+                                                                        corrected_run))
+    assert [r["global_step"] for r in corrected_eval] == ["500", "1000", "1500"]
+    for s, c in zip(standard_eval, corrected_eval, strict=True):
+        assert c["tanh_mu_return_mean"] == s["return_mean"]
+        assert c["tanh_mu_return_min"] == s["return_min"]
+        assert float(c["mode_shift_abs_mean"]) > 0 and 0 <= float(c["bimodal_fraction"]) <= 1
+        assert c["mode_shift_abs_sum"] == c["mode_shift_abs_mean"]  # one action dimension
+
+
+def test_run_folder_outputs(standard_run):
+    config = json.loads((standard_run / "config.json").read_text())
+    assert config["algorithm"] == "standard" and config["script"] == "sac_standard.py"
+    assert config["batch_size"] == 64 and config["env_id"] == "Pendulum-v1"
+    assert (config["obs_dim"], config["action_dim"]) == (3, 1)
+    assert set(config["versions"]) == {"python", "torch", "numpy", "gymnasium", "mujoco"}
+    assert json.loads((standard_run / "done.json").read_text())["global_step"] == 1500
+    with open(standard_run / "eval.csv") as f:
+        assert f.readline().strip().split(",") == [
+            "global_step", "wall_time", "eval_round", "return_mean", "return_std", "return_min",
+            "return_max", "length_mean", "success_rate"]
+    eval_rows = read_csv(standard_run / "eval.csv")
+    assert [r["success_rate"] for r in eval_rows] == ["", "", ""]  # Pendulum reports no success
+    model = torch.load(standard_run / "final_model.pt")
+    assert set(model) == {"actor", "qf"}
+
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(standard_run))
+    events.Reload()
+    returns = events.Scalars("eval/return_mean")
+    assert [e.step for e in returns] == [500, 1000, 1500]
+    assert [e.value for e in returns] == pytest.approx(
+        [float(r["return_mean"]) for r in eval_rows])
+    assert len(events.Scalars("train/qf1_loss")) == 11
+
+
+def test_sigkill_then_resume_equals_uninterrupted(standard_run, tmp_path):
+    args = [*SHORT[:-1], "400", "--output-dir", str(tmp_path), "--run-name", "killed"]
+    run_dir = tmp_path / "killed"
+    process = subprocess.Popen(command("sac_standard.py", *args), cwd=ROOT,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # Kill once the checkpoint at step 800 (past the start of learning) is on disk: it is saved
+    # before the evaluation at step 1000.
+    wait_for(lambda: (run_dir / "eval.csv").exists()
+             and "1000," in (run_dir / "eval.csv").read_text())
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    assert not (run_dir / "done.json").exists()
+    assert torch.load(run_dir / "checkpoint.pt", weights_only=False)["global_step"] in (800, 1200)
+    run("sac_standard.py", "--resume", str(run_dir))
+    for name in ("eval.csv", "train.csv"):
+        assert read_csv(run_dir / name) == read_csv(standard_run / name)
+    resumed, uninterrupted = (torch.load(r / "final_model.pt") for r in (run_dir, standard_run))
+    for part in ("actor", "qf"):
+        for key, value in uninterrupted[part].items():
+            assert torch.equal(resumed[part][key], value), key
+
+
+def test_sigterm_checkpoints_exits_3_and_resumes(corrected_run, tmp_path):
+    args = [*SHORT, "--output-dir", str(tmp_path), "--run-name", "term"]
+    run_dir = tmp_path / "term"
+    process = subprocess.Popen(command("sac_corrected.py", *args), cwd=ROOT,
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    wait_for(lambda: (run_dir / "train.csv").exists()
+             and "\n600," in (run_dir / "train.csv").read_text())
+    process.send_signal(signal.SIGTERM)
+    output = process.communicate()[0]
+    assert process.returncode == 3, output
+    assert "resume with --resume" in output
+    stopped_at = torch.load(run_dir / "checkpoint.pt", weights_only=False)["global_step"]
+    assert stopped_at % 200 == 0 and 600 <= stopped_at < 1500  # at an episode end
+    assert not (run_dir / "done.json").exists()
+    run("sac_corrected.py", "--resume", str(run_dir), "--torch-threads", "2")
+    for name in ("eval.csv", "train.csv"):
+        assert read_csv(run_dir / name) == read_csv(corrected_run / name)
+
+
+def test_replay_buffer_keeps_episode_boundaries():
+    from sac_standard import ReplayBuffer
+
+    rb = ReplayBuffer(size=7, obs_dim=1, action_dim=1, seed=0)
+    # Episode 1: obs 0 -> 1 -> 2 (truncated); episode 2: 10 -> 11 (terminated); 3: 20 -> 21 -> 22.
+    for obs, next_obs, end, terminated in [(0, 1, False, False), (1, 2, True, False),
+                                           (10, 11, True, True), (20, 21, False, False),
+                                           (21, 22, False, False)]:
+        rb.add([obs], [obs], float(obs), terminated, [next_obs], end)
+    # 8 slots were needed in a ring of 7: observation 22 overwrote the first transition (0 -> 1).
+    obs, actions, rewards, next_obs, not_done = rb.sample(500, torch.device("cpu"))
+    pairs = {(int(o), int(n), int(d)) for o, n, d in zip(obs[:, 0], next_obs[:, 0], not_done,
+                                                         strict=True)}
+    assert pairs == {(1, 2, 1), (10, 11, 0), (20, 21, 1), (21, 22, 1)}
+    assert torch.equal(actions[:, 0], obs[:, 0]) and torch.equal(rewards, obs[:, 0])
+
+
+def test_replay_buffer_state_round_trip():
+    from sac_standard import ReplayBuffer
+
+    rb = ReplayBuffer(size=50, obs_dim=3, action_dim=2, seed=1)
+    for i in range(30):
+        rb.add([i] * 3, [i, -i], i, False, [i + 1] * 3, i % 7 == 6)
+    copy = ReplayBuffer(size=50, obs_dim=3, action_dim=2, seed=99)
+    copy.load_state_dict(rb.state_dict())
+    for a, b in zip(rb.sample(16, torch.device("cpu")), copy.sample(16, torch.device("cpu")),
+                    strict=True):
+        assert torch.equal(a, b)
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--env-id", "Pendulum-v2"], "close matches: ['Pendulum-v1'"),
+    (["--env-id", "CartPole-v1"], "Discrete action space"),
+    (["--env-id", "Pendulum-v1", "--batch-size", "128", "--buffer-size", "100"],
+     "exceeds --buffer-size"),
+    (["--resume", "tests"], "is not a run folder"),
+])
+def test_bad_input_fails_with_one_clear_line(args, message, tmp_path):
+    result = run("sac_standard.py", *args, "--output-dir", str(tmp_path), check=False)
+    assert result.returncode != 0
+    assert message in result.stderr and "Traceback" not in result.stderr
+
+
+def test_bad_resumes_fail_clearly(standard_run, tmp_path):
+    result = run("sac_standard.py", *SHORT, "--output-dir", str(standard_run.parent),
+                 "--run-name", "std", check=False)
+    assert "already holds a run" in result.stderr
+    result = run("sac_corrected.py", "--resume", str(standard_run), check=False)
+    assert "resume it with that script" in result.stderr
+    result = run("sac_standard.py", "--resume", str(standard_run), "--seed", "5", check=False)
+    assert "['seed'] contradict" in result.stderr
+    # A checkpoint whose arguments differ from the run's config.json.
+    run_dir = tmp_path / "mismatch"
+    run("sac_standard.py", *SHORT[:-1], "300", "--total-timesteps", "400", "--learning-starts",
+        "100", "--output-dir", str(tmp_path), "--run-name", "mismatch")
+    (run_dir / "done.json").unlink()
+    config = json.loads((run_dir / "config.json").read_text())
+    (run_dir / "config.json").write_text(json.dumps({**config, "gamma": 0.5}))
+    result = run("sac_standard.py", "--resume", str(run_dir), check=False)
+    assert "made with other arguments" in result.stderr
+
+
+def test_nan_is_a_clear_error():
+    from sac_standard import check_finite
+
+    with pytest.raises(SystemExit, match="training diverged"):
+        check_finite(torch.tensor([0.0, float("nan")]).numpy(), "action")
+    check_finite(torch.zeros(3).numpy(), "action")
+
+
+def test_capture_video_writes_a_readable_mp4(tmp_path):
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    run("sac_standard.py", "--env-id", "Hopper-v5", "--total-timesteps", "300",
+        "--learning-starts", "200", "--eval-interval", "300", "--eval-episodes", "1",
+        "--capture-video", "--output-dir", str(tmp_path), "--run-name", "video")
+    import imageio
+
+    videos = list((tmp_path / "video" / "videos").glob("*.mp4"))
+    assert [v.name for v in videos] == ["eval_step300.mp4"]
+    frames = imageio.mimread(videos[0])
+    length = float(read_csv(tmp_path / "video" / "eval.csv")[0]["length_mean"])
+    assert len(frames) == length and frames[0].ndim == 3
