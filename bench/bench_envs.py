@@ -5,8 +5,8 @@ For each task it steps `gym.make(id)` (with gymnasium's wrappers, as training us
 uniform random actions on one thread, resetting when an episode ends; then it replays exactly
 the same trajectory on the same model with nothing but `mj_step` (10 substeps per env step,
 the same controls, the same reset states). The difference is the cost of our Python: action
-checks, reward, termination, observation, wrappers. Prints medians over repeats (the two loops
-alternate, so background load hits both alike).
+checks, reward, termination, observation, resets, wrappers. Times are this process's CPU time
+(one thread), so other jobs on a shared machine do not count; prints medians over repeats.
 """
 
 from __future__ import annotations
@@ -40,13 +40,13 @@ def time_env(env: gym.Env, actions: np.ndarray, seed: int) -> tuple[float, list,
     base = env.unwrapped
     env.reset(seed=seed)
     starts = [(0, base.data.qpos.copy(), base.data.qvel.copy())]
-    start = time.perf_counter()
+    start = time.process_time()
     for i, action in enumerate(actions):
         _, _, terminated, truncated, _ = env.step(action)
         if terminated or truncated:
             env.reset()
             starts.append((i + 1, base.data.qpos.copy(), base.data.qvel.copy()))
-    seconds = time.perf_counter() - start
+    seconds = time.process_time() - start
     return seconds, starts, base.data.qpos.copy()
 
 
@@ -56,7 +56,7 @@ def time_bare_physics(
     """Seconds for mj_step alone along the same trajectory, and the final qpos."""
     data = mujoco.MjData(model)
     resets = {step: (qpos, qvel) for step, qpos, qvel in starts}
-    start = time.perf_counter()
+    start = time.process_time()
     for i, ctrl in enumerate(ctrls):
         if i in resets:
             mujoco.mj_resetData(model, data)
@@ -64,7 +64,7 @@ def time_bare_physics(
             mujoco.mj_forward(model, data)
         data.ctrl[:] = ctrl
         mujoco.mj_step(model, data, nstep=N_SUBSTEPS)
-    seconds = time.perf_counter() - start
+    seconds = time.process_time() - start
     return seconds, data.qpos.copy()
 
 
