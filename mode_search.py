@@ -81,11 +81,12 @@ def _exact_mode(mu: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
       m <= r < m + c, and Newton converges to it monotonically from the right of r, and from
       the left (above the minimum of g) overshoots once to the right.
     - Where r is small (sigma near 1/sqrt(2), |mu| small: nearly a double root, slow for Newton)
-      tanh x ~ x - x^3/3 turns g into the cubic x^3 - a x - b, a = 3(c-1)/c, b = 3m/c, whose root
-      is close to r, at least (max(a, 0)^1.5 + b)^(1/3). Newton starts there when that is below
-      1, else from m + c.
+      tanh x >= x - x^3/3 bounds g by the cubic (c/3)(x^3 - a x - b), a = 3(c-1)/c, b = 3m/c,
+      whose root lies just below r and is at least (max(a, 0)^1.5 + b)^(1/3). Newton starts
+      there when that is below 1, else from m + c.
     """
-    m = mu.to(torch.float64).abs()
+    # An infinite |mu| becomes a huge finite one, whose mode rounds to the largest float below 1.
+    m = mu.to(torch.float64).abs().clamp(max=1e300)
     c = torch.exp(2.0 * log_std.to(torch.float64) + math.log(2.0))
     three_over_c = 3.0 / c
     a, b = 3.0 - three_over_c, m * three_over_c

@@ -74,10 +74,13 @@ def test_density_matches_histogram_of_squashed_samples(mu: float, sigma: float) 
 
 def test_log_prob_matches_textbook_formula_where_that_is_accurate() -> None:
     y = torch.linspace(-0.99, 0.99, 397, dtype=torch.float64)
-    mu, log_std = torch.tensor(0.3, dtype=torch.float64), torch.tensor(-0.4, dtype=torch.float64)
-    normal = torch.distributions.Normal(mu, log_std.exp())
-    textbook = normal.log_prob(torch.atanh(y)) - torch.log(1 - y**2)
-    torch.testing.assert_close(tanh_normal_log_prob(y, mu, log_std), textbook)
+    mu, sigma = 0.3, 0.7
+    gaussian = -0.5 * ((torch.atanh(y) - mu) / sigma) ** 2 - math.log(
+        sigma * math.sqrt(2 * math.pi)
+    )
+    textbook = gaussian - torch.log(1 - y**2)
+    log_std = torch.tensor(math.log(sigma), dtype=torch.float64)
+    torch.testing.assert_close(tanh_normal_log_prob(y, torch.tensor(mu), log_std), textbook)
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -222,6 +225,12 @@ def test_mode_beyond_dtype_resolution_is_the_nearest_value_inside(dtype: torch.d
     y = mode_action(
         torch.tensor([20.0, -20.0], dtype=dtype), torch.tensor(math.log(10.0), dtype=dtype)
     )
+    assert torch.equal(y, torch.stack([top, -top]))
+
+
+def test_infinite_mu_gives_the_nearest_value_inside() -> None:
+    top = torch.nextafter(torch.tensor(1.0), torch.tensor(0.0))
+    y = mode_action(torch.tensor([math.inf, -math.inf]), torch.tensor([-1.0, 1.0]))
     assert torch.equal(y, torch.stack([top, -top]))
 
 
