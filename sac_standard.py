@@ -267,6 +267,41 @@ class ReplayBuffer:
     ARRAYS = ("obs", "actions", "rewards", "terminated", "valid")
 
 
+def sac_update(batch: tuple[torch.Tensor, ...], actor: Actor, qf: TwinQ, qf_target: TwinQ,
+               log_alpha: torch.Tensor, optimizers: tuple[torch.optim.Optimizer, ...],
+               gamma: float, tau: float, target_entropy: float) -> tuple[torch.Tensor, ...]:
+    """One gradient step of the twin critics, then the actor, then the temperature, then the
+    critics' Polyak-averaged targets. Returns the tensors that train.csv logs."""
+    b_obs, b_actions, b_rewards, b_next_obs, b_not_done = batch
+    q_optimizer, actor_optimizer, alpha_optimizer = optimizers
+    alpha = log_alpha.exp().detach()
+    with torch.no_grad():
+        next_actions, next_log_pi = actor.get_action(b_next_obs)
+        min_qf_next = qf_target(b_next_obs, next_actions).min(0).values
+        next_q_value = b_rewards + b_not_done * gamma * (min_qf_next - alpha * next_log_pi)
+    qf_values = qf(b_obs, b_actions)
+    qf_losses = (qf_values - next_q_value).pow(2).mean(1)
+    q_optimizer.zero_grad()
+    qf_losses.sum().backward()
+    q_optimizer.step()
+
+    pi, log_pi = actor.get_action(b_obs)
+    actor_loss = (alpha * log_pi - qf(b_obs, pi).min(0).values).mean()
+    actor_optimizer.zero_grad()
+    actor_loss.backward()
+    actor_optimizer.step()
+
+    alpha_loss = -(log_alpha.exp() * (log_pi.detach() + target_entropy)).mean()
+    alpha_optimizer.zero_grad()
+    alpha_loss.backward()
+    alpha_optimizer.step()
+
+    with torch.no_grad():
+        for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
+            p_target.lerp_(p, tau)
+    return qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi
+
+
 def evaluate(actor: Actor, env: gym.Env, select: Callable, seeds: list[int],
              video_path: Path | None = None) -> tuple[dict, torch.Tensor, torch.Tensor]:
     """One episode per reset seed, acting with scale * select(mu, log_std) + bias.
@@ -438,6 +473,7 @@ if __name__ == "__main__":
     target_entropy = -args.target_entropy_scale * action_dim
     log_alpha = torch.tensor(float(np.log(args.alpha_init)), device=device, requires_grad=True)
     alpha_optimizer = torch.optim.Adam([log_alpha], lr=args.alpha_lr)
+    optimizers = (q_optimizer, actor_optimizer, alpha_optimizer)
     rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim, args.seed)
 
     # A run folder: fresh, or resumed from its checkpoint, or restarted if it has none yet.
@@ -502,34 +538,8 @@ if __name__ == "__main__":
         obs = next_obs
 
         if global_step >= args.learning_starts:
-            b_obs, b_actions, b_rewards, b_next_obs, b_not_done = rb.sample(args.batch_size, device)
-            alpha = log_alpha.exp().detach()
-            with torch.no_grad():
-                next_actions, next_log_pi = actor.get_action(b_next_obs)
-                min_qf_next = qf_target(b_next_obs, next_actions).min(0).values
-                next_q_value = b_rewards + b_not_done * args.gamma * (
-                    min_qf_next - alpha * next_log_pi)
-            qf_values = qf(b_obs, b_actions)
-            qf_losses = (qf_values - next_q_value).pow(2).mean(1)
-            q_optimizer.zero_grad()
-            qf_losses.sum().backward()
-            q_optimizer.step()
-
-            pi, log_pi = actor.get_action(b_obs)
-            actor_loss = (alpha * log_pi - qf(b_obs, pi).min(0).values).mean()
-            actor_optimizer.zero_grad()
-            actor_loss.backward()
-            actor_optimizer.step()
-
-            alpha_loss = -(log_alpha.exp() * (log_pi.detach() + target_entropy)).mean()
-            alpha_optimizer.zero_grad()
-            alpha_loss.backward()
-            alpha_optimizer.step()
-
-            with torch.no_grad():
-                for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
-                    p_target.lerp_(p, args.tau)
-            losses = (qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi)
+            losses = sac_update(rb.sample(args.batch_size, device), actor, qf, qf_target, log_alpha,
+                                optimizers, args.gamma, args.tau, target_entropy)
 
         if global_step % args.log_interval == 0:
             now = time.time()

@@ -1,0 +1,213 @@
+"""Speed and memory of the SAC scripts: prints the figures quoted in README.md (section sac).
+
+    .venv/bin/python bench/bench_sac.py --env-id h1hand-powerlift-v0
+
+Times (medians over --repeats): one gradient update alone (the script's fused twin critics, and
+for comparison two separate critics and a torch.compile'd update), one env step alone, one actor
+forward; the training loop's steps/s after the start steps (sac_standard.py run as a
+subprocess, read from its train.csv); an evaluation round of 10 episodes; and the resident memory
+of a full 1M-transition replay buffer with 308-dim observations (bookshelf's size).
+"""
+
+import csv
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import psutil
+import torch
+import torch.nn as nn
+import tyro
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from sac_standard import (  # noqa: E402
+    Actor,
+    ReplayBuffer,
+    TwinQ,
+    eval_seeds,
+    evaluate,
+    make_env,
+    sac_update,
+)
+
+
+@dataclass
+class Args:
+    env_id: str = "h1hand-powerlift-v0"
+    """the task to time"""
+    batch_size: int = 64
+    """batch size of the timed updates (the paper's)"""
+    torch_threads: int = 1
+    """torch CPU threads"""
+    repeats: int = 5
+    """repeats of each timing; medians are printed"""
+    updates: int = 200
+    """updates per timing repeat"""
+    loop_steps: int = 3000
+    """training-loop steps timed after the start steps"""
+    eval_episodes: int = 10
+    """episodes of the timed evaluation round"""
+    compile: bool = True
+    """also time a torch.compile'd update"""
+
+
+class SeparateTwinQ(nn.Module):
+    """The textbook layout: two independent critics (the baseline the fused TwinQ replaces)."""
+
+    def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...]):
+        super().__init__()
+        sizes = (obs_dim + action_dim, *hidden)
+
+        def mlp() -> nn.Sequential:
+            layers = [m for i, o in zip(sizes, sizes[1:], strict=False)
+                      for m in (nn.Linear(i, o), nn.ReLU())]
+            return nn.Sequential(*layers, nn.Linear(sizes[-1], 1))
+
+        self.qf1, self.qf2 = mlp(), mlp()
+
+    def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        x = torch.cat([obs, action], 1)
+        return torch.stack([self.qf1(x), self.qf2(x)]).squeeze(-1)
+
+
+def median_time(fn, repeats: int, calls: int) -> float:
+    """Median over repeats of the mean seconds per call."""
+    fn()  # warm-up (and compilation)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        times.append((time.perf_counter() - start) / calls)
+    return statistics.median(times)
+
+
+def time_update(args: Args, env, critic_class=TwinQ, compiled: bool = False) -> float:
+    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
+    hidden = (256, 256)
+    actor = Actor(obs_dim, hidden, env.action_space, -10.0, 2.0)
+    qf, qf_target = critic_class(obs_dim, action_dim, hidden), critic_class(obs_dim, action_dim,
+                                                                            hidden)
+    qf_target.load_state_dict(qf.state_dict())
+    log_alpha = torch.zeros((), requires_grad=True)
+    optimizers = (torch.optim.Adam(qf.parameters(), lr=3e-4),
+                  torch.optim.Adam(actor.parameters(), lr=3e-4),
+                  torch.optim.Adam([log_alpha], lr=3e-4))
+    rb = ReplayBuffer(20_000, obs_dim, action_dim, seed=0)
+    rng = np.random.default_rng(0)
+    for i in range(20_000):
+        rb.add(rng.normal(size=obs_dim), rng.uniform(-1, 1, action_dim), rng.normal(), False,
+               rng.normal(size=obs_dim), i % 500 == 499)
+    update = torch.compile(sac_update) if compiled else sac_update
+    device = torch.device("cpu")
+
+    def step():
+        update(rb.sample(args.batch_size, device), actor, qf, qf_target, log_alpha, optimizers,
+               0.99, 0.005, -action_dim / 2)
+
+    if compiled:
+        for _ in range(5):
+            step()  # compiles the graphs of the first steps
+    return median_time(step, args.repeats, args.updates)
+
+
+def time_env_step(env, steps: int, repeats: int) -> tuple[float, float]:
+    """Seconds per env step with random actions (resets included), and mean episode length."""
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    lengths, length = [], 0
+
+    def step():
+        nonlocal length
+        length += 1
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            lengths.append(length)
+            length = 0
+            env.reset()
+
+    return median_time(step, repeats, steps), (np.mean(lengths) if lengths else float(length))
+
+
+def time_actor_forward(env, repeats: int) -> float:
+    actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
+    obs = torch.as_tensor(env.observation_space.sample(), dtype=torch.float32)[None]
+
+    def forward():
+        with torch.no_grad():
+            mu, _ = actor(obs)
+            actor.scale(torch.tanh(mu))[0].numpy()
+
+    return median_time(forward, repeats, 500)
+
+
+def loop_steps_per_second(args: Args) -> float:
+    """The training loop's steps/s after the start steps, from sac_standard.py's train.csv."""
+    with tempfile.TemporaryDirectory() as out:
+        start = 1000
+        subprocess.run([sys.executable, str(ROOT / "sac_standard.py"), "--env-id", args.env_id,
+                        "--total-timesteps", str(start + args.loop_steps), "--learning-starts",
+                        str(start), "--eval-interval", str(10 * (start + args.loop_steps)),
+                        "--log-interval", "500", "--checkpoint-interval", "0",
+                        "--torch-threads", str(args.torch_threads), "--output-dir", out,
+                        "--run-name", "bench"], check=True, capture_output=True)
+        with open(Path(out) / "bench" / "train.csv") as f:
+            rows = [r for r in csv.DictReader(f) if int(r["global_step"]) > start + 500]
+    return statistics.median(float(r["sps"]) for r in rows)
+
+
+def time_eval_round(env, episodes: int) -> tuple[float, float]:
+    """Seconds of one evaluation round with tanh(mu) of an untrained actor, and its steps."""
+    actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
+    start = time.perf_counter()
+    stats, mu, _ = evaluate(actor, env, lambda m, s: torch.tanh(m), eval_seeds(0, 1, episodes))
+    return time.perf_counter() - start, len(mu)
+
+
+def replay_buffer_memory_gb() -> float:
+    """Resident memory added by a full 1M x 308-dim buffer (61-dim actions), in GB."""
+    process = psutil.Process()
+    before = process.memory_info().rss
+    rb = ReplayBuffer(1_000_000, 308, 61, seed=0)
+    for name in ReplayBuffer.ARRAYS:
+        getattr(rb, name)[:] = 1  # touch every page
+    return (process.memory_info().rss - before) / 1e9
+
+
+if __name__ == "__main__":
+    args = tyro.cli(Args)
+    torch.set_num_threads(args.torch_threads)
+    env = make_env(args.env_id)
+    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
+    print(f"{args.env_id}: obs {obs_dim}, actions {action_dim}, batch {args.batch_size}, "
+          f"torch threads {args.torch_threads}, torch {torch.__version__}")
+    update = time_update(args, env)
+    print(f"update (fused twin critics, eager):   {update * 1e3:6.2f} ms")
+    separate = time_update(args, env, SeparateTwinQ)
+    print(f"update (two separate critics, eager): {separate * 1e3:6.2f} ms")
+    if args.compile:
+        print(f"update (fused, torch.compile):        "
+              f"{time_update(args, env, compiled=True) * 1e3:6.2f} ms")
+    env_step, episode_length = time_env_step(env, 1000, args.repeats)
+    actor_forward = time_actor_forward(env, args.repeats)
+    print(f"env step:                             {env_step * 1e3:6.2f} ms "
+          f"(random-action episodes of {episode_length:.0f} steps)")
+    print(f"actor forward (1 obs):                {actor_forward * 1e3:6.2f} ms")
+    sps = loop_steps_per_second(args)
+    bound = 1 / (update + env_step)
+    print(f"training loop: {sps:.1f} steps/s; 1 / (update + env step) = {bound:.1f} steps/s; "
+          f"loop overhead {100 * (bound / sps - 1):.0f}%")
+    seconds, steps = time_eval_round(make_env(args.env_id), args.eval_episodes)
+    predicted = steps * (env_step + actor_forward)
+    print(f"eval round: {args.eval_episodes} episodes, {steps} steps in {seconds:.2f} s; "
+          f"steps x (env step + actor forward) = {predicted:.2f} s "
+          f"({100 * (seconds / predicted - 1):+.0f}%)")
+    print(f"replay buffer 1M x 308-dim obs + 61-dim actions: {replay_buffer_memory_gb():.2f} GB "
+          "resident")
