@@ -56,14 +56,20 @@ def time_bare_physics(
     """Seconds for mj_step alone along the same trajectory, and the final qpos."""
     data = mujoco.MjData(model)
     resets = {step: (qpos, qvel) for step, qpos, qvel in starts}
+
+    def reset(step: int) -> None:
+        mujoco.mj_resetData(model, data)
+        data.qpos[:], data.qvel[:] = resets[step]
+        mujoco.mj_forward(model, data)
+
     start = time.process_time()
     for i, ctrl in enumerate(ctrls):
         if i in resets:
-            mujoco.mj_resetData(model, data)
-            data.qpos[:], data.qvel[:] = resets[i]
-            mujoco.mj_forward(model, data)
+            reset(i)
         data.ctrl[:] = ctrl
         mujoco.mj_step(model, data, nstep=N_SUBSTEPS)
+    if len(ctrls) in resets:  # the last step ended an episode
+        reset(len(ctrls))
     seconds = time.process_time() - start
     return seconds, data.qpos.copy()
 

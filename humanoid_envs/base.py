@@ -17,19 +17,6 @@ from gymnasium import spaces
 
 from humanoid_envs.robot import ACTUATOR_NAMES, KEYFRAME_QPOS, N_SUBSTEPS, H1Hand, robot_spec
 
-# MuJoCo warnings after which the state is garbage (MuJoCo has already reset it to qpos0 for the
-# first three, and dropped contacts or constraints for the last two): the episode cannot go on.
-_UNSTABLE_WARNINGS = np.array(
-    [
-        mujoco.mjtWarning.mjWARN_BADQPOS,
-        mujoco.mjtWarning.mjWARN_BADQVEL,
-        mujoco.mjtWarning.mjWARN_BADQACC,
-        mujoco.mjtWarning.mjWARN_CONTACTFULL,
-        mujoco.mjtWarning.mjWARN_CNSTRFULL,
-    ],
-    dtype=int,
-)
-
 # Half-width of the uniform reset noise on qpos (HumanoidBench's powerlift).
 _QPOS_NOISE = 0.01
 
@@ -169,6 +156,7 @@ class H1HandEnv(gym.Env):
         self.model = self._compile_scene(task, width, height)
         self.data = mujoco.MjData(self.model)
         self.robot = H1Hand(self.model, self.data)
+        self._warning_counts = self.data.warning.number  # a view: MuJoCo updates it in place
         task.bind(self.model, self.data, self.robot)
 
         self._action_shape = (len(ACTUATOR_NAMES),)
@@ -243,15 +231,17 @@ class H1HandEnv(gym.Env):
                 f"action has NaN or inf at {len(bad)} entries (first: {names}); "
                 "check the policy's output before stepping"
             )
-        return action.clip(-1.0, 1.0)
+        clipped = np.maximum(action, -1.0)
+        return np.minimum(clipped, 1.0, out=clipped)
 
     def _instability(self) -> str:
         """Why the physics can no longer be trusted, or "" if it can."""
-        counts = self.data.warning.number[_UNSTABLE_WARNINGS]
-        if not counts.any():
+        # Any MuJoCo warning (bad qpos/qvel/qacc, which MuJoCo answers by resetting the state to
+        # qpos0; full contact or constraint buffers; bad inertia) leaves the state untrustworthy.
+        if not np.count_nonzero(self._warning_counts):
             return ""
-        first = _UNSTABLE_WARNINGS[np.flatnonzero(counts)[0]]
-        return f"MuJoCo warning {mujoco.mjtWarning(first).name} at t = {self.data.time:.3f} s"
+        first = mujoco.mjtWarning(int(np.flatnonzero(self._warning_counts)[0]))
+        return f"MuJoCo warning {first.name} at t = {self.data.time:.3f} s"
 
     def _truncate_unstable(self, reason: str) -> tuple[np.ndarray, float, bool, bool, dict]:
         """End the episode without crashing: the last finite observation, reward 0."""

@@ -11,15 +11,17 @@ _SIGMOIDS = ("gaussian", "linear", "quadratic")
 STAND_HEIGHT = 1.65
 
 
-def _sigmoid(d: np.ndarray | float, value_at_margin: float, sigmoid: str) -> np.ndarray | float:
-    """Value of a sigmoid at d >= 0 (distance in units of the margin); equals value_at_margin
-    at d = 1."""
+def _sigmoid(
+    distance: np.ndarray | float, margin: float, value_at_margin: float, sigmoid: str
+) -> np.ndarray | float:
+    """The sigmoid at `distance` (>= 0) from the bounds: 1 at 0, value_at_margin at margin."""
     if sigmoid == "gaussian":
-        scale = math.sqrt(-2.0 * math.log(value_at_margin))
-        return np.exp(-0.5 * (d * scale) ** 2)
+        x = distance * (math.sqrt(-2.0 * math.log(value_at_margin)) / margin)
+        return np.exp(-0.5 * x * x)
     if sigmoid == "linear":
-        return np.maximum(0.0, 1.0 - d * (1.0 - value_at_margin))
-    return np.maximum(0.0, 1.0 - d**2 * (1.0 - value_at_margin))
+        return np.maximum(0.0, 1.0 - distance * ((1.0 - value_at_margin) / margin))
+    x = distance * (math.sqrt(1.0 - value_at_margin) / margin)
+    return np.maximum(0.0, 1.0 - x * x)
 
 
 def _check_tolerance_arguments(
@@ -56,15 +58,17 @@ def tolerance(
     lower, upper = bounds
     _check_tolerance_arguments(lower, upper, margin, sigmoid, value_at_margin)
     is_array = isinstance(x, np.ndarray)
-    # Plain Python for numbers: rewards call this several times per env step.
-    if is_array:
-        distance = np.maximum(np.maximum(lower - x, x - upper), 0.0)
-    else:
+    # Plain Python for numbers, few array operations for arrays: rewards call this every step.
+    if not is_array:
         distance = max(lower - x, x - upper, 0.0)
+    elif lower == upper:
+        distance = np.abs(x - lower)
+    else:
+        distance = np.maximum(np.maximum(lower - x, x - upper), 0.0)
     if margin == 0:
         return np.where(distance > 0.0, 0.0, 1.0) if is_array else float(distance == 0.0)
     # Every sigmoid is 1 at distance 0, so inside the bounds needs no special case.
-    value = _sigmoid(distance / margin, value_at_margin, sigmoid)
+    value = _sigmoid(distance, margin, value_at_margin, sigmoid)
     return value if is_array else float(value)
 
 
