@@ -20,13 +20,16 @@ tasks solvable (feet stand on the floor, hands and arms touch objects):
    always-active constraint rows). Their damping (0.05 N m s fingers, 0.5 wrist) is
    unchanged and already exceeds 0.01 N m above 0.2 rad/s.
 
-Measured bare physics (10 x mj_step per env step, uniform random ctrl, reset to the keyframe
-when the pelvis drops below 0.2 m; thread CPU time, median of 5 runs of 1500 env steps, on
-the 2-core dev machine, robot + floor + a 104 kg primitive dumbbell as in powerlift):
-    self-collisions and hand friction loss as in HumanoidBench   1056 env steps/s (nefc 84)
-    self-collisions off                                          1409 env steps/s (nefc 72)
-    self-collisions off, no hand friction loss (this model)      1866 env steps/s (nefc 26)
-Robot + floor alone: 1161 (HumanoidBench's choices) vs 2225 env steps/s (this model).
+Measured bare physics, env steps per second (10 x mj_step with uniform random ctrl, back to
+the keyframe when the pelvis drops below 0.2 m; thread CPU time, median of 5 x 1500 steps on
+the 2-core dev machine), each task scene built from robot_spec() with the choices undone:
+    scene       HumanoidBench's two choices  self-collisions off  this model (both off)
+    stand       1148 (nefc 66)               1568 (nefc 57)       2171 (nefc  9)
+    powerlift   1010 (nefc 83)               1338 (nefc 74)       1783 (nefc 25)
+    cube        1086 (nefc 83)               1456 (nefc 73)       1959 (nefc 24)
+    bookshelf    954 (nefc 80)               1227 (nefc 71)       1599 (nefc 22)
+(nefc: mean number of constraint rows; collision shapes are our primitives in all three.)
+MuJoCo's default sparse Jacobian beats a dense one here: 1698 vs 1476 env steps/s on powerlift.
 """
 
 from pathlib import Path
