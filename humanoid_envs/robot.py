@@ -97,9 +97,10 @@ class H1Hand:
         self._torso = model.body("torso_link").id
         self._com_velocity_adr = model.sensor("pelvis_subtreelinvel").adr[0]
         self._actuator_ids = np.array([model.actuator(n).id for n in ACTUATOR_NAMES])
-        ctrlrange = model.actuator_ctrlrange[self._actuator_ids]
-        self._ctrl_low = ctrlrange[:, 0].copy()
-        self._ctrl_span = ctrlrange[:, 1] - ctrlrange[:, 0]
+        low, high = model.actuator_ctrlrange[self._actuator_ids].T
+        # lo + (a + 1) / 2 * (hi - lo), rearranged to two array operations per step.
+        self._ctrl_mid = (low + high) / 2
+        self._ctrl_half_span = (high - low) / 2
         base = model.joint("free_base")
         self.qpos_slice = slice(int(base.qposadr[0]), int(base.qposadr[0]) + NQ_ROBOT)
         self.qvel_slice = slice(int(base.dofadr[0]), int(base.dofadr[0]) + NV_ROBOT)
@@ -136,4 +137,4 @@ class H1Hand:
 
     def action_to_ctrl(self, action: np.ndarray) -> np.ndarray:
         """Map an action in [-1, 1]^61 linearly onto the actuators' ctrlrange (action order)."""
-        return self._ctrl_low + (np.asarray(action) + 1.0) * 0.5 * self._ctrl_span
+        return self._ctrl_mid + self._ctrl_half_span * action
