@@ -1,5 +1,9 @@
 """Time the evaluation action: actor forward pass, tanh(mu), the paper's grid and the exact mode.
 
+It first prints the exact solver's largest error in y against the tests' bisection reference
+(float64, 1e6 random (mu, sigma) over |mu| <= 20, sigma in [1e-6, 10], and the near-double-root
+corner sigma ~ 1/sqrt(2), mu ~ 0).
+
 Run from the repository root: `python bench/bench_mode_search.py [--threads 1 2]`.
 For one 61-dim action (batch 1) and for a batch of 256 actions it prints the median over
 repeats of the mean time per call of each method, and the median over repeats of the ratios
@@ -21,6 +25,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from mode_search import mode_action  # noqa: E402
+from tests.test_mode_search import bisection_mode, near_double_root_params, random_params  # noqa: E402
 
 OBS_DIM, ACTION_DIM, HIDDEN = 164, 61, 256
 
@@ -61,6 +66,22 @@ def bench(batch: int, repeats: int) -> list[dict[str, float]]:
         ]
 
 
+def print_accuracy() -> None:
+    mu, log_std = random_params(1_000_000, seed=11)
+    hard_mu, hard_log_std = near_double_root_params()
+    for name, (m, s) in {
+        "random": (mu, log_std),
+        "near double root": (hard_mu, hard_log_std),
+    }.items():
+        for dtype in (torch.float64, torch.float32):
+            m_d, s_d = m.to(dtype), s.to(dtype)
+            err = mode_action(m_d, s_d).double() - bisection_mode(m_d.double(), s_d.double())
+            print(
+                f"  {name:17s} {str(dtype):14s} n={m.numel():8d}  max |exact - bisection| "
+                f"= {err.abs().max().item():.1e}"
+            )
+
+
 def report(threads: int, batch: int, runs: list[dict[str, float]]) -> None:
     print(f"\nthreads={threads}  batch={batch} x {ACTION_DIM} dims")
     for name in runs[0]:
@@ -79,7 +100,9 @@ def main() -> None:
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2], help="torch threads")
     parser.add_argument("--repeats", type=int, default=11, help="repeats per timing (median)")
     args = parser.parse_args()
-    print(f"torch {torch.__version__}, float32, CPU, median of {args.repeats} repeats")
+    print("accuracy of the exact mode in y")
+    print_accuracy()
+    print(f"\ntorch {torch.__version__}, float32, CPU, median of {args.repeats} repeats")
     for threads in args.threads:
         torch.set_num_threads(threads)
         for batch in (1, 256):
