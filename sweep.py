@@ -91,6 +91,8 @@ class Args:
     """training speed of one run for the compute estimate (env steps per second)"""
     analyze: str | None = None
     """when all runs are done, run analyze.py on the output folder into this report folder"""
+    analyze_args: str = ""
+    """further options for analyze.py in one string (e.g. "--normalize min-max --reps 2000")"""
     wait: bool = False
     """slurm launcher: wait until the job array has finished (implied by --analyze)"""
     partition: str | None = None
@@ -649,8 +651,9 @@ def print_status(output_dir: Path) -> None:
     print(", ".join(f"{n} {state}" for state, n in counts.items()))
 
 
-def run_analysis(output_dir: Path, report_dir: str) -> int:
-    command = [sys.executable, str(ROOT / "analyze.py"), str(output_dir), "--out", report_dir]
+def run_analysis(output_dir: Path, report_dir: str, options: str) -> int:
+    command = [sys.executable, str(ROOT / "analyze.py"), str(output_dir), "--out", report_dir,
+               *shlex.split(options)]
     print(f"all runs done: {shlex.join(command)}", flush=True)
     return subprocess.run(command).returncode
 
@@ -690,7 +693,9 @@ def finish(runs: list[Run], args: Args) -> int:
             print(f"{run.name} failed; last lines of {run.run_dir / LOG_FILE}:")
             print("\n".join(f"    | {line}" for line in log_tail(run.run_dir)))
     if all(state == "done" for state in states):
-        return run_analysis(runs[0].output_dir, args.analyze) if args.analyze else 0
+        if args.analyze:
+            return run_analysis(runs[0].output_dir, args.analyze, args.analyze_args)
+        return 0
     if args.analyze:
         print("not all runs are done: analysis skipped; run this command again to finish them")
     return 1 if "failed" in states else EXIT_INTERRUPTED

@@ -1,0 +1,233 @@
+"""sweep.py with the real training scripts on a small env: the local launcher, a real one-node
+Slurm cluster (tests/slurm/start.sh), preemption and cancellation, status, and bad input."""
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SWEEP = [sys.executable, str(ROOT / "sweep.py")]
+# Pendulum episodes are 200 steps: four episodes, gradient updates from step 200, an evaluation
+# and (with --checkpoint-interval 200) a checkpoint at every episode end. A stop asked for after
+# the first checkpoint leaves at least one episode to resume.
+RUN_ARGS = ["--total-timesteps", "800", "--learning-starts", "200", "--eval-interval", "200",
+            "--eval-episodes", "1", "--batch-size", "32"]
+CELLS = ["--env-ids", "Pendulum-v1", "--checkpoint-interval", "200"]
+GRID = [*CELLS, "--seeds", "0", "1"]
+SCRIPTS = ("standard", "corrected")
+TIMEOUT = 300
+
+
+def sweep(*args: str, check: bool = True, env: dict | None = None) -> subprocess.CompletedProcess:
+    result = subprocess.run([*SWEEP, *args], capture_output=True, text=True, timeout=TIMEOUT,
+                            env=env)
+    if check and result.returncode != 0:
+        pytest.fail(f"sweep.py {' '.join(args)} exited {result.returncode}:\n"
+                    f"{result.stdout}\n{result.stderr}")
+    return result
+
+
+def run_dirs(output_dir: Path) -> dict[tuple[str, int], Path]:
+    """(algorithm, seed) -> run folder."""
+    found = {}
+    for config in output_dir.glob("*/config.json"):
+        data = json.loads(config.read_text())
+        found[data["algorithm"], data["seed"]] = config.parent
+    return found
+
+
+def eval_rows(run_dir: Path) -> list[dict]:
+    """eval.csv without wall_time: what must be identical between identical runs."""
+    with open(run_dir / "eval.csv", newline="") as f:
+        return [{k: v for k, v in row.items() if k != "wall_time"} for row in csv.DictReader(f)]
+
+
+def wait_for(predicate, what: str, timeout: float = TIMEOUT) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out waiting for {what}")
+        time.sleep(0.2)
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    """2 seeds x 2 scripts, uninterrupted, by the local launcher: the runs the others must equal."""
+    output_dir = tmp_path_factory.mktemp("reference")
+    sweep(*GRID, "--workers", "2", "--output-dir", str(output_dir), "--", *RUN_ARGS)
+    return output_dir
+
+
+# ----------------------------------------------------------------------------- local launcher
+def test_local_grid_runs_every_cell_to_the_end(reference):
+    runs = run_dirs(reference)
+    assert sorted(runs) == [(a, s) for a in sorted(SCRIPTS) for s in (0, 1)]
+    for (algorithm, seed), run_dir in runs.items():
+        assert (run_dir / "done.json").exists()
+        assert [row["global_step"] for row in eval_rows(run_dir)] == ["200", "400", "600", "800"]
+        config = json.loads((run_dir / "config.json").read_text())
+        assert (config["env_id"], config["total_timesteps"]) == ("Pendulum-v1", 800)
+        identity = json.loads((run_dir / "sweep_run.json").read_text())
+        assert identity["extra_args"] == RUN_ARGS and identity["seed"] == seed
+        assert run_dir.name.startswith(f"Pendulum-v1__{algorithm}__seed{seed}__")
+        log = (run_dir / "sweep.log").read_text()
+        assert "finished 800 steps" in log  # the script's own output went to its log
+
+
+def test_rerun_skips_finished_runs_and_chains_analysis(reference, tmp_path):
+    logs_before = {d: (d / "sweep.log").read_text() for d in run_dirs(reference).values()}
+    report = tmp_path / "report"
+    result = sweep(*GRID, "--output-dir", str(reference), "--analyze", str(report),
+                   "--analyze-args=--normalize min-max --reps 100 --curve-reps 50", "--",
+                   *RUN_ARGS)
+    assert "4 done or under way, 0 to launch" in result.stdout
+    assert {d: (d / "sweep.log").read_text() for d in logs_before} == logs_before
+    summary = (report / "summary.md").read_text()
+    assert "Pendulum-v1" in summary and "2 seeds" in summary
+    assert (report / "aggregate_metrics.png").stat().st_size > 0
+
+
+def test_local_sweep_stopped_by_sigterm_resumes_to_the_same_result(reference, tmp_path):
+    command = [*SWEEP, *CELLS, "--seeds", "0", "--scripts", "sac_standard.py",
+               "--output-dir", str(tmp_path), "--", *RUN_ARGS]
+    sweeper = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                               text=True)
+    wait_for(lambda: list(tmp_path.glob("*/checkpoint.pt")), "the first checkpoint")
+    sweeper.send_signal(signal.SIGTERM)
+    output, _ = sweeper.communicate(timeout=TIMEOUT)
+    assert sweeper.returncode == 3, output
+    (run_dir,) = run_dirs(tmp_path).values()
+    assert not (run_dir / "done.json").exists()
+    assert "interrupted" in sweep("status", str(tmp_path)).stdout
+
+    sweep(*CELLS, "--seeds", "0", "--scripts", "sac_standard.py", "--output-dir", str(tmp_path),
+          "--", *RUN_ARGS)
+    assert "resuming" in (run_dir / "sweep.log").read_text()
+    assert eval_rows(run_dir) == eval_rows(run_dirs(reference)["standard", 0])
+
+
+def test_status_shows_state_progress_and_the_log_of_a_failed_run(reference, tmp_path):
+    table = sweep("status", str(reference)).stdout
+    assert table.count("done") >= 4 and "800/800" in table
+    result = sweep("--env-ids", "Pendulum-v1", "--seeds", "0", "--scripts", "sac_standard.py",
+                   "--output-dir", str(tmp_path), "--", "--no-such-flag", check=False)
+    assert result.returncode == 1
+    table = sweep("status", str(tmp_path)).stdout
+    assert "failed" in table and "--no-such-flag" in table  # tyro's complaint, from the log
+
+
+def test_dry_run_prints_the_plan_and_starts_nothing(reference, tmp_path):
+    out = sweep(*GRID, "--scripts", "sac_standard.py", "--output-dir", str(reference),
+                "--dry-run", "--steps-per-second", "100", "--", *RUN_ARGS).stdout
+    assert "1 env ids x 2 seeds x 1 scripts = 2 runs" in out
+    assert out.count("done") == 2 and "skip" in out
+    assert "1,600 env steps in all, 0 still to run" in out
+
+    out = sweep("--preset", "paper", "--output-dir", str(tmp_path / "paper"), "--dry-run",
+                "--steps-per-second", "100").stdout
+    assert "4 env ids x 5 seeds x 2 scripts = 40 runs" in out
+    assert "h1hand-bookshelf_hard-v0__corrected__seed4__" in out
+    # 40 runs x 10M steps at 100 steps/s = 4e6 s of one run each = 1,111.1 run-hours
+    assert "400,000,000 env steps in all" in out and "1,111.1 run-hours" in out
+    assert not (tmp_path / "paper").exists()
+
+
+# ----------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize(("args", "message"), [
+    (["--env-ids", "Pendulum-v1", "--seeds", "0", "--scripts", "sac_nope.py"],
+     "unknown script 'sac_nope.py'"),
+    (["--env-ids", "Pendulum-v7", "--seeds", "0"],
+     "unknown env id 'Pendulum-v7': did you mean Pendulum-v1"),
+    (["--env-ids", "Pendulum-v1", "--seeds"], "no seeds: pass --seeds"),
+    (["--env-ids", "Pendulum-v1", "--seeds", "0", "--", "--seed", "3"],
+     "--seed after `--` is set by sweep.py"),
+])
+def test_bad_input_is_a_clear_error_and_starts_nothing(tmp_path, args, message):
+    result = sweep("--output-dir", str(tmp_path / "runs"), *args, check=False)
+    assert result.returncode == 2
+    assert message in result.stderr
+    assert not (tmp_path / "runs").exists()
+
+
+def test_folder_with_runs_of_other_arguments_is_refused(reference):
+    before = sorted(p.name for p in reference.iterdir())
+    result = sweep(*GRID, "--output-dir", str(reference), "--",
+                   *RUN_ARGS[:-1], "64", check=False)
+    assert result.returncode == 2
+    assert "holds runs made with other arguments" in result.stderr
+    assert "--batch-size 32" in result.stderr  # names what the folder's runs used
+    assert sorted(p.name for p in reference.iterdir()) == before
+
+
+# ----------------------------------------------------------------------------- Slurm
+@pytest.fixture(scope="module")
+def slurm() -> None:
+    """The one-node Slurm cluster of tests/slurm/ (started here when it is not running)."""
+    started = subprocess.run([str(ROOT / "tests" / "slurm" / "start.sh")], capture_output=True,
+                             text=True, timeout=120)
+    if started.returncode != 0:
+        pytest.fail(f"could not start Slurm (tests/slurm/start.sh):\n{started.stderr}")
+
+
+SLURM = ["--launcher", "slurm", "--cpus-per-task", "1", "--mem-gb", "1", "--wait"]
+
+
+def test_slurm_sweep_survives_preemption_and_cancellation(slurm, reference, tmp_path):
+    """A job array of two runs: one is preempted (USR2: checkpoint, requeue, resume), the other
+    cancelled; rerunning the sweep resumes the cancelled one. Both equal the local runs."""
+    grid = [*CELLS, "--seeds", "1", *SLURM, "--output-dir", str(tmp_path), "--", *RUN_ARGS]
+    sweeper = subprocess.Popen([*SWEEP, *grid], stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True)
+    # Signal each job as soon as its run has a checkpoint: well before its last episode.
+    how = {"corrected": ["scancel", "--signal=USR2"], "standard": ["scancel"]}
+    deadline = time.monotonic() + TIMEOUT
+    while how and time.monotonic() < deadline:
+        for (algorithm, _), run_dir in run_dirs(tmp_path).items():
+            if algorithm in how and (run_dir / "checkpoint.pt").exists():
+                job_id = json.loads((run_dir / "sweep_run.json").read_text())["slurm_job_id"]
+                subprocess.run([*how.pop(algorithm), job_id], check=True)
+        time.sleep(0.1)
+    assert not how, f"no checkpoint to signal {list(how)} at"
+    output, _ = sweeper.communicate(timeout=TIMEOUT)
+    runs = run_dirs(tmp_path)
+    preempted, cancelled = runs["corrected", 1], runs["standard", 1]
+    assert (preempted / "done.json").exists(), output
+    assert not (cancelled / "done.json").exists(), output
+    assert sweeper.returncode == 3, output  # not all done: one run is interrupted
+    preempted_log = (preempted / "sweep.log").read_text()
+    assert "resume on" in preempted_log and "exit code 3" in preempted_log  # requeued, resumed
+    assert "interrupted" in sweep("status", str(tmp_path)).stdout
+
+    result = sweep(*grid)
+    assert "1 done or under way, 1 to launch" in result.stdout
+    assert "resuming" in (cancelled / "sweep.log").read_text()
+    for key, run_dir in run_dirs(tmp_path).items():
+        assert (run_dir / "done.json").exists()
+        assert eval_rows(run_dir) == eval_rows(run_dirs(reference)[key]), key
+
+
+def test_unreachable_slurm_is_a_clear_error_and_starts_nothing(tmp_path):
+    conf = tmp_path / "slurm.conf"
+    # A controller that is not there: the port nobody listens on, and no long retrying.
+    conf.write_text("ClusterName=gone\nSlurmctldHost=localhost\nSlurmctldPort=9\n"
+                    "MessageTimeout=1\nNodeName=localhost\nPartitionName=p Nodes=ALL\n")
+    result = sweep(*GRID, *SLURM, "--output-dir", str(tmp_path / "runs"), "--", *RUN_ARGS,
+                   check=False, env={**os.environ, "SLURM_CONF": str(conf)})
+    assert result.returncode == 2
+    assert "Slurm not reachable" in result.stderr
+    assert not (tmp_path / "runs").exists()
+
+
+def test_unknown_partition_is_a_clear_error(slurm, tmp_path):
+    result = sweep(*GRID, *SLURM, "--partition", "nosuch", "--output-dir", str(tmp_path),
+                   "--", *RUN_ARGS, check=False)
+    assert result.returncode == 2
+    assert "unknown Slurm partition 'nosuch'" in result.stderr
+    assert not list(tmp_path.iterdir())
