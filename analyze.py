@@ -598,7 +598,7 @@ def plot_paired(differences: dict, estimates: dict, norms: dict, colors: dict, x
     rng = np.random.default_rng(0)  # vertical jitter of the dots only
     for i, (task, algorithm) in enumerate(rows):
         scale = norms[task][1]
-        point, low, high = (v / scale for v in estimates[task][algorithm])
+        point, low, high = (v / scale for v in estimates[task, algorithm])
         dots = differences[task][algorithm] / scale
         color = colors[algorithm]
         ax.barh(i, high - low, left=low, height=0.5, color=color, alpha=0.35)
@@ -674,15 +674,38 @@ def validate(args: Args) -> None:
         raise AnalysisError("--format needs at least one of png, pdf")
 
 
-def per_task_estimates(tasks: dict[str, Task], reps: int, seed: int, at_scored: bool) -> dict:
-    """task -> group -> (mean, (low, high)) over seeds: at every shared step, or the scored one."""
+def reward_curve_estimates(tasks: dict[str, Task], reps: int, seed: int) -> dict:
+    """task -> group -> (mean, (low, high)) over seeds at every shared step."""
     estimates = {}
     for task, data in tasks.items():
-        columns = data.steps == data.scored_step if at_scored else slice(None)
-        scores = {g: r[:, None, columns] for g, r in data.returns.items()}
+        scores = {g: r[:, None, :] for g, r in data.returns.items()}  # (seeds, 1 task, steps)
         point, interval = interval_estimates(scores, metrics.aggregate_mean, reps, seed)
         estimates[task] = {g: (point[g], interval[g]) for g in scores}
     return estimates
+
+
+def seed_mean_estimates(samples: dict[tuple[str, str], np.ndarray], reps: int, seed: int) -> dict:
+    """(task, group) -> (mean, low, high) of one value per seed, with a bootstrap CI.
+
+    The tasks of a group with equal seed counts share one bootstrap: it resamples each task's
+    seeds independently, so each task's interval is distributed as in a bootstrap of its own,
+    at a fraction of the cost.
+    """
+    batches: dict[tuple[str, int], list[str]] = {}
+    for (task, group), values in samples.items():
+        batches.setdefault((group, values.size), []).append(task)
+    estimates = {}
+    for (group, _), batch in batches.items():
+        scores = np.stack([samples[task, group] for task in batch], axis=1)
+        point, interval = interval_estimates({group: scores}, per_task_mean, reps, seed)
+        for i, task in enumerate(batch):
+            estimates[task, group] = (float(point[group][i]), *interval[group][:, i])
+    return estimates
+
+
+def per_task_mean(scores: np.ndarray) -> np.ndarray:
+    """Mean over runs of each task: metrics.aggregate_mean before it averages over tasks."""
+    return np.mean(scores, axis=0)
 
 
 def analyze(args: Args) -> list[Path]:
@@ -708,14 +731,15 @@ def analyze(args: Args) -> list[Path]:
     figures: list[Path] = []
 
     print(f"per-task curves and final returns ({args.curve_reps:,} / {args.reps:,} reps) ...")
-    curves = per_task_estimates(tasks, args.curve_reps, args.seed, at_scored=False)
+    curves = reward_curve_estimates(tasks, args.curve_reps, args.seed)
     figures += save(plot_reward_curves(tasks, curves, colors, groups), args.out,
                     "reward_curves", args.format)
-    finals = per_task_estimates(tasks, args.reps, args.seed, at_scored=True)
+    finals = seed_mean_estimates({(t, g): data.scored(g) for t, data in tasks.items()
+                                  for g in data.returns}, args.reps, args.seed)
     rows_md = []
     for task, data in tasks.items():
         for group in [g for g in groups if g in data.returns]:
-            (point,), ((low,), (high,)) = finals[task][group]
+            point, low, high = finals[task, group]
             n, step = data.returns[group].shape[0], data.scored_step
             scores = normalize(np.array([point, low, high]), norms[task])
             rows.append(csv_row("task_final", task, group, "return", step, n, point, low, high))
@@ -816,14 +840,12 @@ def paired_outputs(args: Args, tasks: dict[str, Task], differences: dict, norms:
                    figures: list[Path]) -> list[str]:
     """Own evaluation minus tanh(mu) evaluation of the same actors; returns its md section."""
     print(f"paired differences ({args.reps:,} reps) ...")
-    estimates: dict = {}
+    estimates = seed_mean_estimates({(t, a): d for t, by_algorithm in differences.items()
+                                     for a, d in by_algorithm.items()}, args.reps, args.seed)
     table = []
     for task, by_algorithm in differences.items():
-        scores = {a: d[:, None] for a, d in by_algorithm.items()}
-        point, interval = interval_estimates(scores, metrics.aggregate_mean, args.reps, args.seed)
         for a, d in by_algorithm.items():
-            values = (float(point[a]), *interval[a].ravel())
-            estimates.setdefault(task, {})[a] = values
+            values = estimates[task, a]
             scaled = [v / norms[task][1] for v in values]
             step = tasks[task].scored_step
             rows.append(csv_row("paired_difference", task, a, "return", step, d.size, *values))
