@@ -60,6 +60,7 @@ def tolerance(
     is_array = isinstance(x, np.ndarray)
     # Plain Python for numbers, few array operations for arrays: rewards call this every step.
     if not is_array:
+        x = float(x)  # NumPy scalars are slower than floats in plain arithmetic
         distance = max(lower - x, x - upper, 0.0)
     elif lower == upper:
         distance = np.abs(x - lower)
