@@ -433,6 +433,7 @@ def set_rng_states(states: dict, env: gym.Env) -> None:
 
 if __name__ == "__main__":
     args = parse_args()
+    stop = StopRequest()  # from the start, so a signal during setup also ends in exit code 3
     torch.set_num_threads(args.torch_threads)
     if args.batch_size > args.buffer_size:
         raise SystemExit(f"--batch-size {args.batch_size} exceeds --buffer-size "
@@ -517,7 +518,6 @@ if __name__ == "__main__":
             f"|{k}|{v}|" for k, v in dataclasses.asdict(args).items()))
     del ckpt
 
-    stop = StopRequest()
     session_start, row_start, row_step = time.time(), time.time(), global_step
     episode_return, episode_length, losses = 0.0, 0, None
     next_checkpoint = (global_step // args.checkpoint_interval + 1) * args.checkpoint_interval \

@@ -2,14 +2,16 @@
 
     .venv/bin/python bench/bench_sac.py --env-id h1hand-powerlift-v0
 
-Times (medians over --repeats): one gradient update alone (the script's fused twin critics, and
-for comparison two separate critics and a torch.compile'd update), one env step alone, one actor
-forward; the training loop's steps/s after the start steps (sac_standard.py run as a
-subprocess, read from its train.csv); an evaluation round of 10 episodes; and the resident memory
-of a full 1M-transition replay buffer with 308-dim observations (bookshelf's size).
+Times are process CPU seconds (the machine is shared; with one torch thread, CPU time is what
+an idle machine's wall clock shows), medians over --repeats: one gradient update alone (the
+script's fused twin critics; for comparison, two separate critics and a torch.compile'd update),
+one env step alone, one actor forward; the training loop's cost per step after the start steps
+(two runs of sac_standard.py as subprocesses, with and without --loop-steps more steps,
+differenced); an evaluation round of 10 episodes; and the resident memory of a full
+1M-transition replay buffer with 308-dim observations (bookshelf's size).
 """
 
-import csv
+import resource
 import statistics
 import subprocess
 import sys
@@ -78,14 +80,14 @@ class SeparateTwinQ(nn.Module):
 
 
 def median_time(fn, repeats: int, calls: int) -> float:
-    """Median over repeats of the mean seconds per call."""
+    """Median over repeats of the mean CPU seconds per call."""
     fn()  # warm-up (and compilation)
     times = []
     for _ in range(repeats):
-        start = time.perf_counter()
+        start = time.process_time()
         for _ in range(calls):
             fn()
-        times.append((time.perf_counter() - start) / calls)
+        times.append((time.process_time() - start) / calls)
     return statistics.median(times)
 
 
@@ -148,27 +150,36 @@ def time_actor_forward(env, repeats: int) -> float:
     return median_time(forward, repeats, 500)
 
 
-def loop_steps_per_second(args: Args) -> float:
-    """The training loop's steps/s after the start steps, from sac_standard.py's train.csv."""
+def script_cpu_seconds(args: Args, total_timesteps: int, learning_starts: int) -> float:
+    """CPU seconds of one whole sac_standard.py run (no evaluation, no checkpoint)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     with tempfile.TemporaryDirectory() as out:
-        start = 1000
         subprocess.run([sys.executable, str(ROOT / "sac_standard.py"), "--env-id", args.env_id,
-                        "--total-timesteps", str(start + args.loop_steps), "--learning-starts",
-                        str(start), "--eval-interval", str(10 * (start + args.loop_steps)),
-                        "--log-interval", "500", "--checkpoint-interval", "0",
-                        "--torch-threads", str(args.torch_threads), "--output-dir", out,
-                        "--run-name", "bench"], check=True, capture_output=True)
-        with open(Path(out) / "bench" / "train.csv") as f:
-            rows = [r for r in csv.DictReader(f) if int(r["global_step"]) > start + 500]
-    return statistics.median(float(r["sps"]) for r in rows)
+                        "--total-timesteps", str(total_timesteps), "--learning-starts",
+                        str(learning_starts), "--eval-interval", str(10 * total_timesteps),
+                        "--checkpoint-interval", "0", "--torch-threads", str(args.torch_threads),
+                        "--output-dir", out, "--run-name", "bench"], check=True,
+                       capture_output=True)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+
+
+def loop_seconds_per_step(args: Args) -> float:
+    """CPU seconds per training-loop step after the start steps: a run with --loop-steps more
+    steps minus a run that stops when learning starts, repeated; median."""
+    start = 1000
+    return statistics.median(
+        (script_cpu_seconds(args, start + args.loop_steps, start)
+         - script_cpu_seconds(args, start, start)) / args.loop_steps
+        for _ in range(max(1, args.repeats // 2)))
 
 
 def time_eval_round(env, episodes: int) -> tuple[float, float]:
     """Seconds of one evaluation round with tanh(mu) of an untrained actor, and its steps."""
     actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
-    start = time.perf_counter()
+    start = time.process_time()
     stats, mu, _ = evaluate(actor, env, lambda m, s: torch.tanh(m), eval_seeds(0, 1, episodes))
-    return time.perf_counter() - start, len(mu)
+    return time.process_time() - start, len(mu)
 
 
 def replay_buffer_memory_gb() -> float:
@@ -200,13 +211,14 @@ if __name__ == "__main__":
     print(f"env step:                             {env_step * 1e3:6.2f} ms "
           f"(random-action episodes of {episode_length:.0f} steps)")
     print(f"actor forward (1 obs):                {actor_forward * 1e3:6.2f} ms")
-    sps = loop_steps_per_second(args)
-    bound = 1 / (update + env_step)
-    print(f"training loop: {sps:.1f} steps/s; 1 / (update + env step) = {bound:.1f} steps/s; "
-          f"loop overhead {100 * (bound / sps - 1):.0f}%")
+    loop = loop_seconds_per_step(args)
+    print(f"training loop:                        {loop * 1e3:6.2f} ms/step "
+          f"({1 / loop:.0f} steps/s); "
+          f"update + env step = {(update + env_step) * 1e3:.2f} ms: loop overhead "
+          f"{100 * (loop / (update + env_step) - 1):+.0f}%")
     seconds, steps = time_eval_round(make_env(args.env_id), args.eval_episodes)
     predicted = steps * (env_step + actor_forward)
-    print(f"eval round: {args.eval_episodes} episodes, {steps} steps in {seconds:.2f} s; "
+    print(f"eval round: {args.eval_episodes} episodes, {steps} steps in {seconds:.2f} s CPU; "
           f"steps x (env step + actor forward) = {predicted:.2f} s "
           f"({100 * (seconds / predicted - 1):+.0f}%)")
     print(f"replay buffer 1M x 308-dim obs + 61-dim actions: {replay_buffer_memory_gb():.2f} GB "

@@ -145,7 +145,7 @@ def test_sigterm_checkpoints_exits_3_and_resumes(corrected_run, tmp_path):
     stopped_at = torch.load(run_dir / "checkpoint.pt", weights_only=False)["global_step"]
     assert stopped_at % 200 == 0 and 600 <= stopped_at < 1500  # at an episode end
     assert not (run_dir / "done.json").exists()
-    run("sac_corrected.py", "--resume", str(run_dir), "--torch-threads", "2")
+    run("sac_corrected.py", "--resume", str(run_dir), "--print-interval", "100")
     for name in ("eval.csv", "train.csv"):
         assert read_csv(run_dir / name) == read_csv(corrected_run / name)
 
@@ -231,3 +231,15 @@ def test_capture_video_writes_a_readable_mp4(tmp_path):
     frames = imageio.mimread(videos[0])
     length = float(read_csv(tmp_path / "video" / "eval.csv")[0]["length_mean"])
     assert len(frames) == length and frames[0].ndim == 3
+
+
+def test_smoke_on_humanoid_stand(tmp_path):
+    run("sac_corrected.py", "--env-id", "h1hand-stand-v0", "--total-timesteps", "300",
+        "--learning-starts", "200", "--eval-interval", "300", "--eval-episodes", "1",
+        "--log-interval", "100", "--output-dir", str(tmp_path), "--run-name", "h1")
+    config = json.loads((tmp_path / "h1" / "config.json").read_text())
+    assert config["action_dim"] == 61
+    [row] = read_csv(tmp_path / "h1" / "eval.csv")
+    shift_sum, shift_mean = float(row["mode_shift_abs_sum"]), float(row["mode_shift_abs_mean"])
+    assert shift_sum == pytest.approx(61 * shift_mean, rel=1e-4) and shift_mean > 0
+    assert float(read_csv(tmp_path / "h1" / "train.csv")[-1]["qf1_loss"]) > 0
