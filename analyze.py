@@ -26,14 +26,12 @@ from pathlib import Path
 from typing import Literal
 
 import matplotlib
-
-matplotlib.use("Agg")  # figures only go to files: no display needed
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import seaborn as sns  # noqa: E402
-import tyro  # noqa: E402
-from rliable import library as rly  # noqa: E402
-from rliable import metrics, plot_utils  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import seaborn as sns
+import tyro
+from rliable import library as rly
+from rliable import metrics, plot_utils
 
 # The run-folder format read here (CONTRACTS.md "Run folder"; the README documents it for users
 # who bring logs from elsewhere). Everything else in a run folder is ignored.
@@ -270,9 +268,13 @@ class Task:
     seeds: dict[str, list[int]]
     scored_step: int  # the step final scores are taken at
 
+    def at(self, group: str, steps: np.ndarray) -> np.ndarray:
+        """The group's returns at some of the shared steps, (seeds, steps)."""
+        return self.returns[group][:, np.searchsorted(self.steps, steps)]
+
     def scored(self, group: str) -> np.ndarray:
         """The group's returns at the scored step, one per seed."""
-        return self.returns[group][:, np.searchsorted(self.steps, self.scored_step)]
+        return self.at(group, np.array([self.scored_step]))[:, 0]
 
 
 def align(runs: Runs, at_step: int | None) -> tuple[dict[str, Task], list[str]]:
@@ -400,6 +402,40 @@ def iqm_per_step(scores: np.ndarray) -> np.ndarray:
     return np.array([metrics.aggregate_iqm(scores[..., i]) for i in range(scores.shape[-1])])
 
 
+def reward_curve_estimates(tasks: dict[str, Task], reps: int, seed: int) -> dict:
+    """task -> group -> (mean, (low, high)) over seeds at every shared step."""
+    estimates = {}
+    for task, data in tasks.items():
+        scores = {g: r[:, None, :] for g, r in data.returns.items()}  # (seeds, 1 task, steps)
+        point, interval = interval_estimates(scores, metrics.aggregate_mean, reps, seed)
+        estimates[task] = {g: (point[g], interval[g]) for g in scores}
+    return estimates
+
+
+def seed_mean_estimates(samples: dict[tuple[str, str], np.ndarray], reps: int, seed: int) -> dict:
+    """(task, group) -> (mean, low, high) of one value per seed, with a bootstrap CI.
+
+    The tasks of a group with equal seed counts share one bootstrap: it resamples each task's
+    seeds independently, so each task's interval is distributed as in a bootstrap of its own,
+    at a fraction of the cost.
+    """
+    batches: dict[tuple[str, int], list[str]] = {}
+    for (task, group), values in samples.items():
+        batches.setdefault((group, values.size), []).append(task)
+    estimates = {}
+    for (group, _), batch in batches.items():
+        scores = np.stack([samples[task, group] for task in batch], axis=1)
+        point, interval = interval_estimates({group: scores}, per_task_mean, reps, seed)
+        for i, task in enumerate(batch):
+            estimates[task, group] = (float(point[group][i]), *interval[group][:, i])
+    return estimates
+
+
+def per_task_mean(scores: np.ndarray) -> np.ndarray:
+    """Mean over runs of each task: metrics.aggregate_mean before it averages over tasks."""
+    return np.mean(scores, axis=0)
+
+
 @dataclasses.dataclass
 class Aggregate:
     """Normalised scores of the groups compared across tasks, as rliable wants them."""
@@ -434,21 +470,18 @@ def build_aggregate(
                 f"{g}: tasks have different numbers of seeds; the aggregate uses the "
                 f"{runs[g]} lowest seeds of each task"
             )
-    frames = functools.reduce(np.intersect1d, [tasks[t].steps for t in common])
-    frames = frames[np.unique(np.linspace(0, frames.size - 1, curve_points).round().astype(int))]
+    shared = functools.reduce(np.intersect1d, [tasks[t].steps for t in common])
+    picks = np.linspace(0, shared.size - 1, curve_points).round().astype(int) if shared.size else []
+    frames = shared[np.unique(picks)]
     final = {
         g: np.stack([normalize(tasks[t].scored(g)[: runs[g]], norms[t]) for t in common], axis=1)
         for g in members
     }
     curves = {
-        g: np.stack([normalize(_on(tasks[t], g, frames)[: runs[g]], norms[t]) for t in common], 1)
+        g: np.stack([normalize(tasks[t].at(g, frames)[: runs[g]], norms[t]) for t in common], 1)
         for g in members
     }
     return Aggregate(common, members, final, frames, curves), notes
-
-
-def _on(task: Task, group: str, steps: np.ndarray) -> np.ndarray:
-    return task.returns[group][:, np.searchsorted(task.steps, steps)]
 
 
 def paired_differences(tasks: dict[str, Task]) -> dict[str, dict[str, np.ndarray]]:
@@ -483,14 +516,6 @@ def _steps_axis(max_step: float) -> tuple[float, str]:
     if max_step >= 1e3:
         return 1e3, "Environment steps (thousands)"
     return 1.0, "Environment steps"
-
-
-def save(fig: plt.Figure, out: Path, name: str, formats: Sequence[str]) -> list[Path]:
-    paths = [out / f"{name}.{fmt}" for fmt in formats]
-    for path in paths:
-        fig.savefig(path, dpi=150, bbox_inches="tight")
-    plt.close(fig)
-    return paths
 
 
 def plot_reward_curves(
@@ -629,7 +654,7 @@ def _ci(point: float, low: float, high: float, digits: int = 3) -> str:
     return f"{point:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
 
 
-def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     return "\n".join(lines + ["| " + " | ".join(map(str, row)) + " |" for row in rows])
 
@@ -650,20 +675,60 @@ def found_table(runs: Runs, groups: list[str]) -> str:
     return markdown_table(["task", *groups], rows)
 
 
-def csv_row(section: str, task: str, group: str, metric: str, step: int | str, runs: int | str,
-            estimate: float, low: float, high: float) -> dict:
-    return dict(section=section, task=task, group=group, metric=metric, step=step, n_runs=runs,
-                estimate=float(estimate), ci_low=float(low), ci_high=float(high))
+def normalization_line(mode: str, norms: dict[str, tuple[float, float]]) -> str:
+    if mode == "success-bar":
+        per_task = [f"{task} {scale:g}" for task, (_, scale) in norms.items()]
+        return f"Success bars: {', '.join(per_task)}."
+    if mode == "min-max":
+        per_task = [f"{task} [{low:g}, {low + scale:g}]" for task, (low, scale) in norms.items()]
+        return f"Return ranges mapped to [0, 1]: {', '.join(per_task)}."
+    return ""
 
 
-def write_csv(path: Path, rows: list[dict]) -> None:
-    with path.open("w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+@dataclasses.dataclass
+class Report:
+    """What the analysis writes: summary.csv rows, summary.md sections, figures, notes."""
+
+    out: Path
+    formats: Sequence[str]
+    rows: list[dict] = dataclasses.field(default_factory=list)
+    sections: list[str] = dataclasses.field(default_factory=list)
+    figures: list[Path] = dataclasses.field(default_factory=list)
+    notes: list[str] = dataclasses.field(default_factory=list)
+
+    def row(self, section: str, task: str, group: str, metric: str, step: int | str,
+            runs: int | str, estimate: float, low: float, high: float) -> None:
+        self.rows.append(dict(section=section, task=task, group=group, metric=metric, step=step,
+                              n_runs=runs, estimate=float(estimate), ci_low=float(low),
+                              ci_high=float(high)))
+
+    def figure(self, fig: plt.Figure, name: str) -> None:
+        for fmt in self.formats:
+            self.figures.append(self.out / f"{name}.{fmt}")
+            fig.savefig(self.figures[-1], dpi=150, bbox_inches="tight")
+        plt.close(fig)
+
+    def section(self, title: str, *lines: str) -> None:
+        self.sections += [f"## {title}", "", *lines, ""]
+
+    def write(self, header: list[str]) -> None:
+        with (self.out / "summary.csv").open("w", newline="") as file:
+            writer = csv.DictWriter(file, fieldnames=list(self.rows[0]))
+            writer.writeheader()
+            writer.writerows(self.rows)
+        notes = ["## Notes", "", *([f"- {note}" for note in self.notes] or ["- none"]), ""]
+        figures = ["## Figures", "", *[f"- `{path.name}`" for path in self.figures]]
+        text = "\n".join(header + notes + self.sections + figures) + "\n"
+        (self.out / "summary.md").write_text(text)
+        print("\n".join(["", *notes, *self.sections]))
+        print(f"wrote {len(self.figures) + 2} files to {self.out}")
 
 
 # ----------------------------------------------------------------------------- pipeline
+SCORE_NAMES = {"success-bar": "Success-bar normalised score",
+               "min-max": "Min-max normalised score", "none": "Return"}
+
+
 def validate(args: Args) -> None:
     for name in ("reps", "curve_reps"):
         if getattr(args, name) < 1:
@@ -674,42 +739,8 @@ def validate(args: Args) -> None:
         raise AnalysisError("--format needs at least one of png, pdf")
 
 
-def reward_curve_estimates(tasks: dict[str, Task], reps: int, seed: int) -> dict:
-    """task -> group -> (mean, (low, high)) over seeds at every shared step."""
-    estimates = {}
-    for task, data in tasks.items():
-        scores = {g: r[:, None, :] for g, r in data.returns.items()}  # (seeds, 1 task, steps)
-        point, interval = interval_estimates(scores, metrics.aggregate_mean, reps, seed)
-        estimates[task] = {g: (point[g], interval[g]) for g in scores}
-    return estimates
-
-
-def seed_mean_estimates(samples: dict[tuple[str, str], np.ndarray], reps: int, seed: int) -> dict:
-    """(task, group) -> (mean, low, high) of one value per seed, with a bootstrap CI.
-
-    The tasks of a group with equal seed counts share one bootstrap: it resamples each task's
-    seeds independently, so each task's interval is distributed as in a bootstrap of its own,
-    at a fraction of the cost.
-    """
-    batches: dict[tuple[str, int], list[str]] = {}
-    for (task, group), values in samples.items():
-        batches.setdefault((group, values.size), []).append(task)
-    estimates = {}
-    for (group, _), batch in batches.items():
-        scores = np.stack([samples[task, group] for task in batch], axis=1)
-        point, interval = interval_estimates({group: scores}, per_task_mean, reps, seed)
-        for i, task in enumerate(batch):
-            estimates[task, group] = (float(point[group][i]), *interval[group][:, i])
-    return estimates
-
-
-def per_task_mean(scores: np.ndarray) -> np.ndarray:
-    """Mean over runs of each task: metrics.aggregate_mean before it averages over tasks."""
-    return np.mean(scores, axis=0)
-
-
-def analyze(args: Args) -> list[Path]:
-    """The whole analysis; returns the files written."""
+def analyze(args: Args) -> Report:
+    """The whole analysis: load, align, normalise, estimate, plot, tabulate."""
     validate(args)
     runs, notes = load_runs(args.runs_dir)
     groups = ordered_groups(runs)
@@ -717,88 +748,74 @@ def analyze(args: Args) -> list[Path]:
                  for group, curves in by_group.items() if not group.endswith(PAIRED_SUFFIX))
     found = f"Found {n_runs} runs under {args.runs_dir}:\n\n" + found_table(runs, groups)
     print(found + "\n")
-    tasks, more_notes = align(runs, args.at_step)
-    notes += more_notes
+    tasks, align_notes = align(runs, args.at_step)
     norms = normalizers(tasks, args.normalize)
-    aggregate, more_notes = build_aggregate(tasks, norms, groups, args.curve_points)
-    notes += more_notes
-    score_name = {"success-bar": "Success-bar normalised score",
-                  "min-max": "Min-max normalised score", "none": "Return"}[args.normalize]
+    aggregate, aggregate_notes = build_aggregate(tasks, norms, groups, args.curve_points)
     args.out.mkdir(parents=True, exist_ok=True)
+    report = Report(args.out, args.format, notes=notes + align_notes + aggregate_notes)
     colors = group_colors(groups)
-    rows: list[dict] = []
-    md: list[str] = []
-    figures: list[Path] = []
 
-    print(f"per-task curves and final returns ({args.curve_reps:,} / {args.reps:,} reps) ...")
-    curves = reward_curve_estimates(tasks, args.curve_reps, args.seed)
-    figures += save(plot_reward_curves(tasks, curves, colors, groups), args.out,
-                    "reward_curves", args.format)
-    finals = seed_mean_estimates({(t, g): data.scored(g) for t, data in tasks.items()
-                                  for g in data.returns}, args.reps, args.seed)
-    rows_md = []
-    for task, data in tasks.items():
-        for group in [g for g in groups if g in data.returns]:
-            point, low, high = finals[task, group]
-            n, step = data.returns[group].shape[0], data.scored_step
-            scores = normalize(np.array([point, low, high]), norms[task])
-            rows.append(csv_row("task_final", task, group, "return", step, n, point, low, high))
-            rows.append(csv_row("task_final", task, group, "score", step, n, *scores))
-            rows_md.append([task, _fmt(step), label(group), n, _ci(point, low, high, 1),
-                            _ci(*scores)])
-    md += ["## Final evaluation return per task (mean over seeds, 95% CI)", "",
-           markdown_table(["task", "step", "group", "seeds", "return", "score"], rows_md), ""]
-
+    report_tasks(report, args, tasks, norms, groups, colors)
     if aggregate is not None:
-        md += aggregate_outputs(args, aggregate, colors, score_name, rows, figures, notes)
-    else:
-        notes.append("aggregate metrics, profiles and sample-efficiency curves skipped")
-
+        report_aggregate(report, args, aggregate, colors)
     differences = paired_differences(tasks)
     if differences:
-        md += paired_outputs(args, tasks, differences, norms, colors, score_name, rows, figures)
+        report_paired(report, args, tasks, differences, norms, colors)
     else:
-        notes.append(f"no run carries the paired evaluation ({PAIRED_RETURN_COLUMN}): "
-                     "paired differences skipped")
-
-    write_csv(args.out / "summary.csv", rows)
-    header = [
+        report.notes.append(f"no run carries the paired evaluation ({PAIRED_RETURN_COLUMN}): "
+                            "paired differences skipped")
+    report.write([
         f"# Analysis of {args.runs_dir}", "",
-        f"Normalisation `{args.normalize}`: {NORMALIZATIONS[args.normalize]}.",
+        f"Normalisation `{args.normalize}`: {NORMALIZATIONS[args.normalize]}. "
+        + normalization_line(args.normalize, norms),
         f"Intervals: 95% stratified bootstrap (rliable), {args.reps:,} replications for point "
         f"estimates, {args.curve_reps:,} for curves, profiles and probability of improvement; "
         f"NumPy seed {args.seed}.", "", found, "",
-    ]
-    notes_md = ["## Notes", "", *([f"- {note}" for note in notes] or ["- none"]), ""]
-    figure_list = ["## Figures", "", *[f"- `{path.name}`" for path in figures]]
-    (args.out / "summary.md").write_text("\n".join(header + notes_md + md + figure_list) + "\n")
-    print("\n".join(["", *notes_md, *md]))
-    written = figures + [args.out / "summary.md", args.out / "summary.csv"]
-    print(f"wrote {len(written)} files to {args.out}")
-    return written
+    ])
+    return report
 
 
-def aggregate_outputs(args: Args, agg: Aggregate, colors: dict, score_name: str,
-                      rows: list[dict], figures: list[Path], notes: list[str]) -> list[str]:
-    """Figures 6-8 and the probability of improvement; returns their summary.md section."""
+def report_tasks(report: Report, args: Args, tasks: dict[str, Task], norms: dict,
+                 groups: list[str], colors: dict) -> None:
+    """Figure 5 and the per-task final returns."""
+    print(f"per-task curves ({args.curve_reps:,} reps) and final returns ({args.reps:,}) ...")
+    curves = reward_curve_estimates(tasks, args.curve_reps, args.seed)
+    report.figure(plot_reward_curves(tasks, curves, colors, groups), "reward_curves")
+    finals = seed_mean_estimates({(t, g): data.scored(g) for t, data in tasks.items()
+                                  for g in data.returns}, args.reps, args.seed)
+    table = []
+    for task, data in tasks.items():
+        for group in [g for g in groups if g in data.returns]:
+            point, low, high = finals[task, group]
+            runs, step = data.returns[group].shape[0], data.scored_step
+            scores = normalize(np.array([point, low, high]), norms[task])
+            report.row("task_final", task, group, "return", step, runs, point, low, high)
+            report.row("task_final", task, group, "score", step, runs, *scores)
+            table.append([task, _fmt(step), label(group), runs, _ci(point, low, high, 1),
+                          _ci(*scores)])
+    report.section("Final evaluation return per task (mean over seeds, 95% CI)",
+                   markdown_table(["task", "step", "group", "seeds", "return", "score"], table))
+
+
+def report_aggregate(report: Report, args: Args, agg: Aggregate, colors: dict) -> None:
+    """Figures 6-8 and the probability of improvement."""
+    score_name = SCORE_NAMES[args.normalize]
     names = AGGREGATE_METRICS if args.normalize != "none" else AGGREGATE_METRICS[:3]
     print(f"aggregate metrics over {len(agg.tasks)} task(s) ({args.reps:,} reps) ...")
+    gap = args.normalize != "none"  # the optimality gap's threshold 1 needs normalised scores
     point, interval = interval_estimates(
-        agg.final, functools.partial(aggregate_metrics, gap=args.normalize != "none"),
-        args.reps, args.seed)
-    figures += save(plot_aggregate(point, interval, names, colors, score_name), args.out,
-                    "aggregate_metrics", args.format)
-    md = [f"## Aggregate metrics over {len(agg.tasks)} task(s) ({', '.join(agg.tasks)})", "",
-          f"{score_name}s at each task's scored step, 95% CIs.", ""]
+        agg.final, functools.partial(aggregate_metrics, gap=gap), args.reps, args.seed)
+    report.figure(plot_aggregate(point, interval, names, colors, score_name), "aggregate_metrics")
     table = []
     for g in agg.groups:
         runs = agg.final[g].shape[0]
         for i, name in enumerate(names):
-            rows.append(csv_row("aggregate", "all", g, name, "", runs, point[g][i],
-                                *interval[g][:, i]))
-        table.append([label(g), runs] + [_ci(point[g][i], *interval[g][:, i]) for i in
-                                         range(len(names))])
-    md += [markdown_table(["group", "runs per task", *names], table), ""]
+            report.row("aggregate", "all", g, name, "", runs, point[g][i], *interval[g][:, i])
+        table.append([label(g), runs, *[_ci(point[g][i], *interval[g][:, i])
+                                        for i in range(len(names))]])
+    report.section(f"Aggregate metrics over {len(agg.tasks)} task(s)",
+                   f"{score_name}s at each task's scored step; tasks: {', '.join(agg.tasks)}.",
+                   "", markdown_table(["group", "runs per task", *names], table))
 
     print(f"performance profiles and sample-efficiency curves ({args.curve_reps:,} reps) ...")
     everything = np.concatenate([s.ravel() for s in agg.final.values()])
@@ -806,62 +823,59 @@ def aggregate_outputs(args: Args, agg: Aggregate, colors: dict, score_name: str,
     taus = np.linspace(min(everything.min(), 0.0), top, 101)
     seed_bootstrap(args.seed)
     profiles, cis = rly.create_performance_profile(agg.final, taus, reps=args.curve_reps)
-    figures += save(plot_profiles(taus, profiles, cis, colors, score_name), args.out,
-                    "performance_profiles", args.format)
-    point, interval = interval_estimates(agg.curves, iqm_per_step, args.curve_reps, args.seed)
-    figures += save(plot_sample_efficiency(agg.frames, point, interval, colors,
-                                           f"IQM {score_name.lower()}"),
-                    args.out, "sample_efficiency", args.format)
+    report.figure(plot_profiles(taus, profiles, cis, colors, score_name), "performance_profiles")
+    if agg.frames.size:
+        point, interval = interval_estimates(agg.curves, iqm_per_step, args.curve_reps, args.seed)
+        report.figure(plot_sample_efficiency(agg.frames, point, interval, colors,
+                                             f"IQM {score_name.lower()}"), "sample_efficiency")
+    else:
+        report.notes.append("the tasks share no evaluation step: sample-efficiency curve skipped")
 
     x, y = COMPARISON
     if x not in agg.groups or y not in agg.groups:
-        notes.append(f"probability of improvement needs both {x} and {y} runs: skipped")
-        return md
+        report.notes.append(f"probability of improvement needs both {x} and {y} runs: skipped")
+        return
     print(f"probability of improvement ({args.curve_reps:,} reps) ...")
     pair = f"{x} > {y}"
     point, interval = interval_estimates({pair: [agg.final[x], agg.final[y]]},
                                          metrics.probability_of_improvement,
                                          args.curve_reps, args.seed)
     low, high = interval[pair].ravel()
-    rows.append(csv_row("probability_of_improvement", "all", pair, "P(X > Y)", "",
-                        f"{agg.final[x].shape[0]} vs {agg.final[y].shape[0]}", point[pair],
-                        low, high))
-    figures += save(plot_improvement(point[pair], (low, high), x, y, colors[x]), args.out,
-                    "probability_of_improvement", args.format)
-    md += ["## Probability of improvement", "",
-           f"P({label(x)} > {label(y)}) = {_ci(point[pair], low, high)}: the chance that a run "
-           f"of {label(x)} scores higher than a run of {label(y)} on a task drawn at random "
-           "(Mann-Whitney per task, averaged over tasks).", ""]
-    return md
+    runs = f"{agg.final[x].shape[0]} vs {agg.final[y].shape[0]}"
+    report.row("probability_of_improvement", "all", pair, "P(X > Y)", "", runs, point[pair],
+               low, high)
+    report.figure(plot_improvement(point[pair], (low, high), x, y, colors[x]),
+                  "probability_of_improvement")
+    report.section("Probability of improvement",
+                   f"P({label(x)} > {label(y)}) = {_ci(point[pair], low, high)}: the chance that "
+                   f"a run of {label(x)} scores higher than a run of {label(y)} on a task drawn "
+                   "at random (Mann-Whitney per task, averaged over tasks).")
 
 
-def paired_outputs(args: Args, tasks: dict[str, Task], differences: dict, norms: dict,
-                   colors: dict, score_name: str, rows: list[dict],
-                   figures: list[Path]) -> list[str]:
-    """Own evaluation minus tanh(mu) evaluation of the same actors; returns its md section."""
+def report_paired(report: Report, args: Args, tasks: dict[str, Task], differences: dict,
+                  norms: dict, colors: dict) -> None:
+    """Own evaluation minus tanh(mu) evaluation of the same actors, per task."""
     print(f"paired differences ({args.reps:,} reps) ...")
     estimates = seed_mean_estimates({(t, a): d for t, by_algorithm in differences.items()
                                      for a, d in by_algorithm.items()}, args.reps, args.seed)
     table = []
-    for task, by_algorithm in differences.items():
-        for a, d in by_algorithm.items():
-            values = estimates[task, a]
-            scaled = [v / norms[task][1] for v in values]
-            step = tasks[task].scored_step
-            rows.append(csv_row("paired_difference", task, a, "return", step, d.size, *values))
-            rows.append(csv_row("paired_difference", task, a, "score", step, d.size, *scaled))
-            table.append([task, _fmt(step), label(a), d.size, _ci(*values, 1), _ci(*scaled)])
-    figures += save(plot_paired(differences, estimates, norms, colors,
-                                f"Difference in {score_name.lower()}"),
-                    args.out, "paired_difference", args.format)
-    return ["## Paired evaluation: own action minus tanh(mu), same actor, same start states", "",
-            "Per-seed differences at the scored step; mean over seeds with 95% CI.", "",
-            markdown_table(["task", "step", "algorithm", "seeds", "return difference",
-                            "score difference"], table), ""]
+    for (task, algorithm), values in estimates.items():
+        runs, step = differences[task][algorithm].size, tasks[task].scored_step
+        scaled = [v / norms[task][1] for v in values]
+        report.row("paired_difference", task, algorithm, "return", step, runs, *values)
+        report.row("paired_difference", task, algorithm, "score", step, runs, *scaled)
+        table.append([task, _fmt(step), label(algorithm), runs, _ci(*values, 1), _ci(*scaled)])
+    xlabel = f"Difference in {SCORE_NAMES[args.normalize].lower()}"
+    report.figure(plot_paired(differences, estimates, norms, colors, xlabel), "paired_difference")
+    report.section("Paired evaluation: own action minus tanh(mu), same actor, same start states",
+                   "Per-seed differences at the scored step; mean over seeds with 95% CI.", "",
+                   markdown_table(["task", "step", "algorithm", "seeds", "return difference",
+                                   "score difference"], table))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = tyro.cli(Args, args=argv, description=__doc__.split("\n\n")[0])
+    matplotlib.use("Agg")  # figures only go to files: no display needed
     try:
         analyze(args)
     except AnalysisError as error:
