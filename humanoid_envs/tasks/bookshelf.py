@@ -171,7 +171,8 @@ class Bookshelf(Task):
         spec.worldbody.add_site(
             name="goal", pos=list(_GOALS[0]), size=[0.03, 0, 0], rgba=[0.1, 0.9, 0.2, 0.7]
         )
-        add_look_at_camera(spec, self.camera, pos=(0.9, -2.6, 1.9), target=(0.6, 0.0, 0.9))
+        # Over the robot's right shoulder, into the open face of the shelf.
+        add_look_at_camera(spec, self.camera, pos=(-1.3, -1.3, 2.3), target=(0.85, 0.0, 0.9))
         # Objects at rest sleep (MuJoCo skips them) until something touches or moves them, so
         # the objects nobody handles cost nothing: about half the physics time of this scene.
         # The robot is actuated and never sleeps.
