@@ -343,3 +343,27 @@ def test_command_line_error_exits_nonzero_without_traceback(tmp_path):
                             cwd=Path(analyze.__file__).parent, capture_output=True, text=True)
     assert result.returncode == 2
     assert "is not a folder" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_reads_what_the_sac_scripts_write(tmp_path):
+    """Tiny real runs of both scripts: analyze.py reads them, and since the two scripts train
+    identically for a seed and evaluate from the same start states, corrected's paired tanh(mu)
+    evaluation equals standard's own evaluation."""
+    import subprocess
+    import sys
+
+    root = Path(analyze.__file__).parent
+    for script in ("sac_standard.py", "sac_corrected.py"):
+        subprocess.run([sys.executable, script, "--env-id", "Pendulum-v1", "--seed", "0",
+                        "--total-timesteps", "400", "--learning-starts", "200",
+                        "--eval-interval", "200", "--eval-episodes", "1",
+                        "--checkpoint-interval", "0", "--output-dir", str(tmp_path / "runs")],
+                       cwd=root, check=True, capture_output=True)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out", "--normalize", "min-max") == 0
+    summary = read_summary(tmp_path / "out")
+    standard = summary[("task_final", "Pendulum-v1", "standard", "return")]
+    tanh_mu = summary[("task_final", "Pendulum-v1", "corrected (tanh(mu) eval)", "return")]
+    assert standard["step"] == "400" and standard["estimate"] == tanh_mu["estimate"]
+    mode = estimate(summary, "task_final", "Pendulum-v1", "corrected", "return")[0]
+    difference = estimate(summary, "paired_difference", "Pendulum-v1", "corrected", "return")[0]
+    assert np.isclose(difference, mode - float(tanh_mu["estimate"]))
