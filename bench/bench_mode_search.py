@@ -15,6 +15,7 @@ load change on the machine shifts all of them alike. The actor is SAC's 256x256 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
@@ -103,6 +104,7 @@ def main() -> None:
     print("accuracy of the exact mode in y")
     print_accuracy()
     print(f"\ntorch {torch.__version__}, float32, CPU, median of {args.repeats} repeats")
+    print(f"load average over the last minute at start: {os.getloadavg()[0]:.1f}")
     for threads in args.threads:
         torch.set_num_threads(threads)
         for batch in (1, 256):
