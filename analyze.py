@@ -82,25 +82,19 @@ class Args:
     out: Path = Path("report")
     """folder the figures, summary.md and summary.csv are written to"""
     normalize: Literal["success-bar", "min-max", "none"] = "success-bar"
-    """per-task scores for aggregating: `success-bar` divides by HumanoidBench's success bar
-    (1.0 = solved), `min-max` maps each task's lowest and highest logged return to 0 and 1,
-    `none` keeps raw returns (one task only)"""
+    """per-task scores: return / HumanoidBench success bar, task range to [0, 1], or raw"""
     at_step: int | None = None
     """score every run at this step instead of the last step all runs of its task share"""
     reps: int = 50_000
-    """bootstrap replications for point estimates: the aggregate metrics, per-task final
-    returns and paired differences"""
+    """bootstrap replications for point estimates (aggregates, per-task finals, paired)"""
     curve_reps: int = 2_000
-    """bootstrap replications for the per-task reward curves, the sample-efficiency curves,
-    the performance profiles and the probability of improvement (as in rliable's examples)"""
+    """bootstrap replications for curves, profiles and probability of improvement"""
     curve_points: int = 21
-    """steps on the sample-efficiency curve (evenly spaced over the shared steps, the last one
-    included); its bootstrap cost grows linearly with it"""
+    """steps on the sample-efficiency curve (evenly spaced, last included; cost ~ linear)"""
     seed: int = 0
-    """seed of NumPy's global generator, set before every bootstrap (rliable draws from it and
-    ignores its own random_state argument)"""
+    """seeds NumPy's global generator before every bootstrap (rliable ignores random_state)"""
     format: tuple[Literal["png", "pdf"], ...] = ("png",)
-    """figure file formats, e.g. `--format pdf` or `--format png pdf`"""
+    """figure formats, e.g. `--format pdf` or `--format png pdf`"""
 
 
 class AnalysisError(Exception):
@@ -317,13 +311,17 @@ def _alignment_notes(
     task: str, curves: list[Curve], steps: np.ndarray, scored_step: int
 ) -> list[str]:
     notes = []
-    for curve in curves:
-        if curve.steps[-1] > steps[-1]:
-            notes.append(
-                f"{task}: {curve.run_dir} was cut: it reached step {_fmt(curve.steps[-1])}, "
-                f"the runs of {task} share steps up to {_fmt(steps[-1])}"
-            )
-    unshared = [c for c in curves if np.setdiff1d(c.steps[c.steps <= steps[-1]], steps).size]
+    # A paired evaluation shares its run with its algorithm's curve: name each run once.
+    cut = {c.run_dir: c.steps[-1] for c in curves if c.steps[-1] > steps[-1]}
+    if cut:
+        shortest = min(curves, key=lambda c: c.steps[-1])
+        notes.append(
+            f"{task}: its runs share steps up to {_fmt(steps[-1])} (shortest run: "
+            f"{shortest.run_dir}, to {_fmt(shortest.steps[-1])}); curves and scores stop there. "
+            "Cut: " + ", ".join(f"{d} (reached {_fmt(last)})" for d, last in cut.items())
+        )
+    unshared = {c.run_dir for c in curves
+                if np.setdiff1d(c.steps[c.steps <= steps[-1]], steps).size}
     if unshared:
         notes.append(
             f"{task}: evaluation steps differ between runs ({len(unshared)} run(s) have steps "
@@ -642,11 +640,12 @@ def plot_paired(differences: dict, estimates: dict, norms: dict, colors: dict, x
 
 # ----------------------------------------------------------------------------- tables
 def _fmt(step: int | float) -> str:
+    """Steps as people write them: 10M, 2.5M, 250k, 1,234."""
     step = int(step)
-    if step and step % 1_000_000 == 0:
-        return f"{step // 1_000_000}M"
-    if step and step % 1_000 == 0:
-        return f"{step // 1_000:,}k"
+    if step >= 1_000_000 and step % 1_000 == 0:
+        return f"{step / 1_000_000:g}M"
+    if step >= 1_000 and step % 1_000 == 0:
+        return f"{step // 1_000}k"
     return f"{step:,}"
 
 

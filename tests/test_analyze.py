@@ -206,8 +206,11 @@ def test_ragged_runs_are_cut_to_shared_steps_and_reported(tmp_path):
     assert np.isclose(float(row["estimate"]), np.mean([50.0, 200.0, 60.0]))
     assert summary[("task_final", task, "standard", "return")]["step"] == "60000"
     text = (tmp_path / "out" / "summary.md").read_text()
-    assert "standard__seed1__20261121-120000 was cut: it reached step 100k" in text
-    assert "share steps up to 60k" in text
+    assert f"{task}: its runs share steps up to 60k (shortest run: {runs}/{task}__corrected__seed0"\
+        in text
+    cut = [line for line in text.splitlines() if "Cut: " in line][0]
+    assert "standard__seed1__20261121-120000 (reached 100k)" in cut
+    assert cut.count("reached") == 5  # three standard runs, corrected seeds 1 and 2, once each
     assert "evaluation steps differ between runs (1 run(s)" in text
     assert "| h1hand-cube-v0 | 3 seeds, to step 100k | 3 seeds, to step 60k-100k |" in text
 
@@ -329,6 +332,8 @@ def test_bad_inputs_give_one_clear_message(tmp_path, capsys):
         flags = ["--normalize", "none"] if name == "mixed_raw" else []
         assert run_analysis(root, tmp_path / "out", *flags) == 2, name
         assert message in capsys.readouterr().err, name
+    assert analyze.main([str(tmp_path / "empty"), "--reps", "0"]) == 2
+    assert "--reps must be at least 1" in capsys.readouterr().err
     write_config(tmp_path / "no_seed" / "run", env_id="h1hand-cube-v0", algorithm="standard")
     (tmp_path / "no_seed" / "run" / "eval.csv").write_text("global_step,return_mean\n10,1\n")
     assert run_analysis(tmp_path / "no_seed", tmp_path / "out") == 2
