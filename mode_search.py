@@ -290,8 +290,17 @@ def _plot_shift_vs_dimensions(plt):
         shift = (mode_action(mu, log_std) - torch.tanh(mu)).abs().cumsum(dim=1)
         low, high = torch.quantile(shift, torch.tensor([0.05, 0.95], dtype=torch.float64), dim=0)
         n = torch.arange(1, dims + 1)
-        ax.plot(n, shift.mean(dim=0), color=color, label=f"{label}: mean")
+        mean = shift.mean(dim=0)
+        ax.plot(n, mean, color=color, label=f"{label}: mean")
         ax.fill_between(n, low, high, color=color, alpha=0.2, label="  5-95% of draws")
+        ax.annotate(
+            f"{mean[-1]:.1f}",
+            (dims, mean[-1]),
+            xytext=(4, 0),
+            textcoords="offset points",
+            va="center",
+            color=color,
+        )
     ax.set(
         xlabel="number of action dimensions",
         ylabel="$\\sum_i$ |mode$_i$ - tanh($\\mu_i$)|",
