@@ -51,7 +51,7 @@ def near_double_root_params() -> tuple[torch.Tensor, torch.Tensor]:
 
 @pytest.mark.parametrize("mu, sigma", [(0.0, 0.5), (1.0, 0.5), (-1.5, 0.3), (0.2, 1.0), (0.0, 1.5)])
 def test_density_integrates_to_one(mu: float, sigma: float) -> None:
-    y = torch.linspace(-1, 1, 2_000_001, dtype=torch.float64)[1:-1]
+    y = torch.linspace(-1, 1, 400_001, dtype=torch.float64)[1:-1]
     p = tanh_normal_log_prob(y, torch.tensor(mu), torch.tensor(math.log(sigma))).exp()
     assert torch.trapezoid(p, y).item() == pytest.approx(1.0, abs=1e-4)
 
@@ -153,7 +153,7 @@ def test_exact_is_the_global_maximum_of_a_dense_search() -> None:
 
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_exact_is_never_worse_than_grid(dtype: torch.dtype) -> None:
-    mu, log_std = random_params(4000, seed=3, mu_scale=1.5)
+    mu, log_std = random_params(2500, seed=3, mu_scale=1.5)
     # Plenty of bimodal cases (2 sigma^2 > 1) and near-ties between the two modes.
     mu = torch.cat([mu, 0.05 * mu]).to(dtype)
     log_std = torch.cat([log_std, torch.empty_like(log_std).uniform_(-0.5, 1.0)]).to(dtype)
