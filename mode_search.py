@@ -61,7 +61,7 @@ def mode_action(mu: torch.Tensor, log_std: torch.Tensor, solver: str = "exact") 
         raise ValueError(f"solver must be 'exact' or 'grid', got {solver!r}")
     mu, log_std = torch.as_tensor(mu), torch.as_tensor(log_std)
     if not mu.is_floating_point():
-        raise TypeError(f"mu must be a floating-point tensor, got {mu.dtype}")
+        raise TypeError(f"mu must be a floating-point tensor, got {mu.dtype}; pass mu.float()")
     y = _exact_mode(mu, log_std) if solver == "exact" else _grid_mode(mu, log_std)
     inside = 1.0 - torch.finfo(mu.dtype).eps / 2  # the largest float below 1
     return y.to(mu.dtype).clamp(-inside, inside)
