@@ -52,9 +52,10 @@ SWEEP_FLAGS = (
 )
 # The training scripts' exit code after a graceful stop on a signal: "resume with --resume".
 EXIT_INTERRUPTED = 3
-# Training speed of one run (env steps/s, gradient update per step) for the compute estimate;
-# placeholder until measured with the real scripts.
-DEFAULT_STEPS_PER_SECOND = 100.0
+# Training speed of one run for the compute estimate: either script on h1hand-powerlift-v0, one
+# torch thread, one gradient update per step, an evaluation round every 10,000 steps: about
+# 9.5 ms of CPU per step on our 2-core machines (README, "Running the paper's experiment").
+DEFAULT_STEPS_PER_SECOND = 105.0
 IDENTITY_FILE = "sweep_run.json"
 ATTEMPT_FILE = "sweep_attempt.json"
 LOG_FILE = "sweep.log"
@@ -75,8 +76,7 @@ class Args:
     scripts: list[str] = field(default_factory=lambda: list(DEFAULT_SCRIPTS))
     """training scripts of the grid (paths, or names of the project's scripts)"""
     preset: Literal["paper"] | None = None
-    """`paper`: the paper's grid (four tasks, seeds 0-4, both scripts, the scripts' defaults);
-    --env-ids / --seeds given as well replace the preset's lists"""
+    """`paper`: four tasks, seeds 0-4, both scripts, their defaults (--env-ids/--seeds override)"""
     output_dir: str = "runs"
     """folder that holds one folder per run"""
     launcher: Literal["local", "slurm"] = "local"
@@ -92,19 +92,18 @@ class Args:
     analyze: str | None = None
     """when all runs are done, run analyze.py on the output folder into this report folder"""
     analyze_args: str = ""
-    """further options for analyze.py in one string (e.g. "--normalize min-max --reps 2000")"""
+    """further options for analyze.py, e.g. --analyze-args='--normalize min-max --reps 2000'"""
     wait: bool = False
     """slurm launcher: wait until the job array has finished (implied by --analyze)"""
     partition: str | None = None
-    """slurm: partition (default: the cluster's default partition)"""
+    """slurm: partition (None: the cluster's default partition)"""
     time_min: int = 1440
-    """slurm: time limit of one job in minutes; a job that reaches it is checkpointed and
-    requeued"""
-    cpus_per_task: int = 2
-    """slurm: CPUs per run"""
+    """slurm: time limit of one job in minutes (near it, the run checkpoints and is requeued)"""
+    cpus_per_task: int = 1
+    """slurm: CPUs per run (the scripts use one torch thread unless given --torch-threads)"""
     gpus_per_task: int = 0
     """slurm: GPUs per run"""
-    mem_gb: int = 16
+    mem_gb: int = 8
     """slurm: memory per run in GB"""
     account: str | None = None
     """slurm: account to charge"""

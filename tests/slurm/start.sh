@@ -6,11 +6,11 @@ set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 conf_file=/etc/slurm/slurm.conf
 
-for tool in munged slurmctld slurmd sinfo scontrol; do
+for tool in munged munge slurmctld slurmd sinfo scontrol; do
   command -v "$tool" >/dev/null || {
     echo "start.sh: $tool not found: run tests/install_system_deps.sh as root first" >&2; exit 1; }
 done
-node_ready() { sinfo -h -o '%T' 2>/dev/null | grep -qE '^(idle|mixed|allocated)'; }
+node_ready() { timeout 5 sinfo -h -o '%T' 2>/dev/null | grep -qxE '(idle|mixed|allocated)'; }
 need_root() {
   [ "$(id -u)" = 0 ] || { echo "start.sh: $1 needs root (run as root)" >&2; exit 1; }
 }
@@ -31,7 +31,7 @@ fi
 
 if node_ready; then exit 0; fi
 need_root "starting Slurm"
-if ! pgrep -u munge -x munged >/dev/null; then
+if ! munge -n >/dev/null 2>&1; then
   mkdir -p /run/munge && chown munge:munge /run/munge && chmod 0755 /run/munge
   su -s /bin/sh munge -c /usr/sbin/munged
 fi
@@ -40,13 +40,14 @@ chown slurm:slurm /var/lib/slurm/slurmctld /var/log/slurm
 pgrep -x slurmctld >/dev/null || slurmctld
 pgrep -x slurmd >/dev/null || slurmd
 
-for _ in $(seq 1 60); do
+deadline=$((SECONDS + 120))
+while [ "$SECONDS" -lt "$deadline" ]; do
   if node_ready; then exit 0; fi
   # A node left down by an earlier run of the daemons comes back once told to.
-  scontrol update nodename="$(hostname -s)" state=resume >/dev/null 2>&1 || true
+  timeout 5 scontrol update nodename="$(hostname -s)" state=resume >/dev/null 2>&1 || true
   sleep 1
 done
-echo "start.sh: the Slurm node did not become idle within 60 s:" >&2
+echo "start.sh: the Slurm node did not become idle within 120 s:" >&2
 sinfo -N -l >&2 || true
 tail -n 20 /var/log/slurm/slurmctld.log /var/log/slurm/slurmd.log >&2 || true
 exit 1
