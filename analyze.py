@@ -28,6 +28,7 @@ from typing import Literal
 import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
+import scipy.stats
 import seaborn as sns
 import tyro
 from rliable import library as rly
@@ -89,8 +90,8 @@ class Args:
     """bootstrap replications for point estimates (aggregates, per-task finals, paired)"""
     curve_reps: int = 2_000
     """bootstrap replications for curves, profiles and probability of improvement"""
-    curve_points: int = 21
-    """steps on the sample-efficiency curve (evenly spaced, last included; cost ~ linear)"""
+    curve_points: int = 51
+    """steps on the sample-efficiency curve (evenly spaced over the shared steps, last included)"""
     seed: int = 0
     """seeds NumPy's global generator before every bootstrap (rliable ignores random_state)"""
     format: tuple[Literal["png", "pdf"], ...] = ("png",)
@@ -396,8 +397,12 @@ def aggregate_metrics(scores: np.ndarray, gap: bool = True) -> np.ndarray:
 
 
 def iqm_per_step(scores: np.ndarray) -> np.ndarray:
-    """Aggregate IQM at each step of a (runs x tasks x steps) score array."""
-    return np.array([metrics.aggregate_iqm(scores[..., i]) for i in range(scores.shape[-1])])
+    """metrics.aggregate_iqm at each step of a (runs x tasks x steps) score array.
+
+    aggregate_iqm is scipy's 25% trimmed mean over all runs and tasks; one call along the step
+    axis gives the same numbers as a call per step, 6x (21 steps) to 15x (51) faster.
+    """
+    return scipy.stats.trim_mean(scores.reshape(-1, scores.shape[-1]), 0.25, axis=0)
 
 
 def reward_curve_estimates(tasks: dict[str, Task], reps: int, seed: int) -> dict:
@@ -596,6 +601,7 @@ def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colo
         ticklabelsize="large",
         legend=True,
         legendsize="large",
+        marker=".",
     )
     return fig
 

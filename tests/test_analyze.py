@@ -176,6 +176,14 @@ def test_independent_draws_of_one_algorithm_are_near_even(tmp_path):
     assert 0.35 < p < 0.65 and low < 0.5 < high
 
 
+def test_iqm_per_step_is_rliables_iqm_at_every_step():
+    from rliable import metrics
+
+    scores = np.random.default_rng(3).normal(size=(5, 4, 7))
+    expected = [metrics.aggregate_iqm(scores[..., i]) for i in range(7)]
+    assert np.allclose(analyze.iqm_per_step(scores), expected)
+
+
 def test_same_seed_same_report_other_seed_other_intervals(tmp_path):
     write_paper_like_folder(tmp_path / "runs", seeds=3, evaluations=10)
     for name, seed in [("a", "0"), ("b", "0"), ("c", "1")]:
