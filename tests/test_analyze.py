@@ -274,6 +274,15 @@ def test_one_algorithm_only_skips_comparisons_and_says_so(tmp_path):
     assert "probability of improvement needs both corrected and standard runs: skipped" in text
     summary = read_summary(tmp_path / "out")
     assert np.allclose(estimate(summary, "paired_difference", TASKS[0], "corrected", "return"), 10)
+    # Standard on one task, corrected on another: nothing to aggregate, per-task results only.
+    write_run(tmp_path / "split", TASKS[0], "standard", 0, steps, np.linspace(1, 5, 5))
+    write_run(tmp_path / "split", TASKS[1], "corrected", 0, steps, np.linspace(2, 6, 5))
+    assert run_analysis(tmp_path / "split", tmp_path / "split_out") == 0
+    assert not (tmp_path / "split_out" / "aggregate_metrics.png").exists()
+    text = (tmp_path / "split_out" / "summary.md").read_text()
+    assert "no task was run by every algorithm: aggregate metrics skipped" in text
+    assert estimate(read_summary(tmp_path / "split_out"), "task_final", TASKS[1], "corrected",
+                    "return")[0] == 6.0
 
 
 def test_min_max_and_none_normalisation(tmp_path):
