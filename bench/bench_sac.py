@@ -4,7 +4,8 @@
 
 Times are process CPU seconds (the machine is shared; with one torch thread, CPU time is what
 an idle machine's wall clock shows), medians over --repeats: one gradient update alone (the
-script's fused twin critics; for comparison, two separate critics and a torch.compile'd update),
+script's: two MLP critics, fused Adam, eager; for comparison, batched-matmul twin critics,
+PyTorch's default Adam, and the update under torch.compile),
 one env step alone, one actor forward; the training loop's cost per step after the start steps
 (two runs of sac_standard.py as subprocesses, with and without --loop-steps more steps,
 differenced); an evaluation round of 10 episodes; and the resident memory of a full
@@ -60,23 +61,26 @@ class Args:
     """also time a torch.compile'd update"""
 
 
-class SeparateTwinQ(nn.Module):
-    """The textbook layout: two independent critics (the baseline the fused TwinQ replaces)."""
+class BatchedTwinQ(nn.Module):
+    """The alternative the script's TwinQ was measured against: both critics in one network,
+    every layer one batched matmul over a leading dimension of 2 (half the ops)."""
 
     def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...]):
         super().__init__()
-        sizes = (obs_dim + action_dim, *hidden)
-
-        def mlp() -> nn.Sequential:
-            layers = [m for i, o in zip(sizes, sizes[1:], strict=False)
-                      for m in (nn.Linear(i, o), nn.ReLU())]
-            return nn.Sequential(*layers, nn.Linear(sizes[-1], 1))
-
-        self.qf1, self.qf2 = mlp(), mlp()
+        sizes = (obs_dim + action_dim, *hidden, 1)
+        self.weights = nn.ParameterList(nn.Parameter(torch.empty(2, i, o))
+                                        for i, o in zip(sizes, sizes[1:], strict=False))
+        self.biases = nn.ParameterList(nn.Parameter(torch.empty(2, 1, o)) for o in sizes[1:])
+        for w, b in zip(self.weights, self.biases, strict=True):  # nn.Linear's default init
+            bound = w.shape[1] ** -0.5
+            nn.init.uniform_(w, -bound, bound)
+            nn.init.uniform_(b, -bound, bound)
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        x = torch.cat([obs, action], 1)
-        return torch.stack([self.qf1(x), self.qf2(x)]).squeeze(-1)
+        x = torch.cat([obs, action], 1).expand(2, -1, -1)
+        for w, b in zip(self.weights[:-1], self.biases[:-1], strict=True):
+            x = torch.relu(torch.baddbmm(b, x, w))
+        return torch.baddbmm(self.biases[-1], x, self.weights[-1]).squeeze(-1)
 
 
 def median_time(fn, repeats: int, calls: int) -> float:
@@ -91,7 +95,8 @@ def median_time(fn, repeats: int, calls: int) -> float:
     return statistics.median(times)
 
 
-def time_update(args: Args, env, critic_class=TwinQ, compiled: bool = False) -> float:
+def time_update(args: Args, env, critic_class=TwinQ, fused_adam: bool = True,
+                compiled: bool = False) -> float:
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
     hidden = (256, 256)
     actor = Actor(obs_dim, hidden, env.action_space, -10.0, 2.0)
@@ -99,9 +104,8 @@ def time_update(args: Args, env, critic_class=TwinQ, compiled: bool = False) -> 
                                                                             hidden)
     qf_target.load_state_dict(qf.state_dict())
     log_alpha = torch.zeros((), requires_grad=True)
-    optimizers = (torch.optim.Adam(qf.parameters(), lr=3e-4),
-                  torch.optim.Adam(actor.parameters(), lr=3e-4),
-                  torch.optim.Adam([log_alpha], lr=3e-4))
+    optimizers = tuple(torch.optim.Adam(params, lr=3e-4, fused=fused_adam) for params in (
+        qf.parameters(), actor.parameters(), [log_alpha]))
     rb = ReplayBuffer(20_000, obs_dim, action_dim, seed=0)
     rng = np.random.default_rng(0)
     for i in range(20_000):
@@ -200,11 +204,13 @@ if __name__ == "__main__":
     print(f"{args.env_id}: obs {obs_dim}, actions {action_dim}, batch {args.batch_size}, "
           f"torch threads {args.torch_threads}, torch {torch.__version__}")
     update = time_update(args, env)
-    print(f"update (fused twin critics, eager):   {update * 1e3:6.2f} ms")
-    separate = time_update(args, env, SeparateTwinQ)
-    print(f"update (two separate critics, eager): {separate * 1e3:6.2f} ms")
+    print(f"update (as in the scripts):           {update * 1e3:6.2f} ms")
+    batched = time_update(args, env, BatchedTwinQ)
+    print(f"  with batched-matmul twin critics:   {batched * 1e3:6.2f} ms")
+    print(f"  with PyTorch's default Adam:        "
+          f"{time_update(args, env, fused_adam=False) * 1e3:6.2f} ms")
     if args.compile:
-        print(f"update (fused, torch.compile):        "
+        print(f"  under torch.compile:                "
               f"{time_update(args, env, compiled=True) * 1e3:6.2f} ms")
     env_step, episode_length = time_env_step(env, 1000, args.repeats)
     actor_forward = time_actor_forward(env, args.repeats)
