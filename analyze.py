@@ -532,10 +532,12 @@ def plot_reward_curves(
         ax.set_visible(False)
     for ax, (task, data) in zip(axes.flat, tasks.items(), strict=False):
         unit, xlabel = _steps_axis(data.steps[-1])
+        width = 1.8 if data.steps.size <= 200 else 1.0  # dense curves: thin lines show the CIs
         for group in [g for g in groups if g in data.returns]:
             mean, (low, high) = curves[task][group]
             style = "--" if group.endswith(PAIRED_SUFFIX) else "-"
-            ax.plot(data.steps / unit, mean, style, color=colors[group], lw=1.8, label=label(group))
+            ax.plot(data.steps / unit, mean, style, color=colors[group], lw=width,
+                    label=label(group))
             ax.fill_between(data.steps / unit, low, high, color=colors[group], alpha=0.2, lw=0)
         if task in SUCCESS_BARS:
             ax.axhline(SUCCESS_BARS[task], color="0.4", ls=":", lw=1.2, label="success bar")
