@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import csv
 import difflib
+import functools
 import hashlib
-import importlib
 import importlib.util
 import json
 import os
@@ -33,7 +33,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
 
+import gymnasium
+import submitit
 import tyro
+
+import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
 
 ROOT = Path(__file__).resolve().parent
 PAPER_ENV_IDS = (
@@ -42,9 +46,9 @@ PAPER_ENV_IDS = (
     "h1hand-bookshelf_simple-v0",
     "h1hand-bookshelf_hard-v0",
 )
+# The scripts' defaults are the paper's protocol (its Tables I and II): the preset adds no
+# arguments to the runs, only the grid.
 PAPER_SEEDS = (0, 1, 2, 3, 4)
-# The scripts' defaults are the paper's protocol (Tables I and II), so the preset adds nothing.
-PAPER_EXTRA_ARGS: tuple[str, ...] = ()
 DEFAULT_SCRIPTS = ("sac_standard.py", "sac_corrected.py")
 # sweep.py sets these for every run itself; the same flags after `--` would contradict them.
 SWEEP_FLAGS = (
@@ -208,9 +212,6 @@ def resolve_script(script: str) -> Path:
 
 
 def check_env_ids(env_ids: list[str]) -> None:
-    import gymnasium
-
-    importlib.import_module("humanoid_envs")  # registers the h1hand-* ids
     known = list(gymnasium.registry)
     for env_id in env_ids:
         if env_id not in known:
@@ -233,8 +234,6 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     """The runs of the sweep, seed-major so that every cell gets its first seed early."""
     env_ids = args.env_ids or (list(PAPER_ENV_IDS) if args.preset == "paper" else [])
     seeds = args.seeds or (list(PAPER_SEEDS) if args.preset == "paper" else [])
-    if args.preset == "paper":
-        extra_args = PAPER_EXTRA_ARGS + extra_args
     if not env_ids:
         raise SweepError("no env ids: pass --env-ids ID [ID ...] (or --preset paper)")
     if not seeds:
@@ -271,7 +270,8 @@ def check_output_dir(runs: list[Run]) -> None:
         elif identity is not None and identity["extra_args"] != extra_args:
             others.append(f"{run_dir.name} (arguments: {shlex.join(identity['extra_args'])})")
     if others:
-        listing = "\n  ".join(others[:10] + ([f"... {len(others) - 10} more"] * (len(others) > 10)))
+        shown = others[:10] + ([f"... and {len(others) - 10} more"] if len(others) > 10 else [])
+        listing = "\n  ".join(shown)
         raise SweepError(
             f"{output_dir} holds runs made with other arguments than this sweep's "
             f"({shlex.join(extra_args) or 'none'}):\n  {listing}\n"
@@ -295,14 +295,15 @@ def slurm_job_state(job_id: str) -> str | None:
 
 
 def process_alive(attempt: dict) -> bool:
+    """Whether the attempt's process still runs (knowable only on the host that ran it)."""
     if attempt.get("host") != socket.gethostname() or attempt.get("returncode") is not None:
         return False
     try:
         os.kill(attempt["pid"], 0)
     except ProcessLookupError:
         return False
-    except PermissionError:
-        return True
+    except PermissionError:  # alive, but another user's
+        pass
     return True
 
 
@@ -358,18 +359,17 @@ def start_run(run: Run, *, new_session: bool, block_user_signals: bool) -> subpr
     action, command = run_command(run)
     job_id = slurm_array_task_id()
     where = f"{socket.gethostname()}" + (f", Slurm job {job_id}" if job_id else "")
-    with open(run.run_dir / LOG_FILE, "a") as log:
-        log.write(f"=== sweep.py {action} on {where} at {time.strftime('%F %T')}: "
-                  f"{shlex.join(command)}\n")
-    log = open(run.run_dir / LOG_FILE, "a")
     # On Slurm the signal before the time limit reaches every process of the job; the child
     # must get it only once, through checkpoint(), or it would take a second signal as "exit now".
     preexec = _block_user_signals if block_user_signals else None
-    child = subprocess.Popen(
-        command, stdout=log, stderr=subprocess.STDOUT, start_new_session=new_session,
-        preexec_fn=preexec, env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-    log.close()
+    with open(run.run_dir / LOG_FILE, "a") as log:
+        log.write(f"=== sweep.py {action} on {where} at {time.strftime('%F %T')}: "
+                  f"{shlex.join(command)}\n")
+        log.flush()
+        child = subprocess.Popen(
+            command, stdout=log, stderr=subprocess.STDOUT, start_new_session=new_session,
+            preexec_fn=preexec, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
     write_json(run.run_dir / ATTEMPT_FILE, {
         "action": action, "host": socket.gethostname(), "pid": child.pid,
         "slurm_job_id": job_id, "started": time.time(), "returncode": None,
@@ -474,14 +474,12 @@ class SlurmRun:
         record_exit(run, self._returncode)
         if self._returncode == 0:
             return str(run.run_dir)
-        tail = "\n".join(log_tail(run.run_dir))
         if self._returncode == EXIT_INTERRUPTED:
             raise RuntimeError(f"{run.name} was interrupted: rerun the sweep to resume it")
+        tail = "\n".join(log_tail(run.run_dir))
         raise RuntimeError(f"{run.name} failed (exit code {self._returncode}):\n{tail}")
 
-    def checkpoint(self, run: Run):  # -> submitit.helpers.DelayedSubmission
-        import submitit
-
+    def checkpoint(self, run: Run) -> submitit.helpers.DelayedSubmission:
         if self._child is not None and self._returncode is None:
             self._child.send_signal(signal.SIGTERM)
             self._reap(block=True)
@@ -536,8 +534,6 @@ def sbatch_options(options: list[str]) -> dict[str, str | bool]:
 
 def launch_slurm(runs: list[Run], args: Args) -> str:
     """Submit the runs as one job array; returns the array's job id."""
-    import submitit
-
     executor = submitit.SlurmExecutor(
         folder=runs[0].output_dir / ".submitit" / "%j", max_num_timeout=args.max_requeues
     )
@@ -594,6 +590,7 @@ def total_timesteps(run: Run) -> int:
     return script_default_total_timesteps(run.script)
 
 
+@functools.cache
 def script_default_total_timesteps(script: Path) -> int:
     spec = importlib.util.spec_from_file_location(f"_sweep_{script.stem}", script)
     module = importlib.util.module_from_spec(spec)
@@ -608,14 +605,13 @@ def print_plan(runs: list[Run], args: Args) -> None:
     print(f"grid: {n_env} env ids x {n_seed} seeds x {n_script} scripts = {len(runs)} runs, "
           f"arguments after --: {shlex.join(runs[0].extra_args) or '(none)'}")
     print(f"output folder: {runs[0].output_dir}")
-    steps_left = 0
+    total = steps_left = 0
     for run in runs:
         state = run_state(run.run_dir)
         budget = total_timesteps(run)
-        done_steps = budget if state == "done" else (last_eval_step(run.run_dir) or 0)
-        steps_left += budget - done_steps
+        total += budget
+        steps_left += 0 if state == "done" else budget - (last_eval_step(run.run_dir) or 0)
         print(f"  {run.name:<60} {state:<12} {action_for(state)}")
-    total = sum(total_timesteps(run) for run in runs)
     hours = steps_left / args.steps_per_second / 3600
     print(f"compute: {len(runs)} runs, {total:,} env steps in all, {steps_left:,} still to run; "
           f"at {args.steps_per_second:g} steps/s per run that is {hours:,.1f} run-hours "
@@ -630,6 +626,8 @@ def action_for(state: str) -> str:
 
 
 def print_status(output_dir: Path) -> None:
+    if not output_dir.is_dir():
+        raise SweepError(f"{output_dir} does not exist: give the --output-dir of a sweep")
     run_dirs = [
         d for d in sorted(output_dir.iterdir())
         if d.is_dir() and not d.name.startswith(".")
@@ -680,7 +678,11 @@ def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
               f"follow it with: python sweep.py status {runs[0].output_dir}")
         if not (args.wait or args.analyze):
             return 0
-        wait_for_slurm(job_id)
+        try:
+            wait_for_slurm(job_id)
+        except KeyboardInterrupt:
+            print(f"stopped waiting; the jobs go on (scancel {job_id} stops them)")
+            return EXIT_INTERRUPTED
     return finish(runs, args)
 
 
@@ -706,10 +708,9 @@ def main(argv: list[str]) -> int:
         status_args = tyro.cli(StatusArgs, args=argv[1:], prog="sweep.py status")
         print_status(Path(status_args.output_dir))
         return 0
-    own, extra = (argv[: argv.index("--")], argv[argv.index("--") + 1 :]) if "--" in argv \
-        else (argv, [])
-    args = tyro.cli(Args, args=own, prog="sweep.py", description=__doc__)
-    return sweep(args, tuple(extra))
+    split = argv.index("--") if "--" in argv else len(argv)
+    args = tyro.cli(Args, args=argv[:split], prog="sweep.py", description=__doc__)
+    return sweep(args, tuple(argv[split + 1 :]))
 
 
 def cli() -> int:
