@@ -355,6 +355,9 @@ def test_bad_inputs_give_one_clear_message(tmp_path, capsys):
     (tmp_path / "no_seed" / "run" / "eval.csv").write_text("global_step,return_mean\n10,1\n")
     assert run_analysis(tmp_path / "no_seed", tmp_path / "out") == 2
     assert "lacks key(s) ['seed']" in capsys.readouterr().err
+    (tmp_path / "no_seed" / "run" / "config.json").write_text('{"env_id": "h1hand-cube-v0",')
+    assert run_analysis(tmp_path / "no_seed", tmp_path / "out") == 2
+    assert "config.json is not valid JSON" in capsys.readouterr().err
 
 
 def test_command_line_error_exits_nonzero_without_traceback(tmp_path):
