@@ -6,5 +6,6 @@ export DEBIAN_FRONTEND=noninteractive
 apt-get update -qq
 apt-get install -y -qq --no-install-recommends \
   libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 >/dev/null
-# A one-node Slurm cluster for sweep.py's tests (tests/slurm/start.sh starts the daemons).
-apt-get install -y -qq --no-install-recommends slurm-wlm munge >/dev/null
+# A one-node Slurm cluster for sweep.py's tests (tests/slurm/start.sh starts the daemons;
+# it needs pgrep from procps, absent from minimal images).
+apt-get install -y -qq --no-install-recommends slurm-wlm munge procps >/dev/null
