@@ -59,6 +59,9 @@ class Args:
     """episodes of the timed evaluation round"""
     compile: bool = True
     """also time a torch.compile'd update"""
+    wall_clock: bool = False
+    """time the in-process figures by wall clock instead of CPU time (to compare thread counts
+    on an idle machine: CPU time adds up all threads)"""
 
 
 class BatchedTwinQ(nn.Module):
@@ -84,14 +87,14 @@ class BatchedTwinQ(nn.Module):
 
 
 def median_time(fn, repeats: int, calls: int) -> float:
-    """Median over repeats of the mean CPU seconds per call."""
+    """Median over repeats of the mean seconds per call (CPU or wall clock: --wall-clock)."""
     fn()  # warm-up (and compilation)
     times = []
     for _ in range(repeats):
-        start = time.process_time()
+        start = clock()
         for _ in range(calls):
             fn()
-        times.append((time.process_time() - start) / calls)
+        times.append((clock() - start) / calls)
     return statistics.median(times)
 
 
@@ -181,9 +184,9 @@ def loop_seconds_per_step(args: Args) -> float:
 def time_eval_round(env, episodes: int) -> tuple[float, float]:
     """Seconds of one evaluation round with tanh(mu) of an untrained actor, and its steps."""
     actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
-    start = time.process_time()
+    start = clock()
     stats, mu, _ = evaluate(actor, env, lambda m, s: torch.tanh(m), eval_seeds(0, 1, episodes))
-    return time.process_time() - start, len(mu)
+    return clock() - start, len(mu)
 
 
 def replay_buffer_memory_gb() -> float:
@@ -198,6 +201,7 @@ def replay_buffer_memory_gb() -> float:
 
 if __name__ == "__main__":
     args = tyro.cli(Args)
+    clock = time.perf_counter if args.wall_clock else time.process_time
     torch.set_num_threads(args.torch_threads)
     env = make_env(args.env_id)
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
