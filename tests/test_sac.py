@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 ROOT = Path(__file__).resolve().parent.parent
 # A short Pendulum run: updates start at step 500, evaluation every 500 steps.
@@ -98,8 +99,6 @@ def test_run_folder_outputs(standard_run):
     model = torch.load(standard_run / "final_model.pt")
     assert set(model) == {"actor", "qf"}
 
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-
     events = EventAccumulator(str(standard_run))
     events.Reload()
     returns = events.Scalars("eval/return_mean")
@@ -125,6 +124,11 @@ def test_sigkill_then_resume_equals_uninterrupted(standard_run, tmp_path):
     run("sac_standard.py", "--resume", str(run_dir))
     for name in ("eval.csv", "train.csv"):
         assert read_csv(run_dir / name) == read_csv(standard_run / name)
+    # TensorBoard purged the events logged after the checkpoint: one value per step.
+    events = EventAccumulator(str(run_dir))
+    events.Reload()
+    assert [e.step for e in events.Scalars("eval/return_mean")] == [500, 1000, 1500]
+    assert [e.step for e in events.Scalars("train/alpha")] == list(range(500, 1501, 100))
     resumed, uninterrupted = (torch.load(r / "final_model.pt") for r in (run_dir, standard_run))
     for part in ("actor", "qf"):
         for key, value in uninterrupted[part].items():
