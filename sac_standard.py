@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import gymnasium as gym
+import imageio
 import mujoco
 import numpy as np
 import torch
@@ -323,8 +324,6 @@ def evaluate(actor: Actor, env: gym.Env, select: Callable, seeds: list[int],
         lengths.append(length)
         successes.append(info.get("success"))
     if frames:
-        import imageio
-
         imageio.mimsave(video_path, frames, fps=env.metadata.get("render_fps", 30))
     stats = {"return_mean": np.mean(returns), "return_std": np.std(returns),
              "return_min": np.min(returns), "return_max": np.max(returns),
@@ -344,6 +343,25 @@ def check_finite(x: np.ndarray, what: str) -> None:
     if not np.isfinite(x).all():
         raise SystemExit(f"non-finite {what} (NaN/inf): training diverged; try lower learning "
                          "rates or resume from an earlier checkpoint")
+
+
+def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None) -> dict:
+    """train.csv's statistics: the last update's losses (none before learning starts) and the
+    training episodes that ended since the previous row (taken out of `progress`)."""
+    returns, lengths = progress["episode_returns"], progress["episode_lengths"]
+    row = {"episodes": len(returns),
+           "episode_return_mean": np.mean(returns) if returns else None,
+           "episode_length_mean": np.mean(lengths) if lengths else None}
+    returns.clear()
+    lengths.clear()
+    if losses is not None:
+        qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi = losses
+        check_finite(qf_losses.detach().cpu().numpy(), "critic loss")
+        row |= {"qf1_loss": qf_losses[0].item(), "qf2_loss": qf_losses[1].item(),
+                "qf1_value": qf_values[0].mean().item(), "qf2_value": qf_values[1].mean().item(),
+                "actor_loss": actor_loss.item(), "alpha": alpha.item(),
+                "alpha_loss": alpha_loss.item(), "entropy": -log_pi.mean().item()}
+    return row
 
 
 def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
@@ -374,6 +392,7 @@ def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
 
 
 def run_metadata(args: Args, obs_dim: int, action_dim: int) -> dict:
+    """config.json: every argument, the algorithm, the library versions and the git commit."""
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
                                 capture_output=True, text=True, check=True).stdout.strip()
@@ -407,7 +426,8 @@ class StopRequest:
 
 
 def rng_states(env: gym.Env) -> dict:
-    # Nothing of ours draws from the global numpy and python generators; libraries might.
+    """Every random stream training draws from. Nothing of ours uses the global numpy and python
+    generators; libraries might."""
     return {"python": random.getstate(), "numpy": np.random.get_state(),  # noqa: NPY002
             "torch": torch.get_rng_state(),
             "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
@@ -537,22 +557,10 @@ if __name__ == "__main__":
 
         if global_step % args.log_interval == 0:
             now = time.time()
-            returns, lengths = progress["episode_returns"], progress["episode_lengths"]
             row = {"global_step": global_step, "wall_time": elapsed + now - session_start,
-                   "sps": (global_step - row_step) / (now - row_start), "episodes": len(returns),
-                   "episode_return_mean": np.mean(returns) if returns else None,
-                   "episode_length_mean": np.mean(lengths) if lengths else None}
-            if losses is not None:
-                qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi = losses
-                check_finite(qf_losses.detach().cpu().numpy(), "critic loss")
-                row |= {"qf1_loss": qf_losses[0].item(), "qf2_loss": qf_losses[1].item(),
-                        "qf1_value": qf_values[0].mean().item(),
-                        "qf2_value": qf_values[1].mean().item(),
-                        "actor_loss": actor_loss.item(), "alpha": alpha.item(),
-                        "alpha_loss": alpha_loss.item(), "entropy": -log_pi.mean().item()}
+                   "sps": (global_step - row_step) / (now - row_start),
+                   **train_statistics(progress, losses)}
             write_row(train_file, train_csv, tb, "train", row)
-            returns.clear()
-            lengths.clear()
             row_start, row_step = now, global_step
 
         if global_step % args.eval_interval == 0:
