@@ -511,7 +511,8 @@ if __name__ == "__main__":
 
     # A run folder: fresh, or resumed from its checkpoint, or restarted if it has none yet.
     checkpoint_path = run_dir / "checkpoint.pt"
-    ckpt = torch.load(checkpoint_path, weights_only=False, mmap=True) \
+    # Loaded to the CPU (RNG states must stay there); load_state_dict moves the rest to `device`.
+    ckpt = torch.load(checkpoint_path, map_location="cpu", weights_only=False, mmap=True) \
         if args.resume is not None and checkpoint_path.exists() else None
     if ckpt is not None:
         config_args = {k: v for k, v in ckpt["args"].items() if k not in RUNTIME_FIELDS}
