@@ -301,7 +301,8 @@ def sac_update(batch: tuple[torch.Tensor, ...], actor: Actor, qf: TwinQ, qf_targ
     pi, log_pi = actor.get_action(b_obs)
     actor_loss = (alpha * log_pi - qf(b_obs, pi).min(0).values).mean()
     actor_optimizer.zero_grad()
-    actor_loss.backward()
+    # Only the actor's gradients: autograd then skips the critics' weight gradients.
+    actor_loss.backward(inputs=list(actor.parameters()))
     actor_optimizer.step()
 
     alpha_loss = -(log_alpha.exp() * (log_pi.detach() + target_entropy)).mean()
