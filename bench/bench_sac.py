@@ -181,6 +181,49 @@ def loop_seconds_per_step(args: Args) -> float:
         for _ in range(max(1, args.repeats // 2)))
 
 
+def time_loop_parts(args: Args, steps: int = 3000, start: int = 1000) -> dict[str, float]:
+    """Seconds per step of each part of the training loop, timed in place (interleaved as in
+    the scripts, so each part pays for the caches the others evict)."""
+    torch.manual_seed(0)
+    env = make_env(args.env_id)
+    env.action_space.seed(0)
+    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
+    actor = Actor(obs_dim, (256, 256), env.action_space, -10.0, 2.0)
+    qf, qf_target = (TwinQ(obs_dim, action_dim, (256, 256)) for _ in range(2))
+    qf_target.load_state_dict(qf.state_dict())
+    log_alpha = torch.zeros((), requires_grad=True)
+    optimizers = tuple(torch.optim.Adam(params, lr=3e-4, fused=True) for params in (
+        qf.parameters(), actor.parameters(), [log_alpha]))
+    rb = ReplayBuffer(1_000_000, obs_dim, action_dim, seed=0)
+    parts = dict.fromkeys(("act", "env step", "buffer add", "batch sample", "update"), 0.0)
+    obs, _ = env.reset(seed=0)
+    for step in range(start + steps):
+        t0 = clock()
+        if step < start:
+            action = env.action_space.sample()
+        else:
+            with torch.no_grad():
+                obs_tensor = torch.as_tensor(obs, dtype=torch.float32)[None]
+                action = actor.get_action(obs_tensor)[0][0].numpy()
+        t1 = clock()
+        next_obs, reward, terminated, truncated, _ = env.step(action)
+        t2 = clock()
+        rb.add(obs, action, reward, terminated, next_obs, terminated or truncated)
+        obs = env.reset()[0] if terminated or truncated else next_obs
+        t3 = clock()
+        if step < start:
+            continue
+        batch = rb.sample(args.batch_size, torch.device("cpu"))
+        t4 = clock()
+        sac_update(batch, actor, qf, qf_target, log_alpha, optimizers, 0.99, 0.005,
+                   -action_dim / 2)
+        t5 = clock()
+        for name, seconds in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4),
+                                 strict=True):
+            parts[name] += seconds
+    return {name: total / steps for name, total in parts.items()}
+
+
 def time_eval_round(env, episodes: int) -> tuple[float, float]:
     """Seconds of one evaluation round with tanh(mu) of an untrained actor, and its steps."""
     actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
@@ -226,6 +269,9 @@ if __name__ == "__main__":
           f"({1 / loop:.0f} steps/s); "
           f"update + env step = {(update + env_step) * 1e3:.2f} ms: loop overhead "
           f"{100 * (loop / (update + env_step) - 1):+.0f}%")
+    parts = time_loop_parts(args)
+    print("  in place: " + ", ".join(f"{k} {v * 1e3:.2f} ms" for k, v in parts.items())
+          + f" (sum {sum(parts.values()) * 1e3:.2f} ms)")
     seconds, steps = time_eval_round(make_env(args.env_id), args.eval_episodes)
     predicted = steps * (env_step + actor_forward)
     print(f"eval round: {args.eval_episodes} episodes, {steps} steps in {seconds:.2f} s CPU; "
