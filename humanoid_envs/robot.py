@@ -20,9 +20,10 @@ tasks solvable (feet stand on the floor, hands and arms touch objects):
    always-active constraint rows). Their damping (0.05 N m s fingers, 0.5 wrist) is
    unchanged and already exceeds 0.01 N m above 0.2 rad/s.
 
-Measured bare physics, env steps per second (10 x mj_step with uniform random ctrl, back to
-the keyframe when the pelvis drops below 0.2 m; thread CPU time, median of 5 x 1500 steps on
-the 2-core dev machine), each task scene built from robot_spec() with the choices undone:
+Measured bare physics, env steps per second (`python bench/bench_robot.py`: 10 x mj_step with
+uniform random ctrl, back to the keyframe when the pelvis drops below 0.2 m; thread CPU time,
+median of 5 x 1500 steps on the 2-core dev machine), each task scene built from robot_spec()
+with the choices undone:
     scene       HumanoidBench's two choices  self-collisions off  this model (both off)
     stand       1148 (nefc 66)               1568 (nefc 57)       2171 (nefc  9)
     powerlift   1010 (nefc 83)               1338 (nefc 74)       1783 (nefc 25)
