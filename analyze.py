@@ -627,6 +627,7 @@ def plot_paired(differences: dict, estimates: dict, norms: dict, colors: dict, x
     rows = [(task, algorithm) for task in differences for algorithm in differences[task]]
     fig, ax = plt.subplots(figsize=(7, 0.7 * len(rows) + 1.2))
     rng = np.random.default_rng(0)  # vertical jitter of the dots only
+    extent = [0.0]
     for i, (task, algorithm) in enumerate(rows):
         scale = norms[task][1]
         point, low, high = (v / scale for v in estimates[task, algorithm])
@@ -635,7 +636,11 @@ def plot_paired(differences: dict, estimates: dict, norms: dict, colors: dict, x
         ax.barh(i, high - low, left=low, height=0.5, color=color, alpha=0.35)
         ax.vlines(point, i - 0.25, i + 0.25, color="k")
         ax.scatter(dots, i + rng.uniform(-0.15, 0.15, dots.size), s=14, color=color, zorder=3)
+        extent += [low, high, *dots]
     ax.axvline(0, color="0.4", ls=":", lw=1)
+    # Bars pin the autoscaled limits to their edges; pad so the outermost seeds stay visible.
+    pad = 0.05 * (max(extent) - min(extent)) or 0.01
+    ax.set_xlim(min(extent) - pad, max(extent) + pad)
     ax.set_yticks(range(len(rows)))
     ax.set_yticklabels([f"{t}\n{label(a)}" if len(differences[t]) > 1 else t for t, a in rows])
     ax.invert_yaxis()
