@@ -98,17 +98,23 @@ def median_time(fn, repeats: int, calls: int) -> float:
     return statistics.median(times)
 
 
-def time_update(args: Args, env, critic_class=TwinQ, fused_adam: bool = True,
-                compiled: bool = False) -> float:
+def build_learner(env, critic_class=TwinQ, fused_adam: bool = True) -> tuple:
+    """The scripts' networks at the paper's sizes: actor, qf, qf_target, log_alpha, optimizers."""
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
     hidden = (256, 256)
     actor = Actor(obs_dim, hidden, env.action_space, -10.0, 2.0)
-    qf, qf_target = critic_class(obs_dim, action_dim, hidden), critic_class(obs_dim, action_dim,
-                                                                            hidden)
+    qf, qf_target = (critic_class(obs_dim, action_dim, hidden) for _ in range(2))
     qf_target.load_state_dict(qf.state_dict())
     log_alpha = torch.zeros((), requires_grad=True)
     optimizers = tuple(torch.optim.Adam(params, lr=3e-4, fused=fused_adam) for params in (
         qf.parameters(), actor.parameters(), [log_alpha]))
+    return actor, qf, qf_target, log_alpha, optimizers
+
+
+def time_update(args: Args, env, critic_class=TwinQ, fused_adam: bool = True,
+                compiled: bool = False) -> float:
+    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
+    actor, qf, qf_target, log_alpha, optimizers = build_learner(env, critic_class, fused_adam)
     rb = ReplayBuffer(20_000, obs_dim, action_dim, seed=0)
     rng = np.random.default_rng(0)
     for i in range(20_000):
@@ -188,12 +194,7 @@ def time_loop_parts(args: Args, steps: int = 3000, start: int = 1000) -> dict[st
     env = make_env(args.env_id)
     env.action_space.seed(0)
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    actor = Actor(obs_dim, (256, 256), env.action_space, -10.0, 2.0)
-    qf, qf_target = (TwinQ(obs_dim, action_dim, (256, 256)) for _ in range(2))
-    qf_target.load_state_dict(qf.state_dict())
-    log_alpha = torch.zeros((), requires_grad=True)
-    optimizers = tuple(torch.optim.Adam(params, lr=3e-4, fused=True) for params in (
-        qf.parameters(), actor.parameters(), [log_alpha]))
+    actor, qf, qf_target, log_alpha, optimizers = build_learner(env)
     rb = ReplayBuffer(1_000_000, obs_dim, action_dim, seed=0)
     parts = dict.fromkeys(("act", "env step", "buffer add", "batch sample", "update"), 0.0)
     obs, _ = env.reset(seed=0)
