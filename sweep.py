@@ -190,10 +190,11 @@ def log_tail(run_dir: Path, lines: int = LOG_TAIL_LINES) -> list[str]:
 
 def last_eval_step(run_dir: Path) -> int | None:
     try:
-        with open(run_dir / "eval.csv", newline="") as f:
-            rows = list(csv.DictReader(f))
+        lines = (run_dir / "eval.csv").read_text().splitlines(keepends=True)
     except FileNotFoundError:
         return None
+    # A run killed mid-write leaves a last line without its line end: not a row yet.
+    rows = list(csv.DictReader(line for line in lines if line.endswith("\n")))
     return int(float(rows[-1]["global_step"])) if rows else None
 
 

@@ -231,3 +231,12 @@ def test_unknown_partition_is_a_clear_error(slurm, tmp_path):
     assert result.returncode == 2
     assert "unknown Slurm partition 'nosuch'" in result.stderr
     assert not list(tmp_path.iterdir())
+
+
+def test_progress_ignores_a_row_cut_off_mid_write(tmp_path):
+    import sweep
+
+    (tmp_path / "eval.csv").write_text("global_step,return_mean\n1000,1.0\n2000,2.0\n30")
+    assert sweep.last_eval_step(tmp_path) == 2000
+    (tmp_path / "eval.csv").write_text("global_step,return_mean\n")
+    assert sweep.last_eval_step(tmp_path) is None
