@@ -9,6 +9,7 @@ replaced by the mode of the tanh-squashed policy: `diff` the two to see the corr
 import csv
 import dataclasses
 import difflib
+import functools
 import json
 import os
 import platform
@@ -87,6 +88,11 @@ class Args:
     """checkpoint at the first episode end after every this many steps (0: off)"""
     cuda: bool = True
     """use a CUDA GPU if there is one"""
+    cudagraphs: bool = True
+    """on CUDA: capture the update (batch sampling included) and the actions as CUDA graphs"""
+    gpu_buffer: bool = True
+    """on CUDA: keep the replay buffer in GPU memory (1.2 GB per 1M observations of 308 floats);
+    --no-gpu-buffer keeps it in host memory and copies each batch over"""
     torch_threads: int = 1
     """torch CPU threads (1 is fastest for batch 64 on small CPUs; see README)"""
     torch_deterministic: bool = True
@@ -97,7 +103,7 @@ class Args:
 
 # Flags that may differ when resuming: they change where and how fast, not what is computed.
 RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "print_interval",
-                  "cuda", "torch_threads", "capture_video")
+                  "cuda", "cudagraphs", "gpu_buffer", "torch_threads", "capture_video")
 EVAL_STATS = ("return_mean", "return_std", "return_min", "return_max", "length_mean",
               "success_rate")
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
@@ -160,6 +166,15 @@ def make_env(env_id: str, render: bool = False) -> gym.Env:
     return env
 
 
+def init_glorot(module: nn.Module) -> None:
+    """Glorot-uniform weights and zero biases on every layer, output heads included: HumanoidBench's
+    jaxrl_m networks (flax's variance_scaling(1, "fan_avg", "uniform")), not PyTorch's default."""
+    for layer in module.modules():
+        if isinstance(layer, nn.Linear):
+            nn.init.xavier_uniform_(layer.weight)
+            nn.init.zeros_(layer.bias)
+
+
 class Actor(nn.Module):
     def __init__(self, obs_dim: int, hidden: tuple[int, ...], action_space: gym.spaces.Box,
                  log_std_min: float, log_std_max: float):
@@ -175,6 +190,7 @@ class Actor(nn.Module):
         self.register_buffer("action_scale", (high - low) / 2)
         self.register_buffer("action_bias", (high + low) / 2)
         self.log_std_min, self.log_std_max = log_std_min, log_std_max
+        init_glorot(self)
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """mu and log sigma of the Gaussian before the tanh squashing."""
@@ -208,6 +224,7 @@ class TwinQ(nn.Module):
         self.qf1, self.qf2 = (nn.Sequential(*[m for i, o in zip(sizes, sizes[1:], strict=False)
                                               for m in (nn.Linear(i, o), nn.ReLU())][:-1])
                               for _ in range(2))
+        init_glorot(self)
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Q1 and Q2 of each (obs, action), shape (2, batch)."""
@@ -216,59 +233,74 @@ class TwinQ(nn.Module):
 
 
 class ReplayBuffer:
-    """Stores each observation once, in float32: slot i's next observation is in slot i + 1.
+    """Stores each observation once, in float32 tensors on `device`: slot i's next observation is
+    in slot i + 1.
 
     An episode's last transition is followed by a slot holding only its final observation (never
     sampled), so a truncated episode keeps its true final observation for bootstrapping and no
-    transition spans a reset."""
+    transition spans a reset. On a GPU the buffer lives there and a batch is drawn without a
+    host synchronisation, so the whole update, sampling included, can be one CUDA graph."""
 
-    def __init__(self, size: int, obs_dim: int, action_dim: int, seed: int):
+    # Slots drawn per batch row; the row takes the first that holds a transition (see sample).
+    CANDIDATES = 16
+    ARRAYS = ("obs", "actions", "rewards", "terminated", "valid")
+
+    def __init__(self, size: int, obs_dim: int, action_dim: int, device: torch.device):
         self.size, self.ptr, self.filled = size, 0, 0
-        self.obs = np.zeros((size, obs_dim), np.float32)
-        self.actions = np.zeros((size, action_dim), np.float32)
-        self.rewards = np.zeros(size, np.float32)
-        self.terminated = np.zeros(size, np.float32)
-        self.valid = np.zeros(size, bool)  # slot i holds a transition whose next obs is slot i + 1
-        self.rng = np.random.default_rng(seed)
+        self.obs = torch.zeros((size, obs_dim), device=device)
+        self.actions = torch.zeros((size, action_dim), device=device)
+        self.rewards = torch.zeros(size, device=device)
+        self.terminated = torch.zeros(size, device=device)
+        self.valid = torch.zeros(size, dtype=torch.bool, device=device)  # slot i: a transition
+        self.filled_tensor = torch.zeros((), dtype=torch.int64, device=device)  # read in graphs
 
     def add(self, obs, action, reward, terminated, next_obs, episode_end: bool) -> None:
         i, j = self.ptr, (self.ptr + 1) % self.size
-        self.obs[i], self.actions[i], self.rewards[i] = obs, action, reward
-        self.terminated[i], self.valid[i] = terminated, True
-        self.obs[j], self.valid[j] = next_obs, False
+        self.obs[i], self.actions[i] = torch.as_tensor(obs), torch.as_tensor(action)
+        self.rewards[i], self.terminated[i], self.valid[i] = float(reward), float(terminated), True
+        self.obs[j], self.valid[j] = torch.as_tensor(next_obs), False
         self.ptr = (j + 1) % self.size if episode_end else j
         self.filled = self.size if j == 0 else max(self.filled, j + 1)
+        self.filled_tensor.fill_(self.filled)
 
     def sample(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
-        """Uniform over stored transitions: obs, actions, rewards, next_obs, 1 - terminated."""
-        idx = self.rng.integers(0, self.filled, batch_size)
-        while not (ok := self.valid[idx]).all():  # redraw the final-observation slots
-            idx[~ok] = self.rng.integers(0, self.filled, int((~ok).sum()))
-        arrays = (self.obs[idx], self.actions[idx], self.rewards[idx],
-                  self.obs[(idx + 1) % self.size], 1 - self.terminated[idx])
-        return tuple(torch.from_numpy(a).to(device) for a in arrays)
+        """Uniform over stored transitions: obs, actions, rewards, next_obs, 1 - terminated.
+
+        Each row draws CANDIDATES slots from the torch generator of the buffer's device and keeps
+        the first that holds a transition (rejection sampling with a fixed number of tries, so
+        no data-dependent loop). If all of them are final-observation slots, which has
+        probability (episodes / slots)^16 (below 1e-16 for episodes of 10 steps or more), the row
+        takes the slot before: that episode's last transition."""
+        slots = torch.randint(2**62, (self.CANDIDATES, batch_size),
+                              device=self.obs.device) % self.filled_tensor
+        first = self.valid[slots].byte().argmax(0)  # argmax returns the first maximum
+        idx = slots.gather(0, first[None])[0]
+        idx = torch.where(self.valid[idx], idx, (idx - 1) % self.size)
+        batch = (self.obs[idx], self.actions[idx], self.rewards[idx],
+                 self.obs[(idx + 1) % self.size], 1 - self.terminated[idx])
+        return tuple(t.to(device, non_blocking=True) for t in batch)
 
     def state_dict(self) -> dict:
-        n = self.filled  # tensors share the arrays' memory, so saving copies nothing first
-        return {"ptr": self.ptr, "filled": n, "rng": self.rng.bit_generator.state,
-                **{k: torch.from_numpy(getattr(self, k)[:n]) for k in self.ARRAYS}}
+        """The filled slots as CPU tensors: a checkpoint loads on any device."""
+        n = self.filled
+        # On the CPU, from_numpy of the slice makes torch.save write n rows, not the storage.
+        rows = (lambda t: torch.from_numpy(t[:n].numpy())) if self.obs.device.type == "cpu" \
+            else (lambda t: t[:n].cpu())
+        return {"ptr": self.ptr, "filled": n, **{k: rows(getattr(self, k)) for k in self.ARRAYS}}
 
     def load_state_dict(self, state: dict) -> None:
         self.ptr, self.filled = state["ptr"], state["filled"]
-        self.rng.bit_generator.state = state["rng"]
+        self.filled_tensor.fill_(self.filled)
         for k in self.ARRAYS:
-            getattr(self, k)[: self.filled] = state[k].numpy()
-
-    ARRAYS = ("obs", "actions", "rewards", "terminated", "valid")
+            getattr(self, k)[: self.filled].copy_(state[k])
 
 
 def sac_update(batch: tuple[torch.Tensor, ...], actor: Actor, qf: TwinQ, qf_target: TwinQ,
                log_alpha: torch.Tensor, optimizers: tuple[torch.optim.Optimizer, ...],
                gamma: float, tau: float, target_entropy: float) -> tuple[torch.Tensor, ...]:
-    """One gradient step of the twin critics, then the actor, then the temperature, then the
-    critics' Polyak-averaged targets. Returns the tensors that train.csv logs."""
+    """One gradient step of the twin critics, the actor and the temperature, and the critics'
+    Polyak-averaged targets. Returns the tensors that train.csv logs."""
     b_obs, b_actions, b_rewards, b_next_obs, b_not_done = batch
-    q_optimizer, actor_optimizer, alpha_optimizer = optimizers
     alpha = log_alpha.exp().detach()
     with torch.no_grad():
         next_actions, next_log_pi = actor.get_action(b_next_obs)
@@ -276,48 +308,56 @@ def sac_update(batch: tuple[torch.Tensor, ...], actor: Actor, qf: TwinQ, qf_targ
         next_q_value = b_rewards + b_not_done * gamma * (min_qf_next - alpha * next_log_pi)
     qf_values = qf(b_obs, b_actions)
     qf_losses = (qf_values - next_q_value).pow(2).mean(1)
-    q_optimizer.zero_grad()
-    qf_losses.sum().backward()
-    q_optimizer.step()
-
     pi, log_pi = actor.get_action(b_obs)
     actor_loss = (alpha * log_pi - qf(b_obs, pi).min(0).values).mean()
-    actor_optimizer.zero_grad()
+    alpha_loss = -(log_alpha.exp() * (log_pi.detach() + target_entropy)).mean()
+
+    # As HumanoidBench's jaxrl_m: all three losses use the parameters from before this update
+    # (the actor is scored by the pre-update critic), and the target moves towards that critic.
+    for optimizer in optimizers:
+        optimizer.zero_grad()
+    qf_losses.sum().backward()
     # Only the actor's gradients: autograd then skips the critics' weight gradients.
     actor_loss.backward(inputs=list(actor.parameters()))
-    actor_optimizer.step()
-
-    alpha_loss = -(log_alpha.exp() * (log_pi.detach() + target_entropy)).mean()
-    alpha_optimizer.zero_grad()
     alpha_loss.backward()
-    alpha_optimizer.step()
-
     with torch.no_grad():
         for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
             p_target.lerp_(p, tau)
+    for optimizer in optimizers:
+        optimizer.step()
     return qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi
 
 
-def evaluate(actor: Actor, env: gym.Env, select: Callable, seeds: list[int],
+def eval_policy(actor: Actor, select: Callable) -> Callable:
+    """The evaluation policy: a batch of observations -> (env action, mu, log sigma)."""
+
+    @torch.no_grad()
+    def policy(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        mu, log_std = actor(obs)
+        return actor.scale(select(mu, log_std)), mu, log_std
+
+    return policy
+
+
+def evaluate(policy: Callable, env: gym.Env, seeds: list[int], device: torch.device,
              video_path: Path | None = None) -> tuple[dict, torch.Tensor, torch.Tensor]:
-    """One episode per reset seed, acting with scale * select(mu, log_std) + bias.
+    """One episode per reset seed, acting with `policy` (see eval_policy).
 
     Returns eval.csv's statistics and the policy's mu and log sigma at every visited state. Uses
     only the evaluation env and the actor's forward pass: no training random stream is touched."""
     returns, lengths, successes, mus, log_stds, frames = [], [], [], [], [], []
-    device = actor.action_scale.device
     for episode, seed in enumerate(seeds):
         obs, info = env.reset(seed=seed)
         done, episode_return, length = False, 0.0, 0
         while not done:
             if video_path is not None and episode == 0:
                 frames.append(env.render())
-            with torch.no_grad():
-                mu, log_std = actor(torch.as_tensor(obs, dtype=torch.float32, device=device)[None])
-                action = actor.scale(select(mu, log_std))[0].cpu().numpy()
+            action, mu, log_std = policy(torch.as_tensor(obs, dtype=torch.float32,
+                                                         device=device)[None])
+            action = action[0].cpu().numpy()
             check_finite(action, "evaluation action")
-            mus.append(mu)
-            log_stds.append(log_std)
+            mus.append(mu.clone())  # a CUDA graph overwrites its outputs at the next replay
+            log_stds.append(log_std.clone())
             obs, reward, terminated, truncated, info = env.step(action)
             episode_return, length = episode_return + reward, length + 1
             done = terminated or truncated
@@ -332,6 +372,77 @@ def evaluate(actor: Actor, env: gym.Env, select: Callable, seeds: list[int],
              "success_rate": None if None in successes else np.mean(successes)}
     return {k: None if v is None else float(v) for k, v in stats.items()}, torch.cat(mus), \
         torch.cat(log_stds)
+
+
+# CUDA graphs (LeanRL's recipe with torch.cuda.graphs): eager PyTorch launches ~300 small kernels
+# per update, and on a GPU their launch cost, not the arithmetic, sets the speed. A graph records
+# the kernels once and replays them with one launch.
+def training_state(*objects: nn.Module | torch.optim.Optimizer | torch.Tensor) -> list:
+    """Every tensor that a training step may change: parameters, buffers, optimizer states."""
+    tensors = []
+    for obj in objects:
+        if isinstance(obj, torch.optim.Optimizer):
+            tensors += [v for state in obj.state.values() for v in state.values()
+                        if torch.is_tensor(v)]
+        elif isinstance(obj, nn.Module):
+            tensors += list(obj.state_dict(keep_vars=True).values())
+        else:
+            tensors.append(obj)
+    return tensors
+
+
+def cuda_graph(fn: Callable, restore: tuple = ()) -> Callable:
+    """fn, captured as a CUDA graph at its first call and replayed at every call.
+
+    The returned function copies its tensor arguments into the graph's inputs and returns the
+    graph's outputs (overwritten by the next replay). A capture needs a few eager warm-up calls
+    first; so that they do not change the run, the tensors of `restore` (modules, optimizers,
+    tensors) and the random generators are put back afterwards, and optimizer states that the
+    warm-up created are zeroed, as a fresh optimizer's are. A run is then the same whenever the
+    capture happens (at the start of learning, or after a resume)."""
+    graph, inputs, outputs = None, (), None
+
+    def replay(*args: torch.Tensor):
+        nonlocal graph, inputs, outputs
+        if graph is None:
+            inputs = tuple(a.clone() for a in args)
+            saved = [(t, t.detach().clone()) for t in training_state(*restore)]
+            rng = torch.get_rng_state(), torch.cuda.get_rng_state()
+            side = torch.cuda.Stream()
+            side.wait_stream(torch.cuda.current_stream())
+            with torch.cuda.stream(side):
+                for _ in range(3):
+                    fn(*inputs)
+            torch.cuda.current_stream().wait_stream(side)
+            graph = torch.cuda.CUDAGraph()
+            with torch.cuda.graph(graph):
+                outputs = fn(*inputs)
+            with torch.no_grad():
+                for t in training_state(*restore):
+                    t.zero_()
+                for t, value in saved:
+                    t.copy_(value)
+            torch.set_rng_state(rng[0])
+            torch.cuda.set_rng_state(rng[1])
+        for static, arg in zip(inputs, args, strict=True):
+            static.copy_(arg)
+        graph.replay()
+        return outputs
+
+    return replay
+
+
+def make_train_step(rb: ReplayBuffer, update: Callable, batch_size: int, device: torch.device,
+                    graphs: bool, learner: tuple) -> Callable:
+    """One gradient update on a fresh batch, as a function of nothing. With graphs and the buffer
+    on the GPU, sampling is inside the graph; with the buffer in host memory, the batch is drawn
+    there and copied into the graph's inputs."""
+    if not graphs:
+        return lambda: update(rb.sample(batch_size, device))
+    if rb.obs.device == device:
+        return cuda_graph(lambda: update(rb.sample(batch_size, device)), learner)
+    update_graph = cuda_graph(lambda *batch: update(batch), learner)
+    return lambda: update_graph(*rb.sample(batch_size, device))
 
 
 def eval_seeds(seed: int, eval_round: int, episodes: int) -> list[int]:
@@ -484,13 +595,17 @@ if __name__ == "__main__":
     qf = TwinQ(obs_dim, action_dim, args.hidden_sizes).to(device)
     qf_target = TwinQ(obs_dim, action_dim, args.hidden_sizes).to(device)
     qf_target.load_state_dict(qf.state_dict())
-    q_optimizer = torch.optim.Adam(qf.parameters(), lr=args.q_lr, fused=True)
-    actor_optimizer = torch.optim.Adam(actor.parameters(), lr=args.policy_lr, fused=True)
+    # capturable: Adam's step counts stay on the GPU, as a CUDA graph needs (eager runs too, so
+    # that a graph run and an eager run compute the same update).
+    adam = functools.partial(torch.optim.Adam, fused=True, capturable=device.type == "cuda")
+    q_optimizer = adam(qf.parameters(), lr=args.q_lr)
+    actor_optimizer = adam(actor.parameters(), lr=args.policy_lr)
     target_entropy = -args.target_entropy_scale * action_dim
     log_alpha = torch.tensor(float(np.log(args.alpha_init)), device=device, requires_grad=True)
-    alpha_optimizer = torch.optim.Adam([log_alpha], lr=args.alpha_lr, fused=True)
+    alpha_optimizer = adam([log_alpha], lr=args.alpha_lr)
     optimizers = (q_optimizer, actor_optimizer, alpha_optimizer)
-    rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim, args.seed)
+    rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim,
+                      device if args.gpu_buffer else torch.device("cpu"))
 
     # A run folder: fresh, or resumed from its checkpoint, or restarted if it has none yet.
     checkpoint_path = run_dir / "checkpoint.pt"
@@ -524,6 +639,15 @@ if __name__ == "__main__":
         obs, _ = env.reset(seed=args.seed)
     keep = global_step if args.resume is not None else None
     selectors = eval_selectors(args)
+    graphs = device.type == "cuda" and args.cudagraphs
+    graphed = cuda_graph if graphs else (lambda fn, restore=(): fn)
+    train_action = graphed(torch.no_grad()(lambda obs: actor.get_action(obs)[0]))
+    eval_policies = {prefix: graphed(eval_policy(actor, select))
+                     for prefix, select in selectors.items()}
+    train_step = make_train_step(
+        rb, lambda batch: sac_update(batch, actor, qf, qf_target, log_alpha, optimizers,
+                                     args.gamma, args.tau, target_entropy),
+        args.batch_size, device, graphs, (actor, qf, qf_target, log_alpha, *optimizers))
     eval_columns = ["global_step", "wall_time", "eval_round",
                     *[p + s for p in selectors for s in EVAL_STATS]]
     eval_file, eval_csv = open_csv(run_dir / "eval.csv", eval_columns, keep)
@@ -542,20 +666,20 @@ if __name__ == "__main__":
         if global_step < args.learning_starts:
             action = env.action_space.sample()
         else:
-            with torch.no_grad():
-                obs_tensor = torch.as_tensor(obs, dtype=torch.float32, device=device)
-                action = actor.get_action(obs_tensor[None])[0][0].cpu().numpy()
+            obs_tensor = torch.as_tensor(obs, dtype=torch.float32, device=device)[None]
+            action = train_action(obs_tensor)[0].cpu().numpy()
             check_finite(action, "action")
         next_obs, reward, terminated, truncated, info = env.step(action)
         global_step += 1
         episode_return, episode_length = episode_return + float(reward), episode_length + 1
         episode_end = terminated or truncated
-        rb.add(obs, action, reward, terminated, next_obs, episode_end)
+        # HumanoidBench bootstraps a transition that is both terminated and truncated (its
+        # mask is `not terminated or truncated`).
+        rb.add(obs, action, reward, terminated and not truncated, next_obs, episode_end)
         obs = next_obs
 
         if global_step >= args.learning_starts:
-            losses = sac_update(rb.sample(args.batch_size, device), actor, qf, qf_target, log_alpha,
-                                optimizers, args.gamma, args.tau, target_entropy)
+            losses = train_step()
 
         if global_step % args.log_interval == 0:
             now = time.time()
@@ -573,8 +697,8 @@ if __name__ == "__main__":
             if video is not None:
                 video.parent.mkdir(exist_ok=True)
             row = {"global_step": global_step, "eval_round": eval_round}
-            for prefix, select in selectors.items():
-                stats, mu, log_std = evaluate(actor, eval_env, select, seeds,
+            for prefix, policy in eval_policies.items():
+                stats, mu, log_std = evaluate(policy, eval_env, seeds, device,
                                               video if prefix == "" else None)
                 row |= {prefix + k: v for k, v in stats.items()}
             row["wall_time"] = elapsed + time.time() - session_start
