@@ -475,6 +475,12 @@ def check_finite(x: np.ndarray, what: str) -> None:
                          "rates or resume from an earlier checkpoint")
 
 
+def ends_without_bootstrap(terminated: bool, truncated: bool) -> bool:
+    """Whether the target of a transition drops the next state's value. HumanoidBench bootstraps
+    one that is both terminated and truncated (its mask is `not terminated or truncated`)."""
+    return terminated and not truncated
+
+
 def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None) -> dict:
     """train.csv's statistics: the last update's losses (none before learning starts) and the
     training episodes that ended since the previous row (taken out of `progress`)."""
@@ -691,9 +697,8 @@ if __name__ == "__main__":
         global_step += 1
         episode_return, episode_length = episode_return + float(reward), episode_length + 1
         episode_end = terminated or truncated
-        # HumanoidBench bootstraps a transition that is both terminated and truncated (its
-        # mask is `not terminated or truncated`).
-        rb.add(obs, action, reward, terminated and not truncated, next_obs, episode_end)
+        rb.add(obs, action, reward, ends_without_bootstrap(terminated, truncated), next_obs,
+               episode_end)
         obs = next_obs
 
         if global_step >= args.learning_starts:

@@ -13,6 +13,7 @@ checkpoints its run and is requeued, and the requeued job continues it with `--r
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import difflib
 import functools
@@ -26,8 +27,10 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -87,6 +90,9 @@ class Args:
     """`local`: runs on this machine, --workers at a time; `slurm`: one Slurm job array"""
     workers: int = 1
     """local launcher: how many runs at a time (each its own process)"""
+    mps: bool = False
+    """local launcher: run under NVIDIA's Multi-Process Service, so that runs sharing a GPU run
+    their kernels side by side instead of taking turns (started here, stopped at the end)"""
     checkpoint_interval: int = 100_000
     """env steps between the runs' checkpoints (bounds the work a node failure loses)"""
     dry_run: bool = False
@@ -243,6 +249,9 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
         raise SweepError(f"no scripts: pass --scripts {' '.join(DEFAULT_SCRIPTS)}")
     if args.workers < 1:
         raise SweepError(f"--workers must be at least 1, got {args.workers}")
+    if args.mps and args.launcher != "local":
+        raise SweepError("--mps is for --launcher local (on Slurm, the cluster decides how jobs "
+                         "share a GPU); drop --mps")
     scripts = [resolve_script(script) for script in dict.fromkeys(args.scripts)]
     check_env_ids(env_ids)
     check_extra_args(extra_args)
@@ -404,6 +413,40 @@ def prepare_run_dir(run: Run, **extra: str) -> None:
 
 # ---------------------------------------------------------------------------------------------
 # Local launcher
+
+
+@contextlib.contextmanager
+def mps_daemon() -> Iterator[None]:
+    """NVIDIA's Multi-Process Service while the block runs: one MPS server holds the GPU and the
+    CUDA processes started inside the block (they inherit its pipe folder) share it, their
+    kernels running concurrently, instead of time-slicing the GPU one context at a time. A private
+    pipe folder keeps it apart from any MPS daemon already on the machine."""
+    if shutil.which("nvidia-cuda-mps-control") is None:
+        raise SweepError("--mps needs nvidia-cuda-mps-control (NVIDIA's driver tools) on PATH; "
+                         "drop --mps on a machine without it")
+    folder = Path(tempfile.mkdtemp(prefix="mps-"))  # short: the pipe is a Unix socket path
+    variables = {"CUDA_MPS_PIPE_DIRECTORY": str(folder / "pipe"),
+                 "CUDA_MPS_LOG_DIRECTORY": str(folder / "log")}
+    for path in variables.values():
+        Path(path).mkdir()
+    environment = {**os.environ, **variables}
+    subprocess.run(["nvidia-cuda-mps-control", "-d"], env=environment, check=True)
+    print(f"sweep.py: MPS started (pipe folder {variables['CUDA_MPS_PIPE_DIRECTORY']})",
+          flush=True)
+    saved = {k: os.environ.get(k) for k in variables}
+    os.environ.update(variables)  # the runs started in the block inherit it
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key)
+            else:
+                os.environ[key] = value
+        subprocess.run(["nvidia-cuda-mps-control"], input="quit\n", text=True, env=environment,
+                       check=False)
+        print("sweep.py: MPS stopped", flush=True)
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def launch_local(runs: list[Run], workers: int) -> None:
@@ -672,7 +715,8 @@ def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
     todo = [run for run in runs if action_for(states[run]) in ("start", "resume", "retry")]
     print(f"{len(runs)} runs: {len(runs) - len(todo)} done or under way, {len(todo)} to launch")
     if todo and args.launcher == "local":
-        launch_local(todo, args.workers)
+        with mps_daemon() if args.mps else contextlib.nullcontext():
+            launch_local(todo, args.workers)
     elif todo:
         job_id = launch_slurm(todo, args)
         print(f"submitted Slurm job array {job_id} ({len(todo)} runs); "

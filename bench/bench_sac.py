@@ -34,6 +34,7 @@ from sac_standard import (  # noqa: E402
     Actor,
     ReplayBuffer,
     TwinQ,
+    eval_policy,
     eval_seeds,
     evaluate,
     make_env,
@@ -115,7 +116,7 @@ def time_update(args: Args, env, critic_class=TwinQ, fused_adam: bool = True,
                 compiled: bool = False) -> float:
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
     actor, qf, qf_target, log_alpha, optimizers = build_learner(env, critic_class, fused_adam)
-    rb = ReplayBuffer(20_000, obs_dim, action_dim, seed=0)
+    rb = ReplayBuffer(20_000, obs_dim, action_dim, torch.device("cpu"))
     rng = np.random.default_rng(0)
     for i in range(20_000):
         rb.add(rng.normal(size=obs_dim), rng.uniform(-1, 1, action_dim), rng.normal(), False,
@@ -195,7 +196,7 @@ def time_loop_parts(args: Args, steps: int = 3000, start: int = 1000) -> dict[st
     env.action_space.seed(0)
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
     actor, qf, qf_target, log_alpha, optimizers = build_learner(env)
-    rb = ReplayBuffer(1_000_000, obs_dim, action_dim, seed=0)
+    rb = ReplayBuffer(1_000_000, obs_dim, action_dim, torch.device("cpu"))
     parts = dict.fromkeys(("act", "env step", "buffer add", "batch sample", "update"), 0.0)
     obs, _ = env.reset(seed=0)
     for step in range(start + steps):
@@ -229,7 +230,8 @@ def time_eval_round(env, episodes: int) -> tuple[float, float]:
     """Seconds of one evaluation round with tanh(mu) of an untrained actor, and its steps."""
     actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
     start = clock()
-    stats, mu, _ = evaluate(actor, env, lambda m, s: torch.tanh(m), eval_seeds(0, 1, episodes))
+    stats, mu, _ = evaluate(eval_policy(actor, lambda m, s: torch.tanh(m)), env,
+                            eval_seeds(0, 1, episodes), torch.device("cpu"))
     return clock() - start, len(mu)
 
 
@@ -237,7 +239,7 @@ def replay_buffer_memory_gb() -> float:
     """Resident memory added by a full 1M x 308-dim buffer (61-dim actions), in GB."""
     process = psutil.Process()
     before = process.memory_info().rss
-    rb = ReplayBuffer(1_000_000, 308, 61, seed=0)
+    rb = ReplayBuffer(1_000_000, 308, 61, torch.device("cpu"))
     for name in ReplayBuffer.ARRAYS:
         getattr(rb, name)[:] = 1  # touch every page
     return (process.memory_info().rss - before) / 1e9

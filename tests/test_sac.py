@@ -250,3 +250,87 @@ def test_smoke_on_humanoid_stand(tmp_path):
     shift_sum, shift_mean = float(row["mode_shift_abs_sum"]), float(row["mode_shift_abs_mean"])
     assert shift_sum == pytest.approx(61 * shift_mean, rel=1e-4) and shift_mean > 0
     assert float(read_csv(tmp_path / "h1" / "train.csv")[-1]["qf1_loss"]) > 0
+
+
+def test_glorot_uniform_init_and_zero_biases():
+    import gymnasium as gym
+    import numpy as np
+
+    from sac_standard import Actor, TwinQ
+
+    torch.manual_seed(0)
+    space = gym.spaces.Box(-1.0, 1.0, (17,), np.float32)
+    layers = [m for net in (Actor(40, (256, 256), space, -10.0, 2.0), TwinQ(40, 17, (256, 256)))
+              for m in net.modules() if isinstance(m, torch.nn.Linear)]
+    assert len(layers) == 4 + 6  # actor: two hidden, mean and log-sigma heads; critics: 3 each
+    for layer in layers:
+        fan_out, fan_in = layer.weight.shape
+        bound = (6 / (fan_in + fan_out)) ** 0.5
+        assert torch.count_nonzero(layer.bias) == 0
+        # Uniform on [-bound, bound]: within it, and reaching near it (PyTorch's default would
+        # stay within 1/sqrt(fan_in), 1.7-2.4x narrower here).
+        assert layer.weight.abs().max() <= bound
+        assert layer.weight.abs().max() > 0.95 * bound
+
+
+def test_update_scores_the_actor_with_the_pre_update_critic():
+    """A hand-computed update on a tiny network: each loss from the parameters as they were before
+    the update (HumanoidBench's jaxrl_m order), and the target towards the pre-update critic."""
+    import copy
+    import functools
+
+    import gymnasium as gym
+    import numpy as np
+
+    from sac_standard import Actor, TwinQ, sac_update
+
+    torch.manual_seed(0)
+    actor = Actor(3, (8,), gym.spaces.Box(-1.0, 1.0, (2,), np.float32), -10.0, 2.0)
+    qf, log_alpha = TwinQ(3, 2, (8,)), torch.tensor(0.3, requires_grad=True)
+    qf_target = copy.deepcopy(qf)
+    with torch.no_grad():  # a target apart from the critic, so that the Polyak step shows
+        for p in qf_target.parameters():
+            p.add_(0.1)
+    batch = (torch.randn(16, 3), torch.rand(16, 2) * 2 - 1, torch.randn(16), torch.randn(16, 3),
+             (torch.rand(16) > 0.2).float())
+    before = [copy.deepcopy(m) for m in (actor, qf, qf_target)]
+    adam = functools.partial(torch.optim.Adam, lr=0.05)
+    optimizers = (adam(qf.parameters()), adam(actor.parameters()), adam([log_alpha]))
+    torch.manual_seed(1)
+    sac_update(batch, actor, qf, qf_target, log_alpha, optimizers, 0.99, 0.1, -1.0)
+
+    # By hand: the actor's gradient step against the pre-update critic.
+    ref_actor, ref_qf, ref_target = before
+    torch.manual_seed(1)
+    ref_actor.get_action(batch[3])  # the next-action sample comes first and draws noise
+    pi, log_pi = ref_actor.get_action(batch[0])
+    alpha = torch.tensor(0.3).exp()
+    actor_loss = (alpha * log_pi - ref_qf(batch[0], pi).min(0).values).mean()
+    ref_optimizer = adam(ref_actor.parameters())
+    actor_loss.backward(inputs=list(ref_actor.parameters()))
+    ref_optimizer.step()
+    for p, ref in zip(actor.parameters(), ref_actor.parameters(), strict=True):
+        torch.testing.assert_close(p, ref)
+    # The same actor step against the updated critic lands elsewhere: the order matters here.
+    stale_actor = copy.deepcopy(before[0])
+    torch.manual_seed(1)
+    stale_actor.get_action(batch[3])
+    pi, log_pi = stale_actor.get_action(batch[0])
+    stale_loss = (alpha * log_pi - qf(batch[0], pi).min(0).values).mean()
+    stale_optimizer = adam(stale_actor.parameters())
+    stale_loss.backward(inputs=list(stale_actor.parameters()))
+    stale_optimizer.step()
+    assert not torch.allclose(next(stale_actor.parameters()), next(actor.parameters()))
+    # The target moved a tenth of the way towards the critic as it was before its step.
+    for p, old_target, old_critic in zip(qf_target.parameters(), ref_target.parameters(),
+                                         ref_qf.parameters(), strict=True):
+        torch.testing.assert_close(p, old_target + 0.1 * (old_critic - old_target))
+
+
+def test_terminated_and_truncated_transitions_are_bootstrapped():
+    from sac_standard import ends_without_bootstrap
+
+    assert ends_without_bootstrap(terminated=True, truncated=False)
+    assert not ends_without_bootstrap(terminated=True, truncated=True)  # as HumanoidBench
+    assert not ends_without_bootstrap(terminated=False, truncated=True)
+    assert not ends_without_bootstrap(terminated=False, truncated=False)
