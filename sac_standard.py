@@ -628,6 +628,8 @@ if __name__ == "__main__":
                             (q_optimizer, "q_optimizer"), (actor_optimizer, "actor_optimizer"),
                             (alpha_optimizer, "alpha_optimizer"), (rb, "buffer")):
             module.load_state_dict(ckpt[key])
+        for group in (g for optimizer in optimizers for g in optimizer.param_groups):
+            group["capturable"] = device.type == "cuda"  # the checkpoint's is its device's
         with torch.no_grad():
             log_alpha.copy_(ckpt["log_alpha"])
         set_rng_states(ckpt["rng"], env)

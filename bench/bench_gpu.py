@@ -165,7 +165,7 @@ if __name__ == "__main__":
     host = cuda_time(step, args.repeats, args.calls)
     print(f"update, CUDA graph (host buffer):  {host * 1e3:6.3f} ms")
 
-    obs = env.observation_space.sample()
+    obs = env.observation_space.sample().astype(np.float32)
     sample = torch.no_grad()(lambda o: actor.get_action(o)[0])
     mu, log_std = (t.detach() for t in actor(torch.as_tensor(obs, device=CUDA)[None]))
     for graphs in (False, True):
