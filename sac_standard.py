@@ -439,7 +439,7 @@ def make_train_step(rb: ReplayBuffer, update: Callable, batch_size: int, device:
     there and copied into the graph's inputs."""
     if not graphs:
         return lambda: update(rb.sample(batch_size, device))
-    if rb.obs.device == device:
+    if rb.obs.device.type == device.type:  # the buffer is on the run's GPU
         return cuda_graph(lambda: update(rb.sample(batch_size, device)), learner)
     update_graph = cuda_graph(lambda *batch: update(batch), learner)
     return lambda: update_graph(*rb.sample(batch_size, device))
