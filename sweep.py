@@ -63,6 +63,10 @@ EXIT_INTERRUPTED = 3
 # torch thread, one gradient update per step, an evaluation round every 10,000 steps: about
 # 9.5 ms of CPU per step on our 2-core machines (README, "Running the paper's experiment").
 DEFAULT_STEPS_PER_SECOND = 105.0
+# The same on one GPU node (one H100, 16 CPU cores): 16 runs at once with CUDA graphs under MPS
+# (--workers 16 --mps), h1hand-powerlift-v0, update phase, steps/s of all 16 together
+# (bench/bench_gpu.py; README, "Speed on a GPU").
+DEFAULT_GPU_NODE_STEPS_PER_SECOND = 4600.0
 IDENTITY_FILE = "sweep_run.json"
 ATTEMPT_FILE = "sweep_attempt.json"
 LOG_FILE = "sweep.log"
@@ -99,6 +103,8 @@ class Args:
     """print the grid, the run folders, what exists and a compute estimate; start nothing"""
     steps_per_second: float = DEFAULT_STEPS_PER_SECOND
     """training speed of one run for the compute estimate (env steps per second)"""
+    gpu_node_steps_per_second: float = DEFAULT_GPU_NODE_STEPS_PER_SECOND
+    """for the estimate on one GPU node: env steps per second of all its runs together"""
     analyze: str | None = None
     """when all runs are done, run analyze.py on the output folder into this report folder"""
     analyze_args: str = ""
@@ -660,6 +666,9 @@ def print_plan(runs: list[Run], args: Args) -> None:
     print(f"compute: {len(runs)} runs, {total:,} env steps in all, {steps_left:,} still to run; "
           f"at {args.steps_per_second:g} steps/s per run that is {hours:,.1f} run-hours "
           f"({hours / len(runs):,.1f} h per run)")
+    node_hours = steps_left / args.gpu_node_steps_per_second / 3600
+    print(f"on one GPU node at {args.gpu_node_steps_per_second:,g} steps/s in all (16 runs at once "
+          f"under MPS: --workers 16 --mps): {node_hours:,.1f} h ({node_hours / 24:,.1f} days)")
 
 
 def action_for(state: str) -> str:
