@@ -74,11 +74,9 @@ def time_bare_physics(
     return seconds, data.qpos.copy()
 
 
-def bench(env_id: str, steps: int, repeats: int, sleep: bool = True) -> dict[str, float]:
+def bench(env_id: str, steps: int, repeats: int) -> dict[str, float]:
     env = gym.make(env_id)
     base = env.unwrapped
-    if not sleep:  # what bookshelf would cost without MuJoCo's sleeping of resting objects
-        base.model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, (steps, 61)).astype(np.float32)
     ctrls = np.array([base.robot.action_to_ctrl(a.astype(np.float64)) for a in actions])
@@ -107,22 +105,15 @@ def main() -> None:
     parser.add_argument("--env-ids", nargs="+", default=[*humanoid_envs.ENVS])
     parser.add_argument("--steps", type=int, default=2000, help="env steps per repeat")
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument(
-        "--no-sleep-off-row", action="store_true", help="skip bookshelf_simple without sleeping"
-    )
     args = parser.parse_args()
     print(f"{args.steps} env steps x {args.repeats} repeats, uniform random actions, medians")
     header = f"{'task':28s} {'env steps/s':>11s} {'bare mj_step':>12s} {'overhead':>8s}"
     print(f"{header} {'target':>6s} {'mean episode':>12s}  replay matches")
-    runs = [(env_id, True) for env_id in args.env_ids]
-    if "h1hand-bookshelf_simple-v0" in args.env_ids and not args.no_sleep_off_row:
-        runs.append(("h1hand-bookshelf_simple-v0", False))
-    for env_id, sleep in runs:
-        r = bench(env_id, args.steps, args.repeats, sleep)
-        name = env_id if sleep else "  same, objects never sleep"
-        target = str(TARGETS.get(env_id, "-")) if sleep else "-"
+    for env_id in args.env_ids:
+        r = bench(env_id, args.steps, args.repeats)
+        target = str(TARGETS.get(env_id, "-"))
         print(
-            f"{name:28s} {r['env']:11.0f} {r['bare']:12.0f} {r['overhead']:7.1f}% "
+            f"{env_id:28s} {r['env']:11.0f} {r['bare']:12.0f} {r['overhead']:7.1f}% "
             f"{target:>6s} {r['episode_steps']:12.1f}  {r['same_trajectory']}"
         )
 

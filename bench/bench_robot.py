@@ -1,11 +1,11 @@
-"""What the robot model's speed choices buy: bare physics with and without them, per scene.
+"""What fidelity to HumanoidBench costs: bare physics with and without its contact choices.
 
 Run from the repository root: `python bench/bench_robot.py [--steps 1500 --repeats 5]`.
 For each task scene it builds the same model three ways from `robot_spec()`:
-- humanoidbench: robot self-collisions on and friction loss 0.01 on the 48 hand joints, as in
-  HumanoidBench (collision shapes stay our primitives);
+- this model: `robot_spec()` as it is, which is HumanoidBench's: robot self-collisions on and
+  friction loss 0.01 on the 48 hand joints (collision shapes stay our primitives);
 - no self-collisions: hand friction loss still on;
-- this model: `robot_spec()` as it is.
+- both off: what this model did before it followed HumanoidBench here.
 Each env step is 10 x mj_step with uniform random controls in the actuators' ctrlrange; the
 scene goes back to its keyframe when the pelvis drops below 0.2 m or after 1000 env steps.
 Times are the thread's CPU time (robust to other processes on the machine); medians over
@@ -37,20 +37,21 @@ SCENES = {
     "bookshelf": lambda: Bookshelf(randomize_order=False),
 }
 VARIANTS = {
-    "humanoidbench": dict(self_collisions=True, hand_frictionloss=0.01),
+    "this model (HumanoidBench's)": dict(self_collisions=True, hand_frictionloss=0.01),
     "no self-collisions": dict(self_collisions=False, hand_frictionloss=0.01),
-    "this model": dict(self_collisions=False, hand_frictionloss=0.0),
+    "both off": dict(self_collisions=False, hand_frictionloss=0.0),
 }
 
 
 def build_scene(task, self_collisions: bool, hand_frictionloss: float) -> mujoco.MjModel:
     """The task's scene on a robot with the given self-collision and friction-loss choices."""
     spec = robot_spec()
-    robot_geoms = [g for g in spec.geoms if g.contype == 1 and g.conaffinity == 0]
+    # The robot's colliding geoms: every body but the world (whose geom is the floor).
+    robot_geoms = [g for body in spec.bodies[1:] for g in body.geoms if g.contype == 1]
     task.add_objects(spec)
-    if self_collisions:
+    if not self_collisions:  # robot geoms still touch the floor and objects (their conaffinity)
         for geom in robot_geoms:
-            geom.conaffinity = 1
+            geom.conaffinity = 0
     for joint in spec.joints:
         if joint.name.startswith(("lh_", "rh_")):
             joint.frictionloss = hand_frictionloss

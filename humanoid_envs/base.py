@@ -201,9 +201,11 @@ class H1HandEnv(gym.Env):
         reason = self._instability()
         if reason:
             return self._truncate_unstable(reason)
+        # HumanoidBench's order: the observation, then the reward (which may change the task's
+        # state, e.g. advance bookshelf's current object), then the termination.
+        obs = self.task.get_observation()
         reward, info = self.task.get_reward()
         terminated = self.task.should_terminate()
-        obs = self.task.get_observation()
         if not np.isfinite(obs).all():
             return self._truncate_unstable("non-finite observation")
         self._last_obs = obs

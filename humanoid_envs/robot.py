@@ -6,31 +6,29 @@ action order), finger tendons (J0 = J1 + J2), contact exclusions, sites, sensors
 options (0.002 s, Newton, 100/50 iterations, Euler, pyramidal cone) are HumanoidBench's
 h1hand numbers.
 
-How it differs from HumanoidBench's model, each choice made for speed while keeping the
-tasks solvable (feet stand on the floor, hands and arms touch objects):
-1. Collision shapes are primitives instead of 28 collision meshes: each mesh became a box or
-   a capsule fitted to the mesh's bounding box (capsules along the long axis of limb-like
-   meshes, boxes for pelvis, torso and feet; each foot's sole is flat at the height that
-   touches the floor at the keyframe). The hands' own primitive collision geoms are kept.
-   Nothing is drawn but these primitives (plus a visor on the head).
-2. No robot self-collisions: robot geoms have contype 1, conaffinity 0, so they touch the
-   floor and task objects (MuJoCo's default conaffinity 1) but not each other. Task objects
-   must keep conaffinity bit 1 to be touched by the robot.
-3. No friction loss on the 48 hand joints (HumanoidBench: 0.01 N m each, which adds ~48
-   always-active constraint rows). Their damping (0.05 N m s fingers, 0.5 wrist) is
-   unchanged and already exceeds 0.01 N m above 0.2 rad/s.
+How it differs from HumanoidBench's model: collision shapes are primitives instead of 28
+collision meshes (we ship no third-party meshes). Each mesh became a box or a capsule fitted to
+the mesh's bounding box (capsules along the long axis of limb-like meshes, boxes for pelvis,
+torso and feet; each foot's sole is flat at the height that touches the floor at the keyframe),
+with one correction: the torso box is 0.165 m wide to each side, not the bounding box's 0.172,
+because robot self-collisions are on (as HumanoidBench's collision classes have them, minus its
+excluded pairs) and at 0.172 it overlapped the shoulder-roll capsules by 6 mm at the keyframe,
+where HumanoidBench's meshes leave a gap. The hands' own primitive collision geoms are kept, and
+so is HumanoidBench's friction loss of 0.01 on the 48 hand joints. Nothing is drawn but these
+primitives (plus a visor on the head).
 
-Measured bare physics, env steps per second (`python bench/bench_robot.py`: 10 x mj_step with
-uniform random ctrl, back to the keyframe when the pelvis drops below 0.2 m; thread CPU time,
-median of 5 x 1500 steps on the 2-core dev machine), each task scene built from robot_spec()
-with the choices undone:
-    scene       HumanoidBench's two choices  self-collisions off  this model (both off)
-    stand       1148 (nefc 66)               1568 (nefc 57)       2171 (nefc  9)
-    powerlift   1010 (nefc 83)               1338 (nefc 74)       1783 (nefc 25)
-    cube        1086 (nefc 83)               1456 (nefc 73)       1959 (nefc 24)
-    bookshelf    954 (nefc 80)               1227 (nefc 71)       1599 (nefc 22)
+What fidelity costs, bare physics in env steps per second (`python bench/bench_robot.py`: 10 x
+mj_step with uniform random ctrl, back to the keyframe when the pelvis drops below 0.2 m; thread
+CPU time, median of 5 x 1500 steps on the 2-core dev machine, nothing else running), each task
+scene built from robot_spec() with HumanoidBench's choices undone:
+    scene       this model (HumanoidBench's)  no self-collisions  both off (the model before)
+    stand       1221 (nefc  66)               1628 (nefc  57)     2252 (nefc   9)
+    powerlift   1086 (nefc  82)               1429 (nefc  73)     1869 (nefc  26)
+    cube        1112 (nefc  84)               1497 (nefc  73)     1987 (nefc  26)
+    bookshelf    700 (nefc 259)                813 (nefc 250)      982 (nefc 202)
 (nefc: mean number of constraint rows; collision shapes are our primitives in all three.)
-MuJoCo's default sparse Jacobian beats a dense one here: 1698 vs 1476 env steps/s on powerlift.
+MuJoCo's default sparse Jacobian beats a dense one here: 1698 vs 1476 env steps/s on powerlift
+(measured with both choices off).
 """
 
 from pathlib import Path

@@ -331,25 +331,55 @@ def _place_current_object_at_goal(env: gym.Env) -> None:
 @pytest.mark.parametrize("observe_goal", [False, True])
 def test_bookshelf_subtasks_advance_and_pay_their_bonus(observe_goal: bool) -> None:
     env = gym.make("h1hand-bookshelf_simple-v0", observe_goal=observe_goal)
-    env.reset(seed=0)
-    task, data = env.unwrapped.task, env.unwrapped.data
+    obs, _ = env.reset(seed=0)
+    task = env.unwrapped.task
     hold = hold_pose_action(env)  # the keyframe's pose
-    for _ in range(30):  # let the objects settle and fall asleep
-        env.step(hold)
-    assert data.ntree_awake == 1  # only the robot: moving a sleeping object must still count
-    order = []
+    identifier = -7 if observe_goal else -1  # the observation's entry naming the current object
+    assert obs[identifier] == -19  # HumanoidBench's number for the trophy, the first object
+    for _ in range(10):
+        obs = env.step(hold)[0]
+    order, seen = [], [obs[identifier]]
     for k in range(1, 6):
         order.append(task.current_object())
         _place_current_object_at_goal(env)
         obs, reward, terminated, _, info = env.step(hold)
         assert info["placement_bonus"] == 100 * k and info["success_subtasks"] == k
         assert 100 * k < reward <= 100 * k + 1
-        index = obs[-7] if observe_goal else obs[-1]
-        assert index == k
+        # HumanoidBench's one-step lag: the observation was taken before the reward moved on.
+        assert obs[identifier] == seen[-1]
         assert terminated == info["success"] == (k == 5)
+        if k < 5:
+            obs = env.step(hold)[0]
+            seen.append(obs[identifier])
     assert order == ["trophy", "book_c", "chalk", "book_e", "book_b"]
+    assert seen == [-19, -22, -15, -20, -23]
     assert obs.shape == ((314,) if observe_goal else (308,))
     env.close()
+
+
+def test_bookshelf_hard_names_each_drawn_object_with_the_lag() -> None:
+    from humanoid_envs.tasks.bookshelf import OBJECT_IDENTIFIERS
+
+    env = make("h1hand-bookshelf_hard-v0")
+    obs, _ = env.reset(seed=3)
+    task, hold = env.unwrapped.task, hold_pose_action(env)
+    for k in range(1, 4):
+        current = task.current_object()
+        assert obs[-1] == OBJECT_IDENTIFIERS[current] and -24 <= obs[-1] <= -13
+        _place_current_object_at_goal(env)
+        obs = env.step(hold)[0]
+        assert task.subtask == k and task.current_object() != current  # moved on
+        assert obs[-1] == OBJECT_IDENTIFIERS[current]  # still the placed one: the lag
+        obs = env.step(hold)[0]
+        assert obs[-1] == OBJECT_IDENTIFIERS[task.current_object()] != OBJECT_IDENTIFIERS[current]
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ["h1hand-bookshelf_simple-v0", "h1hand-bookshelf_hard-v0"])
+def test_bookshelf_physics_flags_as_humanoidbench(env_id: str) -> None:
+    model = make(env_id).unwrapped.model
+    assert not model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_SLEEP  # no sleeping bodies
+    assert not model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_MULTICCD  # multiccd on
 
 
 def test_observe_goal_appends_current_object_and_goal() -> None:
@@ -358,7 +388,9 @@ def test_observe_goal_appends_current_object_and_goal() -> None:
     task, data = env.unwrapped.task, env.unwrapped.data
     np.testing.assert_allclose(obs[-6:-3], data.body(task.current_object()).xpos)
     np.testing.assert_allclose(obs[-3:], task._goals[0])
-    assert obs[-7] == 0.0
+    from humanoid_envs.tasks.bookshelf import OBJECT_IDENTIFIERS
+
+    assert obs[-7] == OBJECT_IDENTIFIERS[task.current_object()]
     env.close()
 
 

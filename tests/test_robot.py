@@ -124,8 +124,12 @@ def test_joint_properties(model):
     assert model.dof_armature[finger.dofadr[0]] == 0.0002
     assert model.dof_damping[model.joint("rh_WRJ2").dofadr[0]] == 0.5
     np.testing.assert_allclose(model.joint("rh_LFJ5").axis, [0.57358, 0, 0.81915], atol=1e-5)
-    # Friction loss is replaced by the damping above (see robot.py).
-    assert not model.dof_frictionloss.any()
+    # HumanoidBench: friction loss 0.01 on the 48 hand joints, none on the body's.
+    hand_dofs = [model.joint(j).dofadr[0] for j in range(model.njnt)
+                 if model.joint(j).name.startswith(("lh_", "rh_"))]
+    assert len(hand_dofs) == 48
+    np.testing.assert_array_equal(model.dof_frictionloss[hand_dofs], 0.01)
+    assert model.dof_frictionloss.sum() == pytest.approx(0.48)
 
 
 def test_masses(model):
@@ -220,7 +224,31 @@ def test_feet_stand_on_the_floor(model):
     assert touching == feet
 
 
-def test_no_self_collisions_but_hands_touch_objects():
+def test_no_self_contact_at_the_keyframe(model):
+    data = at_keyframe(model)
+    robot = robot_body_ids(model)
+    assert not [c for c in data.contact
+                if model.geom_bodyid[c.geom1] in robot and model.geom_bodyid[c.geom2] in robot]
+
+
+def test_an_arm_driven_into_the_torso_collides_with_it(model):
+    """Self-collisions are on, as HumanoidBench's collision classes have them."""
+    data = at_keyframe(model)
+    torso = model.body("torso_link").id
+    # Roll the left shoulder inwards, past the torso (within the joint's range).
+    data.qpos[model.joint("left_shoulder_roll").qposadr[0]] = -0.34
+    data.qpos[model.joint("left_shoulder_yaw").qposadr[0]] = 0.0
+    data.qpos[model.joint("left_elbow").qposadr[0]] = 1.6
+    data.qpos[model.joint("left_shoulder_pitch").qposadr[0]] = -1.2
+    mujoco.mj_forward(model, data)
+    arm = {b for b in range(model.nbody) if _is_descendant(model, b, model.body(
+        "left_shoulder_roll_link").id)}
+    touching = {(int(model.geom_bodyid[c.geom1]), int(model.geom_bodyid[c.geom2]))
+                for c in data.contact}
+    assert any(torso in pair and (set(pair) & arm) for pair in touching), touching
+
+
+def test_hands_touch_objects():
     spec = robot_spec()
     # A free box overlapping the left palm, with MuJoCo's default contact bits.
     box = spec.worldbody.add_body(name="box")
@@ -241,7 +269,3 @@ def test_no_self_collisions_but_hands_touch_objects():
         if box_geom in (c.geom1, c.geom2)
     }
     assert touching and touching <= hand_bodies
-
-    robot_geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in robot_body_ids(model)]
-    contype, conaffinity = model.geom_contype[robot_geoms], model.geom_conaffinity[robot_geoms]
-    assert not (np.bitwise_and.outer(contype, conaffinity)).any()

@@ -133,6 +133,13 @@ _OBJECTS = (
     ),
 )  # fmt: skip
 _OBJECT_NAMES = tuple(obj.name for obj in _OBJECTS)
+# The observation's last entry names the current object as HumanoidBench does: the index of its
+# body counted from the end of HumanoidBench's scene body list (Python negative indexing into
+# data.xpos). A fixed table, whatever our own body order: book_a -24, book_b -23, book_c -22,
+# book_d -21, book_e -20, trophy -19, book_flat -18, soda_can -17, book_thick -16, chalk -15,
+# snow_globe -14, headphone -13 (simple's order trophy, book_c, chalk, book_e, book_b is
+# -19, -22, -15, -20, -23).
+OBJECT_IDENTIFIERS = dict(zip(_OBJECT_NAMES, range(-24, -12), strict=True))
 
 
 class Bookshelf(Task):
@@ -140,9 +147,10 @@ class Bookshelf(Task):
     100 * k when the k-th object gets within 0.15 m of its goal.
 
     placed: linear tolerance of the object-goal distance beyond 0.15 m (0.1 at 1 m more);
-    reach: exp(-distance from the nearer hand site to the object). Observation: qpos, qvel and
-    the number of objects placed so far (HumanoidBench's layout); with `observe_goal` also the
-    current object's position and its goal.
+    reach: exp(-distance from the nearer hand site to the object). Observation (HumanoidBench's):
+    qpos, qvel and the current object's identifier (OBJECT_IDENTIFIERS), taken before the reward
+    that may advance to the next object, so it names the next object one step after a
+    placement; with `observe_goal` (our extra) also the current object's position and its goal.
     """
 
     episode_steps = 1000
@@ -173,10 +181,8 @@ class Bookshelf(Task):
         )
         # Over the robot's right shoulder, into the open face of the shelf.
         add_look_at_camera(spec, self.camera, pos=(-1.3, -1.3, 2.3), target=(0.85, 0.0, 0.9))
-        # Objects at rest sleep (MuJoCo skips them) until something touches or moves them, so
-        # the objects nobody handles cost nothing: about half the physics time of this scene.
-        # The robot is actuated and never sleeps.
-        spec.option.enableflags |= mujoco.mjtEnableBit.mjENBL_SLEEP
+        # Physics flags as HumanoidBench's: multi-point convex collisions (multiccd) on, which
+        # is MuJoCo 4's default; no sleeping of bodies at rest (its MuJoCo has none).
 
     def bind(self, model, data, robot) -> None:
         super().bind(model, data, robot)
@@ -200,7 +206,7 @@ class Bookshelf(Task):
         return self.data.xpos[self._object_ids[self._order[k]]], self._goals[k]
 
     def get_observation(self) -> np.ndarray:
-        parts = [self.data.qpos, self.data.qvel, [float(self.subtask)]]
+        parts = [self.data.qpos, self.data.qvel, [float(OBJECT_IDENTIFIERS[self.current_object()])]]
         if self.observe_goal:
             parts.extend(self._object_and_goal())
         return np.concatenate(parts)
