@@ -7,10 +7,13 @@ task, algorithm and seed, aligns them on the evaluation steps they share, normal
 per task and hands them to rliable: stratified-bootstrap interval estimates of the aggregate
 IQM / median / mean / optimality gap, performance profiles, sample-efficiency curves and the
 probability of improvement. Runs of sac_corrected.py also carry the paired evaluation of the
-same actor with tanh(mu) on the same start states: it forms its own group, and the per-seed
-difference mode minus tanh(mu) is reported per task.
+same actor with tanh(mu) on the same start states; the two scripts make the same training
+decisions for a seed, so that evaluation is the standard run of the seed: where a task has no
+sac_standard.py runs, it stands in for them ("Standard SAC (tanh(mu), paired)"), and where it
+has both, they are checked to agree. The headline is the paired analysis: per seed, the mode
+minus tanh(mu) of the same actor, per task and over tasks.
 
-Pipeline: load -> align -> normalise -> estimate -> plot -> tables.
+Pipeline: load -> pair -> align -> normalise -> estimate -> plot -> tables.
 """
 
 from __future__ import annotations
@@ -51,11 +54,17 @@ PAIRED_CORRECTED = CORRECTED + PAIRED_SUFFIX
 # Probability of improvement of the first over the second.
 COMPARISON = (CORRECTED, STANDARD)
 GROUP_ORDER = (STANDARD, CORRECTED, PAIRED_CORRECTED)
+STANDARD_LABEL = "Standard SAC"
 LABELS = {
-    STANDARD: "Standard SAC",
+    STANDARD: STANDARD_LABEL,
     CORRECTED: "Corrected SAC",
     PAIRED_CORRECTED: "Corrected SAC (tanh(mu) eval)",
 }
+STANDARD_FROM_PAIRED_LABEL = "Standard SAC (tanh(mu), paired)"
+# A standard run and the paired evaluation of the corrected run of the same seed agree when
+# their returns at a shared step differ by at most this (relative): the CSVs hold the same
+# floats, so any real difference (other flags, code, or device) is far larger.
+AGREEMENT_RTOL = 1e-9
 
 # HumanoidBench's success bars: the return at which a task counts as solved. Under the default
 # normalisation a score of 1.0 means "reached the bar".
@@ -251,6 +260,73 @@ def ordered_groups(runs: Runs) -> list[str]:
     """Every group in the folder: the paper's first, in a fixed order (so colours stay put)."""
     found = {group for groups in runs.values() for group in groups}
     return [g for g in GROUP_ORDER if g in found] + sorted(found - set(GROUP_ORDER))
+
+
+# ----------------------------------------------------------------------------- pair
+@dataclasses.dataclass
+class Pairing:
+    """How the corrected runs' paired tanh(mu) evaluation relates to the standard runs."""
+
+    derived: list[str]  # tasks whose standard group is the corrected runs' paired evaluation
+    agreeing: dict[str, int]  # task -> (seed, step) points where standard and paired agree
+    disagreeing: list[str]  # one line per standard run that disagrees with its paired twin
+
+
+def standard_from_paired(runs: Runs) -> Pairing:
+    """A corrected run's tanh(mu) evaluation is the standard run of its seed (same training
+    decisions, same start states, same actor). A task without sac_standard.py runs gets them
+    from it; a task with both is checked point by point (same seed, same step)."""
+    pairing = Pairing([], {}, [])
+    for task, groups in sorted(runs.items()):
+        if PAIRED_CORRECTED not in groups:
+            continue
+        if STANDARD not in groups:
+            groups[STANDARD] = groups.pop(PAIRED_CORRECTED)
+            pairing.derived.append(task)
+            continue
+        paired = {curve.seed: curve for curve in groups[PAIRED_CORRECTED]}
+        for standard in groups[STANDARD]:
+            twin = paired.get(standard.seed)
+            if twin is None:
+                continue
+            steps, i, j = np.intersect1d(standard.steps, twin.steps, return_indices=True)
+            a, b = standard.returns[i], twin.returns[j]
+            differ = ~np.isclose(a, b, rtol=AGREEMENT_RTOL, atol=0.0)
+            if differ.any():
+                k = int(np.argmax(differ))
+                pairing.disagreeing.append(
+                    f"{task}, seed {standard.seed}: {standard.run_dir} and the paired evaluation "
+                    f"of {twin.run_dir} differ at {int(differ.sum())} of {steps.size} shared "
+                    f"steps (step {_fmt(steps[k])}: {a[k]:.6g} vs {b[k]:.6g}); made with other "
+                    "flags or code? Kept apart")
+            else:
+                pairing.agreeing[task] = pairing.agreeing.get(task, 0) + steps.size
+    return pairing
+
+
+def standard_label(pairing: Pairing, tasks: Sequence[str]) -> str:
+    """What the standard group is: sac_standard.py runs, the paired evaluation, or a mix."""
+    if not pairing.derived:
+        return STANDARD_LABEL
+    if len(pairing.derived) == len(tasks):
+        return STANDARD_FROM_PAIRED_LABEL
+    return STANDARD_FROM_PAIRED_LABEL.replace("paired", "paired on some tasks")
+
+
+def pairing_lines(pairing: Pairing) -> list[str]:
+    """summary.md's account of where the standard numbers come from."""
+    lines = []
+    if pairing.derived:
+        lines.append(
+            f"No sac_standard.py runs for {', '.join(pairing.derived)}: Standard SAC there is the "
+            "corrected runs' paired evaluation, tanh(mu) of the same actors from the same start "
+            "states (the two scripts make identical training decisions for a seed, so this is "
+            "the standard run of each seed, computed once).")
+    for task, points in sorted(pairing.agreeing.items()):
+        lines.append(f"{task}: the standard runs equal the corrected runs' paired tanh(mu) "
+                     f"evaluation at all {points} shared (seed, step) points.")
+    lines += [f"Disagreement: {line}." for line in pairing.disagreeing]
+    return lines
 
 
 # ----------------------------------------------------------------------------- align
@@ -487,14 +563,21 @@ def build_aggregate(
     return Aggregate(common, members, final, frames, curves), notes
 
 
-def paired_differences(tasks: dict[str, Task]) -> dict[str, dict[str, np.ndarray]]:
+def paired_groups(data: Task, derived: bool) -> list[tuple[str, str]]:
+    """(algorithm, the group holding its tanh(mu) evaluation) pairs present in a task."""
+    pairs = [(g.removesuffix(PAIRED_SUFFIX), g) for g in data.returns
+             if g.endswith(PAIRED_SUFFIX) and g.removesuffix(PAIRED_SUFFIX) in data.returns]
+    if derived and CORRECTED in data.returns and STANDARD in data.returns:
+        pairs.append((CORRECTED, STANDARD))  # the standard group is the paired evaluation
+    return pairs
+
+
+def paired_differences(tasks: dict[str, Task], derived: Sequence[str] = ()
+                       ) -> dict[str, dict[str, np.ndarray]]:
     """task -> algorithm -> per-seed (own eval minus tanh(mu) eval) at the scored step."""
     differences: dict[str, dict[str, np.ndarray]] = {}
     for task, data in tasks.items():
-        for group in data.returns:
-            algorithm = group.removesuffix(PAIRED_SUFFIX)
-            if group == algorithm or algorithm not in data.returns:
-                continue
+        for algorithm, group in paired_groups(data, task in derived):
             own = dict(zip(data.seeds[algorithm], data.scored(algorithm), strict=True))
             paired = dict(zip(data.seeds[group], data.scored(group), strict=True))
             diffs = np.array([own[seed] - paired[seed] for seed in paired])
@@ -510,7 +593,7 @@ def group_colors(groups: list[str]) -> dict[str, tuple]:
 
 
 def label(group: str) -> str:
-    return LABELS.get(group, group)
+    return LABELS.get(group, group)  # analyze() sets LABELS[STANDARD] to say where it comes from
 
 
 def _steps_axis(max_step: float) -> tuple[float, str]:
@@ -755,6 +838,8 @@ def analyze(args: Args) -> Report:
     """The whole analysis: load, align, normalise, estimate, plot, tabulate."""
     validate(args)
     runs, notes = load_runs(args.runs_dir)
+    pairing = standard_from_paired(runs)
+    LABELS[STANDARD] = standard_label(pairing, list(runs))
     groups = ordered_groups(runs)
     n_runs = sum(len(curves) for by_group in runs.values()
                  for group, curves in by_group.items() if not group.endswith(PAIRED_SUFFIX))
@@ -767,15 +852,17 @@ def analyze(args: Args) -> Report:
     report = Report(args.out, args.format, notes=notes + align_notes + aggregate_notes)
     colors = group_colors(groups)
 
-    report_tasks(report, args, tasks, norms, groups, colors)
-    if aggregate is not None:
-        report_aggregate(report, args, aggregate, colors)
-    differences = paired_differences(tasks)
-    if differences:
+    if pairing_lines(pairing):
+        report.section("Where the standard numbers come from", *pairing_lines(pairing))
+    differences = paired_differences(tasks, pairing.derived)
+    if differences:  # the headline: paired data, paired statistics
         report_paired(report, args, tasks, differences, norms, colors)
     else:
         report.notes.append(f"no run carries the paired evaluation ({PAIRED_RETURN_COLUMN}): "
                             "paired differences skipped")
+    report_tasks(report, args, tasks, norms, groups, colors)
+    if aggregate is not None:
+        report_aggregate(report, args, aggregate, colors)
     report.write([
         f"# Analysis of {args.runs_dir}", "",
         f"Normalisation `{args.normalize}`: {NORMALIZATIONS[args.normalize]}. "
@@ -866,23 +953,63 @@ def report_aggregate(report: Report, args: Args, agg: Aggregate, colors: dict) -
 
 def report_paired(report: Report, args: Args, tasks: dict[str, Task], differences: dict,
                   norms: dict, colors: dict) -> None:
-    """Own evaluation minus tanh(mu) evaluation of the same actors, per task."""
+    """The headline: own evaluation minus tanh(mu) evaluation of the same actors (paired), per
+    task and over tasks, with the share of seeds where the own action won."""
     print(f"paired differences ({args.reps:,} reps) ...")
     estimates = seed_mean_estimates({(t, a): d for t, by_algorithm in differences.items()
                                      for a, d in by_algorithm.items()}, args.reps, args.seed)
     table = []
     for (task, algorithm), values in estimates.items():
-        runs, step = differences[task][algorithm].size, tasks[task].scored_step
+        diffs = differences[task][algorithm]
+        runs, step = diffs.size, tasks[task].scored_step
         scaled = [v / norms[task][1] for v in values]
+        won = int((diffs > 0).sum())
         report.row("paired_difference", task, algorithm, "return", step, runs, *values)
         report.row("paired_difference", task, algorithm, "score", step, runs, *scaled)
-        table.append([task, _fmt(step), label(algorithm), runs, _ci(*values, 1), _ci(*scaled)])
+        report.row("paired_difference", task, algorithm, "share_won", step, runs, won / runs,
+                   math.nan, math.nan)
+        table.append([task, _fmt(step), label(algorithm), runs, _ci(*values, 1), _ci(*scaled),
+                      f"{won} of {runs}"])
+    lines = ["Per seed, at each task's scored step: the return of the script's own evaluation "
+             "action minus that of tanh(mu), same actor, same start states (for Corrected SAC: "
+             "the mode minus tanh(mu)). Mean over seeds with a 95% bootstrap CI; 'won': seeds "
+             "where the difference is positive.", "",
+             markdown_table(["task", "step", "algorithm", "seeds", "return difference",
+                             "score difference", "won"], table)]
+    lines += paired_aggregate_lines(report, args, differences, norms)
     xlabel = f"Difference in {SCORE_NAMES[args.normalize].lower()}"
     report.figure(plot_paired(differences, estimates, norms, colors, xlabel), "paired_difference")
-    report.section("Paired evaluation: own action minus tanh(mu), same actor, same start states",
-                   "Per-seed differences at the scored step; mean over seeds with 95% CI.", "",
-                   markdown_table(["task", "step", "algorithm", "seeds", "return difference",
-                                   "score difference"], table))
+    report.section("Headline: paired difference, own action minus tanh(mu) of the same actors",
+                   *lines)
+
+
+def paired_aggregate_lines(report: Report, args: Args, differences: dict, norms: dict
+                           ) -> list[str]:
+    """Over tasks: the mean normalised paired difference (rliable's stratified bootstrap over
+    seeds within tasks) and the share of (task, seed) pairs won, per algorithm."""
+    lines = []
+    for algorithm in sorted({a for by_algorithm in differences.values() for a in by_algorithm}):
+        per_task = {t: d[algorithm] / norms[t][1] for t, d in differences.items()
+                    if algorithm in d}
+        if len(per_task) < 2:
+            continue
+        seeds = min(d.size for d in per_task.values())
+        scores = np.stack([d[:seeds] for d in per_task.values()], axis=1)  # (seeds, tasks)
+        point, interval = interval_estimates({algorithm: scores}, metrics.aggregate_mean,
+                                             args.reps, args.seed)
+        low, high = interval[algorithm].ravel()
+        won = sum(int((d > 0).sum()) for d in per_task.values())
+        pairs = sum(d.size for d in per_task.values())
+        report.row("paired_difference", "all", algorithm, "mean_score", "", seeds,
+                   point[algorithm], low, high)
+        report.row("paired_difference", "all", algorithm, "share_won", "", pairs, won / pairs,
+                   math.nan, math.nan)
+        lines += ["", f"Over {len(per_task)} tasks, {label(algorithm)}: mean "
+                  f"{SCORE_NAMES[args.normalize].lower()} difference "
+                  f"{_ci(float(point[algorithm]), low, high)} ({seeds} seeds per task, "
+                  f"stratified bootstrap); the own action won in {won} of {pairs} (task, seed) "
+                  "pairs."]
+    return lines
 
 
 def main(argv: Sequence[str] | None = None) -> int:

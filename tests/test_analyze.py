@@ -260,7 +260,9 @@ def test_run_without_rows_or_eval_csv_is_skipped_with_a_note(tmp_path):
     assert "no complete evaluation row yet" in (tmp_path / "out" / "summary.md").read_text()
 
 
-def test_one_algorithm_only_skips_comparisons_and_says_so(tmp_path):
+def test_corrected_runs_alone_are_both_algorithms(tmp_path):
+    """With no sac_standard.py runs, the corrected runs' paired tanh(mu) evaluation is Standard
+    SAC: every comparison works as with two sets of runs, labelled as paired."""
     steps = 10_000 * np.arange(1, 6)
     for task in TASKS[:2]:
         for seed in range(3):
@@ -268,12 +270,27 @@ def test_one_algorithm_only_skips_comparisons_and_says_so(tmp_path):
             write_run(tmp_path / "runs", task, "corrected", seed, steps, values, values - 10)
     assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
     names = {p.name for p in (tmp_path / "out").iterdir()}
-    assert "probability_of_improvement.png" not in names
-    assert {"aggregate_metrics.png", "paired_difference.png", "summary.csv"} <= names
+    assert {"aggregate_metrics.png", "paired_difference.png", "probability_of_improvement.png",
+            "sample_efficiency.png", "summary.csv"} <= names
     text = (tmp_path / "out" / "summary.md").read_text()
-    assert "probability of improvement needs both corrected and standard runs: skipped" in text
+    assert "Standard SAC (tanh(mu), paired)" in text
+    assert "No sac_standard.py runs for h1hand-cube-v0, h1hand-powerlift-v0" in text
+    # The paired analysis is the headline: the first section after the notes.
+    sections = [line for line in text.splitlines() if line.startswith("## ")]
+    assert sections[sections.index("## Notes") + 2].startswith("## Headline: paired")
+    assert "| 3 of 3 |" in text
     summary = read_summary(tmp_path / "out")
     assert np.allclose(estimate(summary, "paired_difference", TASKS[0], "corrected", "return"), 10)
+    assert estimate(summary, "paired_difference", TASKS[0], "corrected", "share_won")[0] == 1.0
+    # The standard group holds the paired numbers: seeds 0-2 end at 290, 291, 292.
+    assert estimate(summary, "task_final", TASKS[0], "standard", "return")[0] == 291.0
+    assert estimate(summary, "probability_of_improvement", "all", "corrected > standard",
+                    "P(X > Y)")[0] > 0.5
+    # Over the two tasks: the mean normalised difference (10 / success bar per task), won 6 of 6.
+    bars = [analyze.SUCCESS_BARS[t] for t in TASKS[:2]]
+    mean = estimate(summary, "paired_difference", "all", "corrected", "mean_score")
+    assert np.isclose(mean[0], np.mean([10 / b for b in bars]))
+    assert estimate(summary, "paired_difference", "all", "corrected", "share_won")[0] == 1.0
     # Standard on one task, corrected on another: nothing to aggregate, per-task results only.
     write_run(tmp_path / "split", TASKS[0], "standard", 0, steps, np.linspace(1, 5, 5))
     write_run(tmp_path / "split", TASKS[1], "corrected", 0, steps, np.linspace(2, 6, 5))
@@ -392,3 +409,35 @@ def test_reads_what_the_sac_scripts_write(tmp_path):
     mode = estimate(summary, "task_final", "Pendulum-v1", "corrected", "return")[0]
     difference = estimate(summary, "paired_difference", "Pendulum-v1", "corrected", "return")[0]
     assert np.isclose(difference, mode - float(tanh_mu["estimate"]))
+
+
+def test_standard_runs_are_checked_against_the_paired_evaluation(tmp_path):
+    steps = 10_000 * np.arange(1, 4)
+    for seed in range(3):
+        mode, paired = np.array([5.0, 6, 7]) + seed, np.array([4.0, 5, 6]) + seed
+        write_run(tmp_path / "runs", TASKS[0], "corrected", seed, steps, mode, paired)
+        # Seeds 0 and 1: the standard run is the paired evaluation; seed 2 was made otherwise.
+        standard = paired if seed < 2 else paired + np.array([0, 0, 0.5])
+        write_run(tmp_path / "runs", TASKS[0], "standard", seed, steps, standard)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert "Standard SAC (tanh(mu), paired)" not in text  # the literal standard runs are used
+    assert ("Disagreement: h1hand-powerlift-v0, seed 2: " in text
+            and "differ at 1 of 3 shared steps (step 30k: 8.5 vs 8); made with other flags or "
+            "code? Kept apart" in text)
+    assert "standard__seed2" in text and "standard__seed0" not in text.split("Disagreement")[1]
+    # Kept apart: the standard group keeps its own numbers, the paired group its own.
+    summary = read_summary(tmp_path / "out")
+    assert np.isclose(estimate(summary, "task_final", TASKS[0], "standard", "return")[0],
+                      (6 + 7 + 8.5) / 3)
+    assert estimate(summary, "task_final", TASKS[0], "corrected (tanh(mu) eval)", "return")[0] == 7
+
+    agree = tmp_path / "agree"
+    for seed in range(2):
+        paired = np.array([4.0, 5, 6]) + seed
+        write_run(agree, TASKS[0], "corrected", seed, steps, paired + 1, paired)
+        write_run(agree, TASKS[0], "standard", seed, steps, paired)
+    assert run_analysis(agree, tmp_path / "agree_out") == 0
+    text = (tmp_path / "agree_out" / "summary.md").read_text()
+    assert ("h1hand-powerlift-v0: the standard runs equal the corrected runs' paired tanh(mu) "
+            "evaluation at all 6 shared (seed, step) points.") in text
