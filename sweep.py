@@ -49,10 +49,40 @@ PAPER_ENV_IDS = (
     "h1hand-bookshelf_simple-v0",
     "h1hand-bookshelf_hard-v0",
 )
-# The scripts' defaults are the paper's protocol (its Tables I and II): the preset adds no
-# arguments to the runs, only the grid.
 PAPER_SEEDS = (0, 1, 2, 3, 4)
 DEFAULT_SCRIPTS = ("sac_standard.py", "sac_corrected.py")
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named grid: env ids, seeds, scripts, and each env id's step budget (absent: the script's
+    default, which is the paper's 10M). The scripts' defaults are the paper's protocol (its
+    Tables I and II), so a preset adds no other arguments."""
+
+    env_ids: tuple[str, ...]
+    seeds: tuple[int, ...]
+    scripts: tuple[str, ...]
+    total_timesteps: dict[str, int]
+    why: str
+
+
+# A corrected run also evaluates tanh(mu) of the same actor from the same start states, and the
+# two scripts make identical training decisions for a seed: its paired columns are the standard
+# run of that seed (tests/test_sac.py::test_one_corrected_run_is_both_algorithms pins this), so
+# presets run sac_corrected.py only.
+ONE_RUN_IS_BOTH = ("sac_corrected.py only: each run's paired tanh(mu) evaluation is the "
+                   "sac_standard.py run of its seed (identical training decisions), so analyze.py "
+                   "gets both algorithms from half the runs")
+CLASSIC_STEPS = 1_000_000
+PRESETS = {
+    "paper": Preset(PAPER_ENV_IDS, PAPER_SEEDS, ("sac_corrected.py",), {}, ONE_RUN_IS_BOTH),
+    # Beyond the paper: the correction's worth against the action dimension (3 to 61).
+    "dimensions": Preset(
+        ("Hopper-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5", *PAPER_ENV_IDS), PAPER_SEEDS,
+        ("sac_corrected.py",),
+        dict.fromkeys(("Hopper-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5"), CLASSIC_STEPS),
+        ONE_RUN_IS_BOTH + "; classic tasks 1M steps each, h1hand tasks the paper's 10M"),
+}
 # sweep.py sets these for every run itself; the same flags after `--` would contradict them.
 SWEEP_FLAGS = (
     "--env-id", "--seed", "--output-dir", "--run-name", "--resume", "--checkpoint-interval",
@@ -66,7 +96,7 @@ DEFAULT_STEPS_PER_SECOND = 105.0
 # The same on one GPU node (one H100, 16 CPU cores): 16 runs at once with CUDA graphs under MPS
 # (--workers 16 --mps), h1hand-powerlift-v0, update phase, steps/s of all 16 together
 # (bench/bench_gpu.py; README, "Speed on a GPU").
-DEFAULT_GPU_NODE_STEPS_PER_SECOND = 4600.0
+DEFAULT_GPU_NODE_STEPS_PER_SECOND = 3350.0
 IDENTITY_FILE = "sweep_run.json"
 ATTEMPT_FILE = "sweep_attempt.json"
 LOG_FILE = "sweep.log"
@@ -84,10 +114,13 @@ class Args:
     """gymnasium env ids of the grid (e.g. h1hand-powerlift-v0)"""
     seeds: list[int] = field(default_factory=list)
     """seeds of the grid"""
-    scripts: list[str] = field(default_factory=lambda: list(DEFAULT_SCRIPTS))
-    """training scripts of the grid (paths, or names of the project's scripts)"""
-    preset: Literal["paper"] | None = None
-    """`paper`: four tasks, seeds 0-4, both scripts, their defaults (--env-ids/--seeds override)"""
+    scripts: list[str] = field(default_factory=list)
+    """training scripts of the grid (paths, or names of the project's scripts; default: both, or
+    the preset's)"""
+    preset: Literal["paper", "dimensions"] | None = None
+    """`paper`: four h1hand tasks, seeds 0-4, sac_corrected.py (its paired columns are the
+    standard runs); `dimensions`: the same on Hopper, HalfCheetah, Ant, Humanoid (3-17 action
+    dims, 1M steps) and the h1hand tasks (61); --env-ids/--seeds/--scripts override"""
     output_dir: str = "runs"
     """folder that holds one folder per run"""
     launcher: Literal["local", "slurm"] = "local"
@@ -245,29 +278,37 @@ def check_extra_args(extra_args: tuple[str, ...]) -> None:
 
 def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     """The runs of the sweep, seed-major so that every cell gets its first seed early."""
-    env_ids = args.env_ids or (list(PAPER_ENV_IDS) if args.preset == "paper" else [])
-    seeds = args.seeds or (list(PAPER_SEEDS) if args.preset == "paper" else [])
+    preset = PRESETS.get(args.preset)
+    env_ids = args.env_ids or (list(preset.env_ids) if preset else [])
+    seeds = args.seeds or (list(preset.seeds) if preset else [])
     if not env_ids:
         raise SweepError("no env ids: pass --env-ids ID [ID ...] (or --preset paper)")
     if not seeds:
         raise SweepError("no seeds: pass --seeds 0 1 2 (or --preset paper)")
-    if not args.scripts:
-        raise SweepError(f"no scripts: pass --scripts {' '.join(DEFAULT_SCRIPTS)}")
     if args.workers < 1:
         raise SweepError(f"--workers must be at least 1, got {args.workers}")
     if args.mps and args.launcher != "local":
         raise SweepError("--mps is for --launcher local (on Slurm, the cluster decides how jobs "
                          "share a GPU); drop --mps")
-    scripts = [resolve_script(script) for script in dict.fromkeys(args.scripts)]
+    names = args.scripts or (list(preset.scripts) if preset else list(DEFAULT_SCRIPTS))
+    scripts = [resolve_script(script) for script in dict.fromkeys(names)]
     check_env_ids(env_ids)
     check_extra_args(extra_args)
     output_dir = Path(args.output_dir).resolve()
     return [
-        Run(script, env_id, seed, extra_args, output_dir, args.checkpoint_interval)
+        Run(script, env_id, seed, preset_args(preset, env_id, extra_args) + extra_args,
+            output_dir, args.checkpoint_interval)
         for seed in dict.fromkeys(seeds)
         for env_id in dict.fromkeys(env_ids)
         for script in scripts
     ]
+
+
+def preset_args(preset: Preset | None, env_id: str, extra_args: tuple[str, ...]) -> tuple:
+    """The preset's step budget for this env id, unless the arguments after `--` give one."""
+    steps = preset.total_timesteps.get(env_id) if preset else None
+    given = any(a == "--total-timesteps" or a.startswith("--total-timesteps=") for a in extra_args)
+    return () if steps is None or given else ("--total-timesteps", str(steps))
 
 
 def check_output_dir(runs: list[Run]) -> None:
@@ -648,13 +689,15 @@ def script_default_total_timesteps(script: Path) -> int:
     return module.Args().total_timesteps
 
 
-def print_plan(runs: list[Run], args: Args) -> None:
+def print_plan(runs: list[Run], args: Args, extra_args: tuple[str, ...]) -> None:
     n_env = len({r.env_id for r in runs})
     n_seed = len({r.seed for r in runs})
     n_script = len({r.script for r in runs})
     print(f"grid: {n_env} env ids x {n_seed} seeds x {n_script} scripts = {len(runs)} runs, "
-          f"arguments after --: {shlex.join(runs[0].extra_args) or '(none)'}")
+          f"arguments after --: {shlex.join(extra_args) or '(none)'}")
     print(f"output folder: {runs[0].output_dir}")
+    if args.preset and not args.scripts:
+        print(f"preset {args.preset}: {PRESETS[args.preset].why}")
     total = steps_left = 0
     for run in runs:
         state = run_state(run.run_dir)
@@ -718,7 +761,7 @@ def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
     if args.launcher == "slurm" and not args.dry_run:
         check_slurm(args.partition)
     if args.dry_run:
-        print_plan(runs, args)
+        print_plan(runs, args, extra_args)
         return 0
     states = {run: run_state(run.run_dir) for run in runs}
     todo = [run for run in runs if action_for(states[run]) in ("start", "resume", "retry")]

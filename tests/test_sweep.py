@@ -131,12 +131,29 @@ def test_dry_run_prints_the_plan_and_starts_nothing(reference, tmp_path):
     assert "1,600 env steps in all, 0 still to run" in out
 
     out = sweep("--preset", "paper", "--output-dir", str(tmp_path / "paper"), "--dry-run",
-                "--steps-per-second", "100").stdout
-    assert "4 env ids x 5 seeds x 2 scripts = 40 runs" in out
-    assert "h1hand-bookshelf_hard-v0__corrected__seed4__" in out
-    # 40 runs x 10M steps at 100 steps/s = 4e6 s of one run each = 1,111.1 run-hours
-    assert "400,000,000 env steps in all" in out and "1,111.1 run-hours" in out
-    assert not (tmp_path / "paper").exists()
+                "--steps-per-second", "100", "--gpu-node-steps-per-second", "2000").stdout
+    # One corrected run is both algorithms: the paper's 40 runs are 20.
+    assert "4 env ids x 5 seeds x 1 scripts = 20 runs" in out
+    assert "paired tanh(mu) evaluation is the sac_standard.py run of its seed" in out
+    assert "h1hand-bookshelf_hard-v0__corrected__seed4__" in out and "__standard__" not in out
+    # 20 runs x 10M steps at 100 steps/s = 2e6 s of one run each = 555.6 run-hours; on a GPU
+    # node at 2,000 steps/s in all: 1e5 s = 27.8 h.
+    assert "200,000,000 env steps in all" in out and "555.6 run-hours" in out
+    assert "on one GPU node at 2,000 steps/s in all" in out and "27.8 h (1.2 days)" in out
+    # The literal grid, for anyone who wants it.
+    out = sweep("--preset", "paper", "--scripts", "sac_standard.py", "sac_corrected.py",
+                "--output-dir", str(tmp_path / "paper"), "--dry-run").stdout
+    assert "4 env ids x 5 seeds x 2 scripts = 40 runs" in out and "preset paper:" not in out
+
+    out = sweep("--preset", "dimensions", "--output-dir", str(tmp_path / "dims"),
+                "--dry-run", "--steps-per-second", "100").stdout
+    assert "8 env ids x 5 seeds x 1 scripts = 40 runs" in out
+    # 20 classic runs of 1M steps and 20 h1hand runs of 10M steps.
+    assert "220,000,000 env steps in all" in out and "Hopper-v5__corrected__seed0__" in out
+    out = sweep("--preset", "dimensions", "--output-dir", str(tmp_path / "dims"), "--dry-run",
+                "--", "--total-timesteps", "5000").stdout
+    assert "200,000 env steps in all" in out  # the budget after `--` wins
+    assert not (tmp_path / "paper").exists() and not (tmp_path / "dims").exists()
 
 
 # ----------------------------------------------------------------------------- bad input
