@@ -825,13 +825,20 @@ SCORE_NAMES = {"success-bar": "Success-bar normalised score",
 
 
 def validate(args: Args) -> None:
-    for name in ("reps", "curve_reps"):
-        if getattr(args, name) < 1:
-            raise AnalysisError(f"--{name.replace('_', '-')} must be at least 1")
-    if args.curve_points < 2:
-        raise AnalysisError("--curve-points must be at least 2")
-    if not args.format:
-        raise AnalysisError("--format needs at least one of png, pdf")
+    """Every flag's valid range, checked before anything is read or written."""
+    rules = (
+        ("reps", args.reps >= 1, "at least 1"),
+        ("curve_reps", args.curve_reps >= 1, "at least 1"),
+        ("curve_points", args.curve_points >= 2, "at least 2"),
+        ("at_step", args.at_step is None or args.at_step >= 1, "a step of at least 1"),
+        ("seed", 0 <= args.seed < 2**32, "in [0, 2**32) (NumPy's seed range)"),
+        ("format", len(args.format) >= 1, "one or more of png, pdf"),
+    )
+    for name, ok, allowed in rules:
+        if not ok:
+            value = getattr(args, name)
+            shown = " ".join(value) if isinstance(value, tuple) else value
+            raise AnalysisError(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
 
 
 def analyze(args: Args) -> Report:

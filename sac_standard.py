@@ -11,6 +11,7 @@ import dataclasses
 import difflib
 import functools
 import json
+import math
 import os
 import platform
 import random
@@ -21,6 +22,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NoReturn
 
 import gymnasium as gym
 import imageio
@@ -99,17 +101,29 @@ class Args:
     """if toggled, `torch.backends.cudnn.deterministic=True`"""
     capture_video: bool = False
     """write a video of the first episode of each evaluation round into the run folder"""
+    track: bool = False
+    """log the run to Weights & Biases (config, every TensorBoard scalar, evaluation videos)"""
+    wandb_project_name: str = "corrected-sac"
+    """the W&B project"""
+    wandb_entity: str | None = None
+    """the W&B entity (team or user; default: yours)"""
+    wandb_group: str | None = None
+    """the W&B group (sweep.py sets {env_id}__{algorithm})"""
 
 
 # Flags that may differ when resuming: they change where and how fast, not what is computed.
 RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "print_interval",
-                  "cuda", "cudagraphs", "gpu_buffer", "torch_threads", "capture_video")
+                  "cuda", "cudagraphs", "gpu_buffer", "torch_threads", "capture_video", "track",
+                  "wandb_project_name", "wandb_entity", "wandb_group")
 EVAL_STATS = ("return_mean", "return_std", "return_min", "return_max", "length_mean",
               "success_rate")
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
                  "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
                  "episode_return_mean", "episode_length_mean")
 INTERRUPTED_EXIT_CODE = 3
+CHECKPOINT_KEYS = ("args", "global_step", "elapsed", "progress", "actor", "qf", "qf_target",
+                   "log_alpha", "q_optimizer", "actor_optimizer", "alpha_optimizer", "buffer",
+                   "rng")
 
 
 def eval_selectors(args: Args) -> dict[str, Callable]:
@@ -118,33 +132,105 @@ def eval_selectors(args: Args) -> dict[str, Callable]:
 
 
 def parse_args() -> Args:
-    """Parses the flags; with --resume, the run's stored arguments are the defaults and a flag
-    that contradicts them is an error."""
+    """Parses and checks the flags; with --resume, the run's stored arguments are the defaults
+    and a flag that contradicts them is an error."""
     args = tyro.cli(Args)
     if args.resume is None:
+        check_args(args)
         return args
+    path = Path(args.resume) / "config.json"
     config = read_run_config(Path(args.resume))
     stored = {f.name: config[f.name] for f in dataclasses.fields(Args)
               if f.name in config and f.name not in RUNTIME_FIELDS}
     stored["hidden_sizes"] = tuple(stored.get("hidden_sizes", args.hidden_sizes))
+    wrong = [k for k, v in stored.items() if not same_type(v, getattr(args, k))]
+    if wrong:
+        fail(f"{path} holds values of the wrong type for {wrong}; it was edited or damaged: "
+             "restore it, or start a new run")
     resumed = tyro.cli(Args, default=dataclasses.replace(args, **stored))
     changed = [k for k, v in stored.items() if getattr(resumed, k) != v]
     if changed:
-        raise SystemExit(f"--resume {args.resume}: flags {changed} contradict the run's stored "
-                         "arguments; drop them or start a new run")
+        fail(f"--resume {args.resume}: flags {changed} contradict the run's stored arguments; "
+             "drop them or start a new run")
+    check_args(resumed)
     return resumed
+
+
+def same_type(value: object, default: object) -> bool:
+    """Whether a config.json value can stand for a flag with this default (None: any)."""
+    if default is None or value is None:
+        return True
+    if isinstance(default, float):
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    return type(value) is type(default) and (not isinstance(value, tuple)
+                                            or all(type(v) is int for v in value))
+
+
+def check_args(args: Args) -> None:
+    """Every flag's valid range, checked before anything is created or written."""
+    def finite(x: float) -> bool:
+        return math.isfinite(x)
+
+    rules = (
+        ("seed", args.seed >= 0, "a non-negative integer"),
+        ("total_timesteps", args.total_timesteps >= 1, "at least 1"),
+        ("buffer_size", args.buffer_size >= 2, "at least 2 (a transition takes two slots)"),
+        ("batch_size", 1 <= args.batch_size <= args.buffer_size,
+         f"between 1 and --buffer-size ({args.buffer_size})"),
+        ("gamma", 0 <= args.gamma <= 1, "in [0, 1]"),
+        ("tau", 0 < args.tau <= 1, "in (0, 1]"),
+        ("learning_starts", 0 <= args.learning_starts < args.total_timesteps,
+         f"in [0, --total-timesteps ({args.total_timesteps})), or no gradient update would run"),
+        ("policy_lr", finite(args.policy_lr) and args.policy_lr > 0, "a positive number"),
+        ("q_lr", finite(args.q_lr) and args.q_lr > 0, "a positive number"),
+        ("alpha_lr", finite(args.alpha_lr) and args.alpha_lr > 0, "a positive number"),
+        ("alpha_init", finite(args.alpha_init) and args.alpha_init > 0, "a positive number"),
+        ("target_entropy_scale", finite(args.target_entropy_scale), "a finite number"),
+        ("hidden_sizes", len(args.hidden_sizes) > 0 and min(args.hidden_sizes) >= 1,
+         "one or more positive layer widths, e.g. --hidden-sizes 256 256"),
+        ("log_std_max", finite(args.log_std_max), "a finite number"),
+        ("log_std_min", finite(args.log_std_min) and args.log_std_min < args.log_std_max,
+         f"a finite number below --log-std-max ({args.log_std_max})"),
+        ("eval_interval", args.eval_interval >= 1, "at least 1 (above --total-timesteps: no "
+         "evaluation)"),
+        ("eval_episodes", args.eval_episodes >= 1, "at least 1 (to skip evaluation, set "
+         "--eval-interval above --total-timesteps)"),
+        ("log_interval", args.log_interval >= 1, "at least 1"),
+        ("print_interval", args.print_interval >= 1, "at least 1"),
+        ("checkpoint_interval", args.checkpoint_interval >= 0, "0 (off) or more"),
+        ("torch_threads", args.torch_threads >= 1, "at least 1"),
+        ("run_name", args.run_name is None or (args.run_name not in ("", ".", "..")
+                                               and "/" not in args.run_name),
+         "a folder name without '/'"),
+        ("wandb_project_name", bool(args.wandb_project_name), "a non-empty name"),
+    )
+    for name, ok, allowed in rules:
+        if not ok:
+            value = getattr(args, name)
+            shown = " ".join(map(str, value)) if isinstance(value, tuple) else repr(value)
+            fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
+
+
+def fail(message: str) -> NoReturn:
+    """Bad input: one line naming the problem and the fix on stderr, exit code 2."""
+    print(f"{Path(__file__).name}: error: {message}", file=sys.stderr, flush=True)
+    sys.exit(2)
 
 
 def read_run_config(run_dir: Path) -> dict:
     """The config.json of a run folder made by this script, or a clear error."""
     path = run_dir / "config.json"
     if not path.is_file():
-        raise SystemExit(f"{run_dir} is not a run folder (no config.json); give --resume a folder "
-                         "made by sac_standard.py or sac_corrected.py")
-    config = json.loads(path.read_text())
+        fail(f"{run_dir} is not a run folder (no config.json); give --resume a folder made by "
+             "sac_standard.py or sac_corrected.py")
+    try:
+        config = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        fail(f"{path} is not valid JSON ({error}); restore it from a copy, or start a new run")
+    if not isinstance(config, dict):
+        fail(f"{path} does not hold a JSON object; restore it from a copy, or start a new run")
     if config.get("algorithm") != ALGORITHM:
-        raise SystemExit(f"{run_dir} is a run of {config.get('script')}; resume it with that "
-                         "script")
+        fail(f"{run_dir} is a run of {config.get('script')}; resume it with that script")
     return config
 
 
@@ -153,16 +239,16 @@ def make_env(env_id: str, render: bool = False) -> gym.Env:
     if env_id not in gym.registry:
         close = difflib.get_close_matches(env_id, list(gym.registry), n=5, cutoff=0.5)
         ours = sorted(k for k in gym.registry if k.startswith("h1hand-"))
-        raise SystemExit(f"unknown env id {env_id!r}; close matches: {close}; our tasks: {ours}")
+        fail(f"unknown env id {env_id!r}; close matches: {close}; our tasks: {ours}")
     env = gym.make(env_id, render_mode="rgb_array" if render else None)
     space = env.action_space
     if not isinstance(space, gym.spaces.Box):
-        raise SystemExit(f"{env_id} has a {type(space).__name__} action space; SAC needs a Box")
+        fail(f"{env_id} has a {type(space).__name__} action space; SAC needs a Box")
     if not (np.isfinite(space.low).all() and np.isfinite(space.high).all()):
-        raise SystemExit(f"{env_id} has unbounded actions; SAC squashes into finite bounds")
+        fail(f"{env_id} has unbounded actions; SAC squashes into finite bounds")
     obs_space = env.observation_space
     if not isinstance(obs_space, gym.spaces.Box) or len(obs_space.shape) != 1:
-        raise SystemExit(f"{env_id} observations are not a flat Box; flatten them first")
+        fail(f"{env_id} observations are not a flat Box; flatten them first")
     return env
 
 
@@ -494,12 +580,50 @@ def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
     return f, csv.DictWriter(f, columns)
 
 
-def write_row(f, writer: csv.DictWriter, tb: SummaryWriter, group: str, row: dict) -> None:
+def check_csv(path: Path, columns: list[str]) -> None:
+    """Before a resume writes anything: the CSV must be this run's (its header, whole steps)."""
+    if not path.exists():
+        return
+    lines = path.read_text(errors="replace").splitlines(keepends=True)
+    if not lines or lines[0].rstrip("\r\n").split(",") != columns:
+        fail(f"{path} does not have the header this run writes ({len(columns)} columns: "
+             f"{', '.join(columns[:3])}, ...); it was edited or belongs to another run: restore "
+             "it, or move it away to drop its rows")
+    for number, line in enumerate(lines[1:], start=2):
+        if line.endswith("\n") and not line.split(",")[0].isdigit():
+            fail(f"{path}, line {number}: global_step {line.split(',')[0]!r} is not a step "
+                 "number; restore the file, or delete that line")
+
+
+def read_checkpoint(path: Path) -> dict:
+    """checkpoint.pt on the CPU (RNG states must stay there; load_state_dict moves the rest to
+    the run's device), or one line saying it is damaged."""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False, mmap=True)
+        missing = [k for k in CHECKPOINT_KEYS if k not in ckpt]
+    except Exception as error:  # a truncated or foreign file fails in pickle, zip or torch
+        fail(f"{path} cannot be read ({type(error).__name__}: {str(error).splitlines()[0]}); "
+             "it is damaged: restore a copy, or delete it to restart the run from step 0")
+    if missing:
+        fail(f"{path} lacks {missing}: not a checkpoint of this script; restore a copy, or "
+             "delete it to restart the run from step 0")
+    return ckpt
+
+
+def write_row(f, writer: csv.DictWriter, tb: SummaryWriter, tracker, group: str, row: dict,
+              video: Path | None = None) -> None:
+    """One row to its CSV (flushed), to TensorBoard and, with --track, to W&B."""
     writer.writerow(row)
     f.flush()
-    for k, v in row.items():
-        if v is not None and k not in ("global_step", "wall_time"):
-            tb.add_scalar(f"{group}/{k}", v, row["global_step"])
+    scalars = {f"{group}/{k}": v for k, v in row.items()
+               if v is not None and k not in ("global_step", "wall_time")}
+    for k, v in scalars.items():
+        tb.add_scalar(k, v, row["global_step"])
+    if tracker is not None:
+        import wandb  # only with --track
+
+        media = {f"{group}/video": wandb.Video(str(video), format="mp4")} if video else {}
+        tracker.log({"global_step": row["global_step"], **scalars, **media})
 
 
 def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
@@ -507,6 +631,27 @@ def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
     tmp = path.with_name(path.name + ".tmp")
     write(tmp)
     os.replace(tmp, path)
+
+
+def start_tracking(args: Args, run_dir: Path):
+    """With --track, the W&B run, as CleanRL logs it: the config, every scalar that goes to
+    TensorBoard (against global_step) and the evaluation videos. wandb is imported only here.
+    Its id is kept in the run folder, so a resumed run continues the same W&B run; with
+    WANDB_MODE=offline it writes to run_dir/wandb, for `wandb sync` later."""
+    if not args.track:
+        return None
+    import wandb
+    from wandb.sdk.lib.runid import generate_id
+
+    id_file = run_dir / "wandb_run_id.txt"
+    if not id_file.exists():
+        atomic_write(id_file, lambda tmp: tmp.write_text(generate_id() + "\n"))
+    tracker = wandb.init(project=args.wandb_project_name, entity=args.wandb_entity,
+                         group=args.wandb_group, name=run_dir.name, dir=run_dir,
+                         id=id_file.read_text().strip(), resume="allow",
+                         config=dataclasses.asdict(args) | {"algorithm": ALGORITHM})
+    tracker.define_metric("*", step_metric="global_step")
+    return tracker
 
 
 def run_metadata(args: Args, obs_dim: int, action_dim: int) -> dict:
@@ -567,9 +712,6 @@ if __name__ == "__main__":
     args = parse_args()
     stop = StopRequest()  # from the start, so a signal during setup also ends in exit code 3
     torch.set_num_threads(args.torch_threads)
-    if args.batch_size > args.buffer_size:
-        raise SystemExit(f"--batch-size {args.batch_size} exceeds --buffer-size "
-                         f"{args.buffer_size}; lower the batch or raise the buffer")
     if args.resume is not None:
         run_dir = Path(args.resume)
     else:
@@ -577,8 +719,8 @@ if __name__ == "__main__":
                                      f"{time.strftime('%Y%m%d-%H%M%S')}")
         run_dir = Path(args.output_dir) / run_name
         if (run_dir / "config.json").exists():
-            raise SystemExit(f"{run_dir} already holds a run; continue it with --resume {run_dir} "
-                             "or choose another --run-name")
+            fail(f"{run_dir} already holds a run; continue it with --resume {run_dir} or choose "
+                 "another --run-name")
     if (run_dir / "done.json").exists():
         print(f"{run_dir} has already finished (done.json); nothing to do")
         sys.exit(0)
@@ -613,17 +755,22 @@ if __name__ == "__main__":
     rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim,
                       device if args.gpu_buffer else torch.device("cpu"))
 
+    selectors = eval_selectors(args)
+    eval_columns = ["global_step", "wall_time", "eval_round",
+                    *[p + s for p in selectors for s in EVAL_STATS]]
+
     # A run folder: fresh, or resumed from its checkpoint, or restarted if it has none yet.
     checkpoint_path = run_dir / "checkpoint.pt"
-    # Loaded to the CPU (RNG states must stay there); load_state_dict moves the rest to `device`.
-    ckpt = torch.load(checkpoint_path, map_location="cpu", weights_only=False, mmap=True) \
+    ckpt = read_checkpoint(checkpoint_path) \
         if args.resume is not None and checkpoint_path.exists() else None
     if ckpt is not None:
         config_args = {k: v for k, v in ckpt["args"].items() if k not in RUNTIME_FIELDS}
         wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}
         if config_args != wanted:
-            raise SystemExit(f"{checkpoint_path} was made with other arguments than "
-                             f"{run_dir / 'config.json'}; the run folder is inconsistent")
+            fail(f"{checkpoint_path} was made with other arguments than "
+                 f"{run_dir / 'config.json'}; the run folder is inconsistent")
+        check_csv(run_dir / "eval.csv", eval_columns)  # before anything is written
+        check_csv(run_dir / "train.csv", list(TRAIN_COLUMNS))
         for module, key in ((actor, "actor"), (qf, "qf"), (qf_target, "qf_target"),
                             (q_optimizer, "q_optimizer"), (actor_optimizer, "actor_optimizer"),
                             (alpha_optimizer, "alpha_optimizer"), (rb, "buffer")):
@@ -646,7 +793,6 @@ if __name__ == "__main__":
             run_metadata(args, obs_dim, action_dim), indent=2)))
         obs, _ = env.reset(seed=args.seed)
     keep = global_step if args.resume is not None else None
-    selectors = eval_selectors(args)
     graphs = device.type == "cuda" and args.cudagraphs
     graphed = cuda_graph if graphs else (lambda fn, restore=(): fn)
     train_action = graphed(torch.no_grad()(lambda obs: actor.get_action(obs)[0]))
@@ -656,8 +802,6 @@ if __name__ == "__main__":
         rb, lambda batch: sac_update(batch, actor, qf, qf_target, log_alpha, optimizers,
                                      args.gamma, args.tau, target_entropy),
         args.batch_size, device, graphs, (actor, qf, qf_target, log_alpha, *optimizers))
-    eval_columns = ["global_step", "wall_time", "eval_round",
-                    *[p + s for p in selectors for s in EVAL_STATS]]
     eval_file, eval_csv = open_csv(run_dir / "eval.csv", eval_columns, keep)
     train_file, train_csv = open_csv(run_dir / "train.csv", list(TRAIN_COLUMNS), keep)
     tb = SummaryWriter(run_dir, purge_step=global_step + 1 if ckpt is not None else None)
@@ -665,6 +809,7 @@ if __name__ == "__main__":
         tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
             f"|{k}|{v}|" for k, v in dataclasses.asdict(args).items()))
     del ckpt
+    tracker = start_tracking(args, run_dir)
 
     session_start, row_start, row_step = time.time(), time.time(), global_step
     episode_return, episode_length, losses = 0.0, 0, None
@@ -693,7 +838,7 @@ if __name__ == "__main__":
             row = {"global_step": global_step, "wall_time": elapsed + now - session_start,
                    "sps": (global_step - row_step) / (now - row_start),
                    **train_statistics(progress, losses)}
-            write_row(train_file, train_csv, tb, "train", row)
+            write_row(train_file, train_csv, tb, tracker, "train", row)
             row_start, row_step = now, global_step
 
         if global_step % args.eval_interval == 0:
@@ -709,7 +854,7 @@ if __name__ == "__main__":
                                               video if prefix == "" else None)
                 row |= {prefix + k: v for k, v in stats.items()}
             row["wall_time"] = elapsed + time.time() - session_start
-            write_row(eval_file, eval_csv, tb, "eval", row)
+            write_row(eval_file, eval_csv, tb, tracker, "eval", row, video)
             progress["last_eval"] = (global_step, row["return_mean"])
 
         if global_step % args.print_interval == 0:
@@ -739,6 +884,8 @@ if __name__ == "__main__":
                         * args.checkpoint_interval
                 if stop.requested:
                     tb.close()
+                    if tracker is not None:
+                        tracker.finish()
                     print(f"interrupted at step {global_step}; resume with --resume {run_dir}",
                           flush=True)
                     sys.exit(INTERRUPTED_EXIT_CODE)
@@ -747,6 +894,8 @@ if __name__ == "__main__":
     atomic_write(run_dir / "final_model.pt", lambda tmp: torch.save(
         {"actor": actor.state_dict(), "qf": qf.state_dict()}, tmp))
     tb.close()
+    if tracker is not None:
+        tracker.finish()
     eval_file.close()
     train_file.close()
     wall_time = elapsed + time.time() - session_start

@@ -20,6 +20,7 @@ import functools
 import hashlib
 import importlib.util
 import json
+import math
 import os
 import shlex
 import shutil
@@ -285,8 +286,7 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
         raise SweepError("no env ids: pass --env-ids ID [ID ...] (or --preset paper)")
     if not seeds:
         raise SweepError("no seeds: pass --seeds 0 1 2 (or --preset paper)")
-    if args.workers < 1:
-        raise SweepError(f"--workers must be at least 1, got {args.workers}")
+    check_ranges(args)
     if args.mps and args.launcher != "local":
         raise SweepError("--mps is for --launcher local (on Slurm, the cluster decides how jobs "
                          "share a GPU); drop --mps")
@@ -302,6 +302,33 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
         for env_id in dict.fromkeys(env_ids)
         for script in scripts
     ]
+
+
+def check_ranges(args: Args) -> None:
+    """Every numeric flag's valid range, checked before anything is created or written."""
+    rules = (
+        ("seeds", all(seed >= 0 for seed in args.seeds), "non-negative integers"),
+        ("workers", args.workers >= 1, "at least 1"),
+        ("checkpoint_interval", args.checkpoint_interval >= 1,
+         "at least 1 (a run is only resumable from a checkpoint)"),
+        ("steps_per_second", math.isfinite(args.steps_per_second) and args.steps_per_second > 0,
+         "a positive number"),
+        ("gpu_node_steps_per_second", math.isfinite(args.gpu_node_steps_per_second)
+         and args.gpu_node_steps_per_second > 0, "a positive number"),
+        ("time_min", args.time_min >= 1, "at least 1 minute"),
+        ("cpus_per_task", args.cpus_per_task >= 1, "at least 1"),
+        ("gpus_per_task", args.gpus_per_task >= 0, "0 or more"),
+        ("mem_gb", args.mem_gb >= 1, "at least 1"),
+        ("max_parallel", args.max_parallel >= 1, "at least 1"),
+        ("signal_delay_s", 1 <= args.signal_delay_s < 60 * args.time_min,
+         f"at least 1 and below --time-min ({args.time_min} min) in seconds"),
+        ("max_requeues", args.max_requeues >= 0, "0 or more"),
+    )
+    for name, ok, allowed in rules:
+        if not ok:
+            value = getattr(args, name)
+            shown = " ".join(map(str, value)) if isinstance(value, list) else value
+            raise SweepError(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
 
 
 def preset_args(preset: Preset | None, env_id: str, extra_args: tuple[str, ...]) -> tuple:

@@ -367,7 +367,7 @@ def test_bad_inputs_give_one_clear_message(tmp_path, capsys):
         assert run_analysis(root, tmp_path / "out", *flags) == 2, name
         assert message in capsys.readouterr().err, name
     assert analyze.main([str(tmp_path / "empty"), "--reps", "0"]) == 2
-    assert "--reps must be at least 1" in capsys.readouterr().err
+    assert "--reps 0: must be at least 1" in capsys.readouterr().err
     write_config(tmp_path / "no_seed" / "run", env_id="h1hand-cube-v0", algorithm="standard")
     (tmp_path / "no_seed" / "run" / "eval.csv").write_text("global_step,return_mean\n10,1\n")
     assert run_analysis(tmp_path / "no_seed", tmp_path / "out") == 2

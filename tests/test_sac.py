@@ -218,12 +218,12 @@ def test_replay_buffer_state_round_trip():
     (["--env-id", "Pendulum-v2"], "close matches: ['Pendulum-v1'"),
     (["--env-id", "CartPole-v1"], "Discrete action space"),
     (["--env-id", "Pendulum-v1", "--batch-size", "128", "--buffer-size", "100"],
-     "exceeds --buffer-size"),
+     "--batch-size 128: must be between 1 and --buffer-size (100)"),
     (["--resume", "tests"], "is not a run folder"),
 ])
 def test_bad_input_fails_with_one_clear_line(args, message, tmp_path):
     result = run("sac_standard.py", *args, "--output-dir", str(tmp_path), check=False)
-    assert result.returncode != 0
+    assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
 
 
