@@ -117,9 +117,10 @@ class Args:
 
 
 # Flags that may differ when resuming: they change where and how fast, not what is computed.
+TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
 RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "print_interval",
-                  "cuda", "cudagraphs", "gpu_buffer", "torch_threads", "capture_video", "track",
-                  "wandb_project_name", "wandb_entity", "wandb_group")
+                  "cuda", "cudagraphs", "gpu_buffer", "torch_threads", "capture_video",
+                  *TRACKING_FIELDS)
 EVAL_STATS = ("return_mean", "return_std", "return_min", "return_max", "length_mean",
               "success_rate")
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
@@ -160,11 +161,13 @@ def parse_args() -> Args:
     stored = {f.name: config[f.name] for f in dataclasses.fields(Args)
               if f.name in config and f.name not in RUNTIME_FIELDS}
     stored["hidden_sizes"] = tuple(stored.get("hidden_sizes", args.hidden_sizes))
-    wrong = [k for k, v in stored.items() if not same_type(v, getattr(args, k))]
+    # A tracked run goes on being tracked, to the same W&B run, unless told otherwise.
+    tracking = {k: config[k] for k in TRACKING_FIELDS if k in config}
+    wrong = [k for k, v in (stored | tracking).items() if not same_type(v, getattr(args, k))]
     if wrong:
         fail(f"{path} holds values of the wrong type for {wrong}; it was edited or damaged: "
              "restore it, or start a new run")
-    resumed = tyro.cli(Args, default=dataclasses.replace(args, **stored))
+    resumed = tyro.cli(Args, default=dataclasses.replace(args, **stored, **tracking))
     changed = [k for k, v in stored.items() if getattr(resumed, k) != v]
     if changed:
         fail(f"--resume {args.resume}: flags {changed} contradict the run's stored arguments; "

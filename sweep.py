@@ -87,6 +87,7 @@ PRESETS = {
 # sweep.py sets these for every run itself; the same flags after `--` would contradict them.
 SWEEP_FLAGS = (
     "--env-id", "--seed", "--output-dir", "--run-name", "--resume", "--checkpoint-interval",
+    "--track", "--wandb-project-name", "--wandb-entity", "--wandb-group",
 )
 # The training scripts' exit code after a graceful stop on a signal: "resume with --resume".
 EXIT_INTERRUPTED = 3
@@ -133,6 +134,12 @@ class Args:
     their kernels side by side instead of taking turns (started here, stopped at the end)"""
     checkpoint_interval: int = 100_000
     """env steps between the runs' checkpoints (bounds the work a node failure loses)"""
+    track: bool = False
+    """log every run to Weights & Biases (W&B group {env_id}__{algorithm} per cell)"""
+    wandb_project_name: str = "corrected-sac"
+    """the W&B project of the runs"""
+    wandb_entity: str | None = None
+    """the W&B entity of the runs"""
     dry_run: bool = False
     """print the grid, the run folders, what exists and a compute estimate; start nothing"""
     steps_per_second: float = DEFAULT_STEPS_PER_SECOND
@@ -183,6 +190,7 @@ class Run:
     extra_args: tuple[str, ...]
     output_dir: Path
     checkpoint_interval: int
+    tracking: tuple[str, ...] = ()  # W&B flags: where the run logs, not what it computes
 
     @property
     def algorithm(self) -> str:
@@ -272,8 +280,8 @@ def check_extra_args(extra_args: tuple[str, ...]) -> None:
         flag = arg.split("=", 1)[0]
         if flag in SWEEP_FLAGS:
             raise SweepError(
-                f"{flag} after `--` is set by sweep.py for every run: use --env-ids, --seeds, "
-                "--output-dir or --checkpoint-interval of sweep.py instead"
+                f"{flag} after `--` is set by sweep.py for every run: use sweep.py's own "
+                "--env-ids, --seeds, --output-dir, --checkpoint-interval or --track instead"
             )
 
 
@@ -295,9 +303,12 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     check_env_ids(env_ids)
     check_extra_args(extra_args)
     output_dir = Path(args.output_dir).resolve()
+    tracking = ("--track", "--wandb-project-name", args.wandb_project_name,
+                *(("--wandb-entity", args.wandb_entity) if args.wandb_entity else ())) \
+        if args.track else ()
     return [
         Run(script, env_id, seed, preset_args(preset, env_id, extra_args) + extra_args,
-            output_dir, args.checkpoint_interval)
+            output_dir, args.checkpoint_interval, tracking)
         for seed in dict.fromkeys(seeds)
         for env_id in dict.fromkeys(env_ids)
         for script in scripts
@@ -425,8 +436,10 @@ def progress(run_dir: Path) -> str:
 def run_command(run: Run) -> tuple[str, list[str]]:
     """Resume a run that has started (its config.json exists), else start it."""
     python = [sys.executable, str(run.script)]
+    tracking = [*run.tracking, "--wandb-group", f"{run.env_id}__{run.algorithm}"] \
+        if run.tracking else []
     if (run.run_dir / "config.json").exists():
-        return "resume", [*python, "--resume", str(run.run_dir)]
+        return "resume", [*python, "--resume", str(run.run_dir), *tracking]
     return "start", [
         *python,
         "--env-id", run.env_id,
@@ -435,6 +448,7 @@ def run_command(run: Run) -> tuple[str, list[str]]:
         "--run-name", run.name,
         "--checkpoint-interval", str(run.checkpoint_interval),
         *run.extra_args,
+        *tracking,
     ]
 
 

@@ -1,6 +1,7 @@
-"""sweep.py --mps: NVIDIA's Multi-Process Service around a local sweep. CI has no GPU, so a stand-in
-nvidia-cuda-mps-control records what sweep.py asks of it, and a stand-in training script records
-the environment its runs inherit (tests/test_cuda.py and bench/bench_gpu.py use the real one)."""
+"""sweep.py with stand-ins: --mps (NVIDIA's Multi-Process Service around a local sweep; CI has no
+GPU, so a stand-in nvidia-cuda-mps-control records what sweep.py asks of it; bench/bench_gpu.py
+uses the real one) and --track, with a stand-in training script that records its arguments and
+the environment its runs inherit."""
 
 import json
 import os
@@ -21,7 +22,8 @@ args = dict(zip(sys.argv[1::2], sys.argv[2::2]))
 run_dir = os.path.join(args["--output-dir"], args["--run-name"])
 os.makedirs(run_dir, exist_ok=True)
 with open(os.path.join(run_dir, "done.json"), "w") as f:
-    json.dump({"pipe": os.environ.get("CUDA_MPS_PIPE_DIRECTORY"), "time": time.time()}, f)
+    json.dump({"pipe": os.environ.get("CUDA_MPS_PIPE_DIRECTORY"), "time": time.time(),
+               "argv": sys.argv[1:]}, f)
 """
 
 
@@ -68,3 +70,23 @@ def test_mps_refused_where_it_cannot_work(tmp_path):
     result = sweep(*args, "--mps", "--launcher", "slurm", path=os.environ["PATH"])
     assert result.returncode == 2 and "--mps is for --launcher local" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_track_passes_through_with_a_group_per_task_and_algorithm(tmp_path):
+    script = executable(tmp_path / "sac_fake.py", FAKE_RUN)
+    result = sweep("--env-ids", "Pendulum-v1", "Hopper-v5", "--seeds", "0", "--scripts",
+                   str(script), "--track", "--wandb-project-name", "proj", "--output-dir",
+                   str(tmp_path / "runs"), path=os.environ["PATH"])
+    assert result.returncode == 0, result.stderr
+    runs = [json.loads(p.read_text()) for p in sorted((tmp_path / "runs").glob("*/done.json"))]
+    groups = []
+    for run in runs:
+        argv = run["argv"]
+        assert argv[argv.index("--wandb-project-name") + 1] == "proj" and "--track" in argv
+        groups.append(argv[argv.index("--wandb-group") + 1])
+    assert groups == ["Hopper-v5__fake", "Pendulum-v1__fake"]
+    # The tracking flags are not part of a run's identity: the same grid without --track
+    # finds the same run folders done.
+    again = sweep("--env-ids", "Pendulum-v1", "Hopper-v5", "--seeds", "0", "--scripts",
+                  str(script), "--output-dir", str(tmp_path / "runs"), path=os.environ["PATH"])
+    assert "0 to launch" in again.stdout
