@@ -122,6 +122,8 @@ TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1
                  "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
                  "episode_return_mean", "episode_length_mean")
 INTERRUPTED_EXIT_CODE = 3
+# What final_model.pt keeps of the arguments, so that it alone rebuilds the actor (evaluate.py).
+MODEL_FIELDS = ("env_id", "hidden_sizes", "log_std_min", "log_std_max")
 CHECKPOINT_KEYS = ("args", "global_step", "elapsed", "progress", "actor", "qf", "qf_target",
                    "log_alpha", "q_optimizer", "actor_optimizer", "alpha_optimizer", "buffer",
                    "rng")
@@ -216,7 +218,7 @@ def check_args(args: Args) -> None:
 
 def fail(message: str) -> NoReturn:
     """Bad input: one line naming the problem and the fix on stderr, exit code 2."""
-    print(f"{Path(__file__).name}: error: {message}", file=sys.stderr, flush=True)
+    print(f"{Path(sys.argv[0]).name}: error: {message}", file=sys.stderr, flush=True)
     sys.exit(2)
 
 
@@ -428,12 +430,13 @@ def eval_policy(actor: Actor, select: Callable) -> Callable:
     return policy
 
 
-def evaluate(policy: Callable, env: gym.Env, seeds: list[int], device: torch.device,
-             video_path: Path | None = None) -> tuple[dict, torch.Tensor, torch.Tensor]:
+def run_episodes(policy: Callable, env: gym.Env, seeds: list[int], device: torch.device,
+                 video_path: Path | None = None) -> dict:
     """One episode per reset seed, acting with `policy` (see eval_policy).
 
-    Returns eval.csv's statistics and the policy's mu and log sigma at every visited state. Uses
-    only the evaluation env and the actor's forward pass: no training random stream is touched."""
+    Returns each episode's return, length and success, and the policy's mu and log sigma at
+    every visited state. Uses only the given env and the policy: no training random stream is
+    touched. evaluate.py runs the same function."""
     returns, lengths, successes, mus, log_stds, frames = [], [], [], [], [], []
     for episode, seed in enumerate(seeds):
         obs, info = env.reset(seed=seed)
@@ -448,19 +451,25 @@ def evaluate(policy: Callable, env: gym.Env, seeds: list[int], device: torch.dev
             mus.append(mu.clone())  # a CUDA graph overwrites its outputs at the next replay
             log_stds.append(log_std.clone())
             obs, reward, terminated, truncated, info = env.step(action)
-            episode_return, length = episode_return + reward, length + 1
+            episode_return, length = episode_return + float(reward), length + 1
             done = terminated or truncated
         returns.append(episode_return)
         lengths.append(length)
         successes.append(info.get("success"))
     if frames:
         imageio.mimsave(video_path, frames, fps=env.metadata.get("render_fps", 30))
+    return {"returns": returns, "lengths": lengths, "successes": successes,
+            "mu": torch.cat(mus), "log_std": torch.cat(log_stds)}
+
+
+def episode_statistics(episodes: dict) -> dict:
+    """eval.csv's statistics of a round (success_rate None where the env reports none)."""
+    returns, successes = episodes["returns"], episodes["successes"]
     stats = {"return_mean": np.mean(returns), "return_std": np.std(returns),
              "return_min": np.min(returns), "return_max": np.max(returns),
-             "length_mean": np.mean(lengths),
+             "length_mean": np.mean(episodes["lengths"]),
              "success_rate": None if None in successes else np.mean(successes)}
-    return {k: None if v is None else float(v) for k, v in stats.items()}, torch.cat(mus), \
-        torch.cat(log_stds)
+    return {k: None if v is None else float(v) for k, v in stats.items()}
 
 
 # CUDA graphs (LeanRL's recipe with torch.cuda.graphs): eager PyTorch launches ~300 small kernels
@@ -694,7 +703,9 @@ class StopRequest:
 def rng_states(env: gym.Env) -> dict:
     """Every random stream training draws from. Nothing of ours uses the global numpy and python
     generators; libraries might."""
-    return {"python": random.getstate(), "numpy": np.random.get_state(),  # noqa: NPY002
+    name, keys, pos, has_gauss, gauss = np.random.get_state()  # noqa: NPY002
+    # Plain lists, not arrays: a checkpoint then loads with torch.load(weights_only=True).
+    return {"python": random.getstate(), "numpy": (name, keys.tolist(), pos, has_gauss, gauss),
             "torch": torch.get_rng_state(),
             "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
             "env": env.unwrapped.np_random.bit_generator.state,
@@ -703,7 +714,8 @@ def rng_states(env: gym.Env) -> dict:
 
 def set_rng_states(states: dict, env: gym.Env) -> None:
     random.setstate(states["python"])
-    np.random.set_state(states["numpy"])  # noqa: NPY002
+    name, keys, pos, has_gauss, gauss = states["numpy"]
+    np.random.set_state((name, np.array(keys, np.uint32), pos, has_gauss, gauss))  # noqa: NPY002
     torch.set_rng_state(states["torch"])
     if states["cuda"] is not None and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(states["cuda"])
@@ -853,9 +865,9 @@ if __name__ == "__main__":
                 video.parent.mkdir(exist_ok=True)
             row = {"global_step": global_step, "eval_round": eval_round}
             for prefix, policy in eval_policies.items():
-                stats, mu, log_std = evaluate(policy, eval_env, seeds, device,
-                                              video if prefix == "" else None)
-                row |= {prefix + k: v for k, v in stats.items()}
+                episodes = run_episodes(policy, eval_env, seeds, device,
+                                        video if prefix == "" else None)
+                row |= {prefix + k: v for k, v in episode_statistics(episodes).items()}
             row["wall_time"] = elapsed + time.time() - session_start
             write_row(eval_file, eval_csv, tb, tracker, "eval", row, video)
             progress["last_eval"] = (global_step, row["return_mean"])
@@ -895,7 +907,8 @@ if __name__ == "__main__":
             obs, _ = env.reset()
 
     atomic_write(run_dir / "final_model.pt", lambda tmp: torch.save(
-        {"actor": actor.state_dict(), "qf": qf.state_dict()}, tmp))
+        {"actor": actor.state_dict(), "qf": qf.state_dict(),
+         "config": {k: getattr(args, k) for k in MODEL_FIELDS}}, tmp))
     tb.close()
     if tracker is not None:
         tracker.finish()

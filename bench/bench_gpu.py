@@ -35,9 +35,9 @@ from sac_standard import (  # noqa: E402
     cuda_graph,
     eval_policy,
     eval_seeds,
-    evaluate,
     make_env,
     make_train_step,
+    run_episodes,
     sac_update,
 )
 from sweep import mps_daemon  # noqa: E402
@@ -184,7 +184,7 @@ if __name__ == "__main__":
         policy = eval_policy(actor, lambda m, s: mode_action(m, s))
         policy = cuda_graph(policy) if graphs else policy
         start = time.perf_counter()
-        _, mus, _ = evaluate(policy, make_env(args.env_id), seeds, CUDA)
+        mus = run_episodes(policy, make_env(args.env_id), seeds, CUDA)["mu"]
         print(f"eval round at the mode, {'CUDA graph' if graphs else 'eager':<10}: "
               f"{args.eval_episodes} episodes, {len(mus)} steps in "
               f"{time.perf_counter() - start:.2f} s")

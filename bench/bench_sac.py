@@ -36,8 +36,8 @@ from sac_standard import (  # noqa: E402
     TwinQ,
     eval_policy,
     eval_seeds,
-    evaluate,
     make_env,
+    run_episodes,
     sac_update,
 )
 
@@ -180,11 +180,11 @@ def script_cpu_seconds(args: Args, total_timesteps: int, learning_starts: int) -
 
 def loop_seconds_per_step(args: Args) -> float:
     """CPU seconds per training-loop step after the start steps: a run with --loop-steps more
-    steps minus a run that stops when learning starts, repeated; median."""
+    steps minus a run that stops one step after learning starts, repeated; median."""
     start = 1000
     return statistics.median(
         (script_cpu_seconds(args, start + args.loop_steps, start)
-         - script_cpu_seconds(args, start, start)) / args.loop_steps
+         - script_cpu_seconds(args, start + 1, start)) / (args.loop_steps - 1)
         for _ in range(max(1, args.repeats // 2)))
 
 
@@ -230,8 +230,8 @@ def time_eval_round(env, episodes: int) -> tuple[float, float]:
     """Seconds of one evaluation round with tanh(mu) of an untrained actor, and its steps."""
     actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
     start = clock()
-    stats, mu, _ = evaluate(eval_policy(actor, lambda m, s: torch.tanh(m)), env,
-                            eval_seeds(0, 1, episodes), torch.device("cpu"))
+    mu = run_episodes(eval_policy(actor, lambda m, s: torch.tanh(m)), env,
+                      eval_seeds(0, 1, episodes), torch.device("cpu"))["mu"]
     return clock() - start, len(mu)
 
 

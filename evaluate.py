@@ -1,0 +1,320 @@
+"""Does the correction help my policy? A trained SAC policy evaluated at the mode of its squashed
+Gaussian and at tanh(mu), paired: every selector starts its episode k from the same state.
+
+    python evaluate.py runs/h1hand-cube-v0__corrected__seed0__20261122-120000
+    python evaluate.py final_model.pt --env-id Hopper-v5 --episodes 100
+    python evaluate.py sb3_sac_hopper.zip --env-id Hopper-v5 --selectors mode tanh_mu sample
+
+SOURCE is a run folder of ours (its final_model.pt, else its checkpoint.pt), one of our
+final_model.pt files, or a Stable-Baselines3 SAC .zip. Our weight files are loaded with
+torch.load(weights_only=True): they cannot run code. An SB3 .zip is unpickled by SB3 itself and
+must come from a source you trust. The episodes run through sac_corrected.py's own evaluation
+(`run_episodes`), so the numbers are those a training run logs for the same seeds.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn as nn
+import tyro
+from rliable import library as rly
+
+import sac_corrected as sac
+from mode_search import mode_action
+
+SELECTORS = ("mode", "tanh_mu", "sample")
+CONFIDENCE = 0.95
+
+
+@dataclass
+class Args:
+    source: tyro.conf.Positional[Path]
+    """a run folder, a final_model.pt, or a Stable-Baselines3 SAC .zip"""
+    env_id: str | None = None
+    """the env to evaluate in (default: the run's; required for an SB3 .zip)"""
+    episodes: int = 50
+    """episodes per selector"""
+    seed: int = 0
+    """episode k of every selector resets with a seed derived from (--seed, --eval-round, k)"""
+    eval_round: int = 0
+    """with a run's seed, its evaluation round N gives the same start states as the run's
+    N-th evaluation (0, the default, is a round no training run evaluates)"""
+    solver: Literal["exact", "grid"] = "exact"
+    """how to find the mode (mode_search.py)"""
+    selectors: tuple[Literal["mode", "tanh_mu", "sample"], ...] = ("mode", "tanh_mu")
+    """evaluation actions: the mode, tanh(mu), a sampled action (stochastic, seeded)"""
+    video: Path | None = None
+    """write the first episode of each selector as an MP4 into this folder"""
+    out: Path | None = None
+    """write episodes.csv (one row per episode and selector) and summary.json here"""
+    reps: int = 10_000
+    """bootstrap replications of the confidence intervals"""
+    cuda: bool = False
+    """run the policy on a CUDA GPU"""
+
+
+def check_args(args: Args) -> None:
+    rules = (
+        ("episodes", args.episodes >= 1, "at least 1"),
+        ("seed", args.seed >= 0, "a non-negative integer"),
+        ("eval_round", args.eval_round >= 0, "0 or more"),
+        ("selectors", len(args.selectors) >= 1, f"one or more of {', '.join(SELECTORS)}"),
+        ("reps", args.reps >= 1, "at least 1"),
+    )
+    for name, ok, allowed in rules:
+        if not ok:
+            value = getattr(args, name)
+            shown = " ".join(value) if isinstance(value, tuple) else value
+            sac.fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
+    if not args.source.exists():
+        sac.fail(f"{args.source} does not exist; give a run folder, a final_model.pt or an SB3 "
+                 "SAC .zip")
+
+
+# ----------------------------------------------------------------------------- load
+class SB3Actor(nn.Module):
+    """A Stable-Baselines3 SAC actor behind our Actor's interface: mu and log sigma before the
+    tanh, and SB3's own map from (-1, 1) to the env's bounds (`policy.unscale_action`)."""
+
+    def __init__(self, model) -> None:
+        super().__init__()
+        self.policy = model.policy
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        mu, log_std, _ = self.policy.actor.get_action_dist_params(obs)
+        return mu, log_std
+
+    def scale(self, y: torch.Tensor) -> torch.Tensor:
+        low, high = (torch.as_tensor(b, dtype=y.dtype, device=y.device)
+                     for b in (self.policy.action_space.low, self.policy.action_space.high))
+        return low + 0.5 * (y + 1.0) * (high - low)
+
+
+def load_policy(args: Args) -> tuple[nn.Module, str, dict]:
+    """The actor, the env id and a description of where it came from."""
+    source = args.source
+    if source.suffix == ".zip":
+        return load_sb3(source, args.env_id)
+    if source.is_dir():
+        config = read_config(source)
+        weights = next((source / n for n in ("final_model.pt", "checkpoint.pt")
+                        if (source / n).is_file()), None)
+        if weights is None:
+            sac.fail(f"{source} holds no final_model.pt or checkpoint.pt yet: nothing to evaluate")
+        state = load_weights(weights)
+        env_id = args.env_id or config["env_id"]
+        return build_actor(state["actor"], env_id, config, weights), env_id, \
+            {"source": str(weights), "kind": "run", "run_seed": config.get("seed")}
+    state = load_weights(source)
+    config = state.get("config") or {}
+    env_id = args.env_id or config.get("env_id")
+    if env_id is None:
+        sac.fail(f"{source} does not say which env it was trained on; pass --env-id")
+    return build_actor(state["actor"], env_id, config, source), env_id, \
+        {"source": str(source), "kind": "weights"}
+
+
+def read_config(run_dir: Path) -> dict:
+    path = run_dir / "config.json"
+    if not path.is_file():
+        sac.fail(f"{run_dir} is not a run folder (no config.json); give a folder made by "
+                 "sac_standard.py or sac_corrected.py, a final_model.pt or an SB3 .zip")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        sac.fail(f"{path} is not valid JSON ({error}); restore it from a copy")
+
+
+def load_weights(path: Path) -> dict:
+    """One of our weight files, loaded so that it cannot run code (weights_only=True)."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # not a torch file, truncated, or holding more than weights
+        sac.fail(f"{path} is not a weights file of ours ({type(error).__name__}: "
+                 f"{str(error).splitlines()[0][:120]}); give a final_model.pt or a run folder")
+    if not isinstance(state, dict) or "actor" not in state:
+        sac.fail(f"{path} holds no 'actor' weights; give a final_model.pt or a run folder")
+    return state
+
+
+def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Actor:
+    """Our Actor with the layer widths read off its weights, checked against the env."""
+    env = sac.make_env(env_id)
+    obs_dim, action_dim = env.observation_space.shape[0], int(np.prod(env.action_space.shape))
+    trunk = [weights[k] for k in sorted((k for k in weights if k.startswith("trunk.")
+                                         and k.endswith(".weight")),
+                                        key=lambda k: int(k.split(".")[1]))]
+    shapes = (trunk[0].shape[1] if trunk else None, weights["fc_mean.weight"].shape[0]
+              if "fc_mean.weight" in weights else None)
+    if shapes != (obs_dim, action_dim):
+        sac.fail(f"{path} was trained on {shapes[0]}-dim observations and {shapes[1]}-dim "
+                 f"actions; {env_id} has {obs_dim} and {action_dim}: pass the --env-id it was "
+                 "trained on")
+    actor = sac.Actor(obs_dim, tuple(w.shape[0] for w in trunk), env.action_space,
+                      config.get("log_std_min", sac.Args.log_std_min),
+                      config.get("log_std_max", sac.Args.log_std_max))
+    actor.load_state_dict(weights)
+    return actor
+
+
+def load_sb3(path: Path, env_id: str | None) -> tuple[nn.Module, str, dict]:
+    if env_id is None:
+        sac.fail(f"{path} is a Stable-Baselines3 file: pass --env-id, the env it was trained on")
+    try:
+        data = json.loads(zipfile.ZipFile(path).read("data"))
+    except (zipfile.BadZipFile, KeyError, json.JSONDecodeError) as error:
+        sac.fail(f"{path} is not a Stable-Baselines3 model ({error}); give an SB3 SAC .zip")
+    policy = data.get("policy_class", {})
+    module = policy.get("__module__", "") if isinstance(policy, dict) else ""
+    if not module.startswith("stable_baselines3.sac"):
+        sac.fail(f"{path} is not a Stable-Baselines3 SAC model (its policy comes from "
+                 f"{module or 'an unknown module'}): the mode of a tanh-squashed Gaussian needs "
+                 "a SAC policy")
+    try:
+        from stable_baselines3 import SAC
+    except ImportError:
+        sac.fail("an SB3 .zip needs stable-baselines3: pip install stable-baselines3==2.9.2")
+    env = sac.make_env(env_id)
+    model = SAC.load(path, device="cpu")
+    spaces = (model.observation_space.shape, model.action_space.shape)
+    if spaces != (env.observation_space.shape, env.action_space.shape):
+        sac.fail(f"{path} was trained on observations {spaces[0]} and actions {spaces[1]}; "
+                 f"{env_id} has {env.observation_space.shape} and {env.action_space.shape}: "
+                 "pass the --env-id it was trained on")
+    return SB3Actor(model), env_id, {"source": str(path), "kind": "stable-baselines3"}
+
+
+# ----------------------------------------------------------------------------- evaluate
+def sample_policy(actor: nn.Module, generator: torch.Generator):
+    """A stochastic policy: scale * tanh(u), u ~ N(mu, sigma^2), noise from its own generator."""
+
+    @torch.no_grad()
+    def policy(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        mu, log_std = actor(obs)
+        noise = torch.randn(mu.shape, generator=generator, device=generator.device)
+        return actor.scale(torch.tanh(mu + noise.to(mu) * log_std.exp())), mu, log_std
+
+    return policy
+
+
+def evaluate_selector(actor: nn.Module, selector: str, args: Args, env: gym.Env,
+                      seeds: list[int], device: torch.device) -> dict:
+    """Every episode of one selector, one at a time (for the progress line)."""
+    episodes = {"returns": [], "lengths": [], "successes": [], "mu": [], "log_std": []}
+    video = args.video / f"{selector}.mp4" if args.video else None
+    for k, seed in enumerate(seeds):
+        if selector == "sample":
+            generator = torch.Generator(device).manual_seed(seed)
+            policy = sample_policy(actor, generator)
+        else:
+            select = (lambda mu, s: mode_action(mu, s, args.solver)) if selector == "mode" \
+                else (lambda mu, s: torch.tanh(mu))
+            policy = sac.eval_policy(actor, select)
+        one = sac.run_episodes(policy, env, [seed], device, video if k == 0 else None)
+        for key in episodes:
+            episodes[key] += one[key] if isinstance(one[key], list) else [one[key]]
+        print(f"\r{selector:>8}: episode {k + 1}/{len(seeds)}, return {one['returns'][0]:10.2f}",
+              end="", file=sys.stderr, flush=True)
+    print(file=sys.stderr)
+    episodes["mu"], episodes["log_std"] = torch.cat(episodes["mu"]), torch.cat(episodes["log_std"])
+    return episodes
+
+
+def mean_with_ci(values: np.ndarray, reps: int, seed: int) -> tuple[float, float, float]:
+    """The mean over episodes with rliable's bootstrap CI (episodes as runs of one task)."""
+    np.random.seed(seed)  # noqa: NPY002  (rliable draws from NumPy's global generator)
+    point, interval = rly.get_interval_estimates(
+        {"x": np.asarray(values, float)[:, None]}, lambda s: np.array([s.mean()]), reps=reps,
+        confidence_interval_size=CONFIDENCE)
+    return float(point["x"][0]), float(interval["x"][0, 0]), float(interval["x"][1, 0])
+
+
+def summarise(results: dict, args: Args, info: dict, env_id: str) -> dict:
+    summary = {**info, "env_id": env_id, "episodes": args.episodes, "seed": args.seed,
+               "eval_round": args.eval_round, "solver": args.solver, "selectors": {}}
+    for selector, episodes in results.items():
+        mean, low, high = mean_with_ci(np.array(episodes["returns"]), args.reps, args.seed)
+        summary["selectors"][selector] = {
+            "return_mean": mean, "ci_low": low, "ci_high": high,
+            "return_std": float(np.std(episodes["returns"])),
+            "length_mean": float(np.mean(episodes["lengths"]))}
+    if "mode" in results and "tanh_mu" in results:
+        diffs = np.array(results["mode"]["returns"]) - np.array(results["tanh_mu"]["returns"])
+        mean, low, high = mean_with_ci(diffs, args.reps, args.seed)
+        summary["paired_difference_mode_minus_tanh_mu"] = {
+            "mean": mean, "ci_low": low, "ci_high": high,
+            "share_mode_better": float(np.mean(diffs > 0)),
+            "share_equal": float(np.mean(diffs == 0))}
+    states = results.get("mode") or next(iter(results.values()))
+    summary["shift_at_visited_states"] = sac.shift_statistics(
+        states["mu"].double(), states["log_std"].double(), args.solver)
+    return summary
+
+
+def print_summary(summary: dict) -> None:
+    print(f"\n{summary['source']} on {summary['env_id']}: {summary['episodes']} episodes per "
+          f"selector, the same start states for each (seed {summary['seed']}, round "
+          f"{summary['eval_round']})\n")
+    print(f"{'selector':<10} {'mean return':>12}  {'95% CI':>23}  {'std':>9}  {'length':>7}")
+    for name, s in summary["selectors"].items():
+        print(f"{name:<10} {s['return_mean']:12.2f}  [{s['ci_low']:10.2f}, {s['ci_high']:10.2f}]"
+              f"  {s['return_std']:9.2f}  {s['length_mean']:7.1f}")
+    paired = summary.get("paired_difference_mode_minus_tanh_mu")
+    if paired:
+        print(f"\nmode - tanh_mu, paired: {paired['mean']:.2f} [{paired['ci_low']:.2f}, "
+              f"{paired['ci_high']:.2f}]; the mode did better in "
+              f"{100 * paired['share_mode_better']:.0f}% of episodes "
+              f"(equal in {100 * paired['share_equal']:.0f}%)")
+    shift = summary["shift_at_visited_states"]
+    print(f"distribution shift at the visited states: mean |mode - tanh(mu)| "
+          f"{shift['mode_shift_abs_mean']:.4f} per dimension, {shift['mode_shift_abs_sum']:.3f} "
+          f"summed over dimensions; sigma {shift['sigma_mean']:.3f}; bimodal dimensions "
+          f"{100 * shift['bimodal_fraction']:.1f}%")
+
+
+def write_outputs(out: Path, results: dict, seeds: list[int], summary: dict) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "episodes.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["selector", "episode", "reset_seed", "return", "length", "success"])
+        for selector, episodes in results.items():
+            for k, seed in enumerate(seeds):
+                success = episodes["successes"][k]
+                writer.writerow([selector, k, seed, repr(episodes["returns"][k]),
+                                 episodes["lengths"][k], "" if success is None else success])
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+
+
+def main() -> None:
+    args = tyro.cli(Args)
+    check_args(args)
+    device = torch.device("cuda" if args.cuda and torch.cuda.is_available() else "cpu")
+    if args.cuda and device.type == "cpu":
+        sac.fail("--cuda: no CUDA GPU found; drop --cuda")
+    actor, env_id, info = load_policy(args)
+    actor = actor.to(device).eval()
+    env = sac.make_env(env_id, render=args.video is not None)
+    if args.video:
+        args.video.mkdir(parents=True, exist_ok=True)
+    seeds = sac.eval_seeds(args.seed, args.eval_round, args.episodes)
+    results = {s: evaluate_selector(actor, s, args, env, seeds, device)
+               for s in dict.fromkeys(args.selectors)}
+    summary = summarise(results, args, info, env_id)
+    print_summary(summary)
+    if args.out:
+        write_outputs(args.out, results, seeds, summary)
+        print(f"\nwrote {args.out / 'episodes.csv'} and {args.out / 'summary.json'}")
+
+
+if __name__ == "__main__":
+    main()
