@@ -286,19 +286,30 @@ def _plot_2d_example(plt):
     return fig, "fig4_2d_example"
 
 
+def summed_shift_by_dimension(
+    dims: int, log_std_range: tuple[float, float], draws: int = 1000, seed: int = 0
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Theory for fig5 and analyze.py's dimension study: sum over the first n dimensions of
+    |mode - tanh(mu)|, mu ~ N(0, 1) and log sigma ~ U(log_std_range) per dimension; its mean and
+    5-95% range over `draws` draws, for n = 1..dims."""
+    generator = torch.Generator().manual_seed(seed)
+    mu = torch.randn(draws, dims, generator=generator, dtype=torch.float64)
+    log_std = torch.empty(draws, dims, dtype=torch.float64).uniform_(
+        *log_std_range, generator=generator
+    )
+    shift = (mode_action(mu, log_std) - torch.tanh(mu)).abs().cumsum(dim=1)
+    low, high = torch.quantile(shift, torch.tensor([0.05, 0.95], dtype=torch.float64), dim=0)
+    return shift.mean(dim=0), low, high
+
+
 def _plot_shift_vs_dimensions(plt):
     dims, draws = 61, 1000
-    generator = torch.Generator().manual_seed(0)
     fig, ax = plt.subplots(figsize=(7, 4))
-    for (label, (lo, hi)), color in zip(SPREADS.items(), ("tab:red", "tab:purple"), strict=True):
-        mu = torch.randn(draws, dims, generator=generator, dtype=torch.float64)
-        log_std = torch.empty(draws, dims, dtype=torch.float64).uniform_(
-            lo, hi, generator=generator
-        )
-        shift = (mode_action(mu, log_std) - torch.tanh(mu)).abs().cumsum(dim=1)
-        low, high = torch.quantile(shift, torch.tensor([0.05, 0.95], dtype=torch.float64), dim=0)
+    for i, ((label, spread), color) in enumerate(
+        zip(SPREADS.items(), ("tab:red", "tab:purple"), strict=True)
+    ):
+        mean, low, high = summed_shift_by_dimension(dims, spread, draws, seed=i)
         n = torch.arange(1, dims + 1)
-        mean = shift.mean(dim=0)
         ax.plot(n, mean, color=color, label=f"{label}: mean")
         ax.fill_between(n, low, high, color=color, alpha=0.2, label="  5-95% of draws")
         ax.annotate(
