@@ -47,6 +47,11 @@ RETURN_COLUMN = "return_mean"  # mean return of the script's own evaluation acti
 REQUIRED_EVAL_COLUMNS = (STEP_COLUMN, RETURN_COLUMN)
 # Optional (sac_corrected.py): the same actor evaluated with tanh(mu) on the same start states.
 PAIRED_RETURN_COLUMN = "tanh_mu_return_mean"
+# Optional (sac_corrected.py): the distribution shift at the states the mode policy visited.
+SHIFT_COLUMNS = ("mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
+OPTIONAL_COLUMNS = (PAIRED_RETURN_COLUMN, *SHIFT_COLUMNS)
+# The dimension study: paired differences at these fractions of each task's shared steps.
+TRAINING_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
 PAIRED_SUFFIX = " (tanh(mu) eval)"
 
 STANDARD, CORRECTED = "standard", "corrected"
@@ -119,6 +124,8 @@ class Curve:
     seed: int
     steps: np.ndarray
     returns: np.ndarray
+    action_dim: int | None = None  # config.json's, where it has one
+    shift: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # SHIFT_COLUMNS
 
 
 # task -> group -> curves sorted by seed; a group is an algorithm or a paired evaluation
@@ -165,7 +172,7 @@ def read_eval_csv(path: Path) -> tuple[dict[str, np.ndarray], bool]:
             f"{path} lacks column(s) {missing}; eval.csv needs a header row with at least "
             f"{list(REQUIRED_EVAL_COLUMNS)} (see the README, section analyze.py)"
         )
-    wanted = [*REQUIRED_EVAL_COLUMNS] + [PAIRED_RETURN_COLUMN] * (PAIRED_RETURN_COLUMN in header)
+    wanted = [*REQUIRED_EVAL_COLUMNS, *(c for c in OPTIONAL_COLUMNS if c in header)]
     columns = {name: np.empty(len(body)) for name in wanted}
     for i, row in enumerate(body):
         if len(row) != len(header):
@@ -180,13 +187,13 @@ def read_eval_csv(path: Path) -> tuple[dict[str, np.ndarray], bool]:
 
 
 def _parse_number(text: str, path: Path, row: int, column: str) -> float:
-    if not text.strip() and column == PAIRED_RETURN_COLUMN:
+    if not text.strip() and column in OPTIONAL_COLUMNS:
         return math.nan  # optional column: an empty cell means "not measured"
     try:
         value = float(text)
     except ValueError:
         raise AnalysisError(f"{path}, row {row}: {column} = {text!r} is not a number") from None
-    if not math.isfinite(value) and column != PAIRED_RETURN_COLUMN:
+    if not math.isfinite(value) and column not in OPTIONAL_COLUMNS:
         raise AnalysisError(f"{path}, row {row}: {column} = {text!r} is not a finite number")
     return value
 
@@ -226,7 +233,11 @@ def load_runs(root: Path) -> tuple[Runs, list[str]]:
             continue
         task, algorithm, seed = config["env_id"], config["algorithm"], config["seed"]
         steps = columns[STEP_COLUMN].astype(np.int64)
-        _add_curve(runs, task, algorithm, Curve(run_dir, seed, steps, columns[RETURN_COLUMN]))
+        action_dim = config.get("action_dim") if isinstance(config.get("action_dim"), int) \
+            else None
+        shift = {c: columns[c] for c in SHIFT_COLUMNS if c in columns}
+        _add_curve(runs, task, algorithm,
+                   Curve(run_dir, seed, steps, columns[RETURN_COLUMN], action_dim, shift))
         paired = columns.get(PAIRED_RETURN_COLUMN)
         if paired is not None and np.isfinite(paired).all():
             curve = Curve(run_dir, seed, steps, paired)
@@ -870,6 +881,7 @@ def analyze(args: Args) -> Report:
     report_tasks(report, args, tasks, norms, groups, colors)
     if aggregate is not None:
         report_aggregate(report, args, aggregate, colors)
+    report_dimensions(report, args, runs, tasks, pairing.derived)
     report.write([
         f"# Analysis of {args.runs_dir}", "",
         f"Normalisation `{args.normalize}`: {NORMALIZATIONS[args.normalize]}. "
@@ -1017,6 +1029,136 @@ def paired_aggregate_lines(report: Report, args: Args, differences: dict, norms:
                   f"stratified bootstrap); the own action won in {won} of {pairs} (task, seed) "
                   "pairs."]
     return lines
+
+
+# ----------------------------------------------------------------------------- dimensions
+@dataclasses.dataclass
+class Dimension:
+    """One task of the dimension study: its action dimension, the per-seed paired difference
+    (mode minus tanh(mu)) at fractions of training, and the shift measured at its final step."""
+
+    action_dim: int
+    scale: float  # the range of the task's tanh(mu) returns in the folder
+    steps: dict[float, int]  # training fraction -> step
+    differences: dict[float, np.ndarray]  # training fraction -> per-seed difference (raw)
+    shift: dict[str, float]  # SHIFT_COLUMNS at the final step, mean over seeds
+
+
+def dimension_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
+                    ) -> tuple[dict[str, Dimension], list[str]]:
+    """Corrected SAC's paired difference and measured shift per task, keyed by action dim."""
+    study, notes = {}, []
+    for task, data in tasks.items():
+        pair = dict(paired_groups(data, task in derived)).get(CORRECTED)
+        dims = {c.action_dim for c in runs[task].get(CORRECTED, [])}
+        if pair is None:
+            continue
+        if None in dims or len(dims) != 1:
+            notes.append(f"{task}: its runs' config.json give no single action_dim "
+                         f"({sorted(dims, key=str)}); left out of the dimension study")
+            continue
+        paired = data.returns[pair]
+        scale = float(paired.max() - paired.min()) or 1.0
+        steps = {f: int(data.steps[max(0, math.ceil(f * data.steps.size) - 1)])
+                 for f in TRAINING_FRACTIONS}
+        steps[1.0] = data.scored_step
+        differences = {f: data.at(CORRECTED, np.array([step]))[:, 0]
+                       - data.at(pair, np.array([step]))[:, 0] for f, step in steps.items()}
+        curves = runs[task][CORRECTED]
+        shift = {c: float(np.mean([curve.shift[c][curve.steps == data.scored_step][0]
+                                   for curve in curves if c in curve.shift]))
+                 for c in SHIFT_COLUMNS if all(c in curve.shift for curve in curves)}
+        study[task] = Dimension(dims.pop(), scale, steps, differences, shift)
+    return study, notes
+
+
+def plot_dimensions(study: dict[str, Dimension], estimates: dict, colors: list):
+    """The paired difference against the action dimension, against training, and the shift."""
+    from mode_search import SPREADS, summed_shift_by_dimension  # torch: only for this figure
+
+    fig, (ax_dim, ax_progress, ax_shift) = plt.subplots(1, 3, figsize=(16, 4.5))
+    for (task, d), color in zip(study.items(), colors, strict=False):
+        point, low, high = estimates[task, 1.0]
+        ax_dim.errorbar(d.action_dim, point, yerr=[[point - low], [high - point]], fmt="o",
+                        color=color, capsize=4, label=f"{task} ({d.action_dim})")
+        fractions = sorted(d.steps)
+        ax_progress.plot(fractions, [estimates[task, f][0] for f in fractions], "o-",
+                         color=color, label=task)
+        ax_progress.fill_between(fractions, [estimates[task, f][1] for f in fractions],
+                                 [estimates[task, f][2] for f in fractions], color=color,
+                                 alpha=0.15)
+        if "mode_shift_abs_sum" in d.shift:
+            ax_shift.plot(d.action_dim, d.shift["mode_shift_abs_sum"], "o", color=color)
+    top = max(d.action_dim for d in study.values())
+    n = np.arange(1, top + 1)
+    for i, ((name, spread), color) in enumerate(zip(SPREADS.items(), ("0.3", "0.6"),
+                                                    strict=True)):
+        mean, low, high = (t.numpy() for t in summed_shift_by_dimension(top, spread, seed=i))
+        ax_shift.plot(n, mean, color=color, lw=1, label=f"theory, {name}")
+        ax_shift.fill_between(n, low, high, color=color, alpha=0.15)
+    for ax in (ax_dim, ax_progress):
+        ax.axhline(0, color="0.4", ls=":", lw=1)
+    ax_dim.set(xscale="log", xlabel="action dimensions", ylabel="mode - tanh(mu), normalised",
+               title="Paired difference at the final step (95% CI)")
+    ax_progress.set(xlabel="fraction of training", ylabel="mode - tanh(mu), normalised",
+                    title="... as training goes on")
+    ax_shift.set(xscale="log", yscale="log", xlabel="action dimensions",
+                 ylabel="sum |mode - tanh(mu)| at visited states",
+                 title="Measured shift (dots) and theory (mode_search)")
+    dims = sorted({d.action_dim for d in study.values()})
+    for ax in (ax_dim, ax_shift):  # label the dimensions themselves, not log-scale decades
+        ax.set_xticks(dims, [str(d) for d in dims])
+        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+    ax_dim.legend(fontsize=7)
+    ax_shift.legend(fontsize=7)
+    return fig
+
+
+def report_dimensions(report: Report, args: Args, runs: Runs, tasks: dict[str, Task],
+                      derived: Sequence[str]) -> None:
+    """Beyond the paper: what the correction is worth as the action dimension grows."""
+    study, notes = dimension_study(runs, tasks, derived)
+    report.notes.extend(notes)
+    dims = sorted({d.action_dim for d in study.values()})
+    if len(dims) < 2:
+        report.notes.append(
+            "dimension study skipped: it needs corrected runs (with their paired tanh(mu) "
+            f"evaluation) on tasks of at least two action dimensions; found {dims or 'none'}")
+        return
+    print(f"dimension study over {len(study)} tasks ({args.reps:,} reps) ...")
+    study = dict(sorted(study.items(), key=lambda item: (item[1].action_dim, item[0])))
+    estimates = seed_mean_estimates({(t, f): d.differences[f] / d.scale for t, d in study.items()
+                                     for f in d.steps}, args.reps, args.seed)
+    table = []
+    for task, d in study.items():
+        for f, step in d.steps.items():
+            diffs, runs_n = d.differences[f], d.differences[f].size
+            point, low, high = estimates[task, f]
+            report.row("dimension", task, CORRECTED, f"normalised_difference@{f:g}", step,
+                       runs_n, point, low, high)
+            report.row("dimension", task, CORRECTED, f"raw_difference@{f:g}", step, runs_n,
+                       *(v * d.scale for v in (point, low, high)))
+            table.append([task, d.action_dim, runs_n, f"{f:g} ({_fmt(step)})",
+                          _ci(point * d.scale, low * d.scale, high * d.scale, 1),
+                          _ci(point, low, high), f"{int((diffs > 0).sum())} of {runs_n}"])
+        for column, value in d.shift.items():
+            report.row("dimension_shift", task, CORRECTED, column, d.steps[1.0],
+                       len(runs[task][CORRECTED]), value, math.nan, math.nan)
+    shift_table = [[t, d.action_dim, *(f"{d.shift[c]:.3f}" if c in d.shift else "-"
+                                       for c in SHIFT_COLUMNS)] for t, d in study.items()]
+    colors = sns.color_palette("viridis", n_colors=len(study))
+    report.figure(plot_dimensions(study, estimates, colors), "dimension_study")
+    report.section(
+        "Beyond the paper: the paired difference against the action dimension",
+        "Corrected SAC's mode minus tanh(mu) of the same actors, per seed, at fractions of each "
+        "task's shared steps; normalised by the range of the task's tanh(mu) returns in this "
+        "folder (all seeds and steps), so that tasks compare; mean over seeds with a 95% "
+        "bootstrap CI. Raw numbers are in summary.csv (section `dimension`).", "",
+        markdown_table(["task", "action dims", "seeds", "fraction (step)", "raw difference",
+                        "normalised difference", "won"], table), "",
+        "Measured shift at the final step (eval.csv, mean over seeds), beside the theory curve "
+        "of mode_search.py (figure, right panel):", "",
+        markdown_table(["task", "action dims", *SHIFT_COLUMNS], shift_table))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -441,3 +441,43 @@ def test_standard_runs_are_checked_against_the_paired_evaluation(tmp_path):
     text = (tmp_path / "agree_out" / "summary.md").read_text()
     assert ("h1hand-powerlift-v0: the standard runs equal the corrected runs' paired tanh(mu) "
             "evaluation at all 6 shared (seed, step) points.") in text
+
+
+def test_dimension_study_recovers_known_offsets_per_dimension(tmp_path):
+    """Known paired offsets per action dimension come back as the study's points, normalised
+    by the range of each task's tanh(mu) returns, with degenerate CIs (constant offsets)."""
+    steps = 10_000 * np.arange(1, 5)
+    offsets = {"Hopper-v5": (3, -30.2), "Ant-v5": (8, 0.0), TASKS[0]: (61, 60.4)}
+    for task, (dims, offset) in offsets.items():
+        for seed in range(3):
+            paired = 100.0 * np.arange(4) + seed  # range over seeds and steps: 302
+            run_dir = write_run(tmp_path / "runs", task, "corrected", seed, steps,
+                                paired + offset, paired)
+            config = json.loads((run_dir / "config.json").read_text())
+            (run_dir / "config.json").write_text(json.dumps({**config, "action_dim": dims}))
+    assert run_analysis(tmp_path / "runs", tmp_path / "out", "--normalize", "min-max") == 0
+    assert (tmp_path / "out" / "dimension_study.png").exists()
+    summary = read_summary(tmp_path / "out")
+    for task, (_, offset) in offsets.items():
+        for fraction in ("0.25", "0.5", "0.75", "1"):
+            point, low, high = estimate(summary, "dimension", task, "corrected",
+                                        f"normalised_difference@{fraction}")
+            assert np.isclose(point, offset / 302) and np.isclose(low, high)
+        raw = estimate(summary, "dimension", task, "corrected", "raw_difference@1")
+        assert np.isclose(raw[0], offset)
+        assert estimate(summary, "dimension_shift", task, "corrected",
+                        "mode_shift_abs_sum")[0] == 7.3
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert "## Beyond the paper: the paired difference against the action dimension" in text
+    assert text.index("| Hopper-v5 | 3 |") < text.index("| Ant-v5 | 8 |")  # by dimension
+
+
+def test_dimension_study_needs_two_dimensions(tmp_path):
+    steps = 10_000 * np.arange(1, 4)
+    for task in TASKS[:2]:
+        write_run(tmp_path / "runs", task, "corrected", 0, steps, steps / 1e3, steps / 1e3 - 1)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    assert not (tmp_path / "out" / "dimension_study.png").exists()
+    assert ("dimension study skipped: it needs corrected runs (with their paired tanh(mu) "
+            "evaluation) on tasks of at least two action dimensions; found [61]"
+            in (tmp_path / "out" / "summary.md").read_text())
