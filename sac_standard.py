@@ -173,9 +173,7 @@ def same_type(value: object, default: object) -> bool:
 
 def check_args(args: Args) -> None:
     """Every flag's valid range, checked before anything is created or written."""
-    def finite(x: float) -> bool:
-        return math.isfinite(x)
-
+    finite = math.isfinite
     rules = (
         ("seed", args.seed >= 0, "a non-negative integer"),
         ("total_timesteps", args.total_timesteps >= 1, "at least 1"),
