@@ -6,10 +6,11 @@ Gaussian and at tanh(mu), paired: every selector starts its episode k from the s
     python evaluate.py sb3_sac_hopper.zip --env-id Hopper-v5 --selectors mode tanh_mu sample
 
 SOURCE is a run folder of ours (its final_model.pt, else its checkpoint.pt), one of our
-final_model.pt files, or a Stable-Baselines3 SAC .zip. Our weight files are loaded with
-torch.load(weights_only=True): they cannot run code. An SB3 .zip is unpickled by SB3 itself and
-must come from a source you trust. The episodes run through sac_corrected.py's own evaluation
-(`run_episodes`), so the numbers are those a training run logs for the same seeds.
+final_model.pt or checkpoint.pt files, or a Stable-Baselines3 SAC .zip (gSDE ones too). Our
+weight files are loaded with torch.load(weights_only=True): they cannot run code. An SB3 .zip
+is unpickled by SB3 itself and must come from a source you trust. The episodes run through
+sac_corrected.py's own evaluation (`run_episodes`), so the numbers are those a training run
+logs for the same seeds.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ CONFIDENCE = 0.95
 @dataclass
 class Args:
     source: tyro.conf.Positional[Path]
-    """a run folder, a final_model.pt, or a Stable-Baselines3 SAC .zip"""
+    """a run folder, a final_model.pt or checkpoint.pt, or a Stable-Baselines3 SAC .zip"""
     env_id: str | None = None
     """the env to evaluate in (default: the run's; required for an SB3 .zip)"""
     episodes: int = 50
@@ -291,7 +292,9 @@ def progress_bar(label: str, total: int) -> Callable[[int, float], None]:
                 f"{elapsed:.0f} s, ~{elapsed / done * (total - done):.0f} s left, last return "
                 f"{last_return:.2f}")
         if tty:
-            print(f"\r{line}", end="\n" if done == total else "", file=sys.stderr, flush=True)
+            # \r back to the line's start, ESC[K clears what a longer earlier line left.
+            print(f"\r{line}\033[K", end="\n" if done == total else "", file=sys.stderr,
+                  flush=True)
         elif 10 * done // total > shown[0]:
             shown[0] = 10 * done // total
             print(line, file=sys.stderr, flush=True)
