@@ -6,18 +6,23 @@ Gaussian and at tanh(mu), paired: every selector starts its episode k from the s
     python evaluate.py sb3_sac_hopper.zip --env-id Hopper-v5 --selectors mode tanh_mu sample
 
 SOURCE is a run folder of ours (its final_model.pt, else its checkpoint.pt), one of our
-final_model.pt files, or a Stable-Baselines3 SAC .zip. Our weight files are loaded with
-torch.load(weights_only=True): they cannot run code. An SB3 .zip is unpickled by SB3 itself and
-must come from a source you trust. The episodes run through sac_corrected.py's own evaluation
-(`run_episodes`), so the numbers are those a training run logs for the same seeds.
+final_model.pt or checkpoint.pt files, or a Stable-Baselines3 SAC .zip (gSDE ones too). Our
+weight files are loaded with torch.load(weights_only=True): they cannot run code. An SB3 .zip
+is unpickled by SB3 itself and must come from a source you trust. The episodes run through
+sac_corrected.py's own evaluation (`run_episodes`), so the numbers are those a training run
+logs for the same seeds.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 import sys
+import time
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -39,7 +44,7 @@ CONFIDENCE = 0.95
 @dataclass
 class Args:
     source: tyro.conf.Positional[Path]
-    """a run folder, a final_model.pt, or a Stable-Baselines3 SAC .zip"""
+    """a run folder, a final_model.pt or checkpoint.pt, or a Stable-Baselines3 SAC .zip"""
     env_id: str | None = None
     """the env to evaluate in (default: the run's; required for an SB3 .zip)"""
     episodes: int = 50
@@ -63,7 +68,31 @@ class Args:
     """run the policy on a CUDA GPU"""
 
 
+def parse_args(argv: list[str] | None = None) -> Args:
+    """The flags; tyro's parse errors (a bad type, an unknown choice or flag) on one line."""
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            return tyro.cli(Args, args=argv, prog="evaluate.py")
+    except SystemExit as exit_:
+        if exit_.code in (0, None):  # --help
+            raise
+        sac.fail(f"{one_line(captured.getvalue())} (see evaluate.py --help)")
+
+
+def one_line(box: str) -> str:
+    """The message of tyro's error box: its lines up to the first rule, borders dropped."""
+    lines = []
+    for line in box.splitlines()[1:]:
+        text = line.strip().strip("│").strip()
+        if text.startswith("─") or line.lstrip().startswith("╰"):
+            break
+        lines.append(text)
+    return " ".join(" ".join(lines).split()) or "could not parse the flags"
+
+
 def check_args(args: Args) -> None:
+    """Every flag's valid range, checked before anything is loaded, run or written."""
     rules = (
         ("episodes", args.episodes >= 1, "at least 1"),
         ("seed", args.seed >= 0, "a non-negative integer"),
@@ -79,6 +108,9 @@ def check_args(args: Args) -> None:
     if not args.source.exists():
         sac.fail(f"{args.source} does not exist; give a run folder, a final_model.pt or an SB3 "
                  "SAC .zip")
+    for flag, folder in (("--out", args.out), ("--video", args.video)):
+        if folder is not None and folder.exists() and not folder.is_dir():
+            sac.fail(f"{flag} {folder}: a file of that name exists; give a folder")
 
 
 # ----------------------------------------------------------------------------- load
@@ -91,7 +123,11 @@ class SB3Actor(nn.Module):
         self.policy = model.policy
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        mu, log_std, _ = self.policy.actor.get_action_dist_params(obs)
+        actor = self.policy.actor
+        mu, log_std, latent = actor.get_action_dist_params(obs)
+        if latent:  # gSDE: log_std is a parameter matrix; sigma at this state comes from both
+            normal = actor.action_dist.proba_distribution(mu, log_std, **latent).distribution
+            log_std = normal.stddev.log()
         return mu, log_std
 
     def scale(self, y: torch.Tensor) -> torch.Tensor:
@@ -112,13 +148,16 @@ def load_policy(args: Args) -> tuple[nn.Module, str, dict]:
         if weights is None:
             sac.fail(f"{source} holds no final_model.pt or checkpoint.pt yet: nothing to evaluate")
         state = load_weights(weights)
-        env_id = args.env_id or config["env_id"]
+        env_id = args.env_id or config.get("env_id")
+        if not isinstance(env_id, str):
+            sac.fail(f"{source / 'config.json'} names no env_id; restore it, or pass --env-id")
         return build_actor(state["actor"], env_id, config, weights), env_id, \
             {"source": str(weights), "kind": "run", "run_seed": config.get("seed")}
     state = load_weights(source)
-    config = state.get("config") or {}
-    env_id = args.env_id or config.get("env_id")
-    if env_id is None:
+    # final_model.pt keeps the fields that rebuild the actor; checkpoint.pt keeps all arguments.
+    config = state.get("config") or state.get("args") or {}
+    env_id = args.env_id or (config.get("env_id") if isinstance(config, dict) else None)
+    if not isinstance(env_id, str):
         sac.fail(f"{source} does not say which env it was trained on; pass --env-id")
     return build_actor(state["actor"], env_id, config, source), env_id, \
         {"source": str(source), "kind": "weights"}
@@ -130,20 +169,29 @@ def read_config(run_dir: Path) -> dict:
         sac.fail(f"{run_dir} is not a run folder (no config.json); give a folder made by "
                  "sac_standard.py or sac_corrected.py, a final_model.pt or an SB3 .zip")
     try:
-        return json.loads(path.read_text())
+        config = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
         sac.fail(f"{path} is not valid JSON ({error}); restore it from a copy")
+    if not isinstance(config, dict):
+        sac.fail(f"{path} does not hold a JSON object; restore it from a copy")
+    return config
 
 
 def load_weights(path: Path) -> dict:
-    """One of our weight files, loaded so that it cannot run code (weights_only=True)."""
+    """One of our weight files, loaded so that it cannot run code (weights_only=True); mmap
+    reads only what is used of a checkpoint.pt (its replay buffer stays on disk)."""
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
     except Exception as error:  # not a torch file, truncated, or holding more than weights
         sac.fail(f"{path} is not a weights file of ours ({type(error).__name__}: "
                  f"{str(error).splitlines()[0][:120]}); give a final_model.pt or a run folder")
-    if not isinstance(state, dict) or "actor" not in state:
+    actor = state.get("actor") if isinstance(state, dict) else None
+    if not isinstance(actor, dict) or not all(torch.is_tensor(v) for v in actor.values()):
         sac.fail(f"{path} holds no 'actor' weights; give a final_model.pt or a run folder")
+    broken = [k for k, v in actor.items() if v.is_floating_point() and not v.isfinite().all()]
+    if broken:
+        sac.fail(f"{path}: the actor's {broken[0]} holds NaN/inf (training diverged); evaluate "
+                 "an earlier model")
     return state
 
 
@@ -154,8 +202,10 @@ def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Act
     trunk = [weights[k] for k in sorted((k for k in weights if k.startswith("trunk.")
                                          and k.endswith(".weight")),
                                         key=lambda k: int(k.split(".")[1]))]
-    shapes = (trunk[0].shape[1] if trunk else None, weights["fc_mean.weight"].shape[0]
-              if "fc_mean.weight" in weights else None)
+    if not trunk or trunk[0].dim() != 2 or "fc_mean.weight" not in weights:
+        sac.fail(f"{path} holds no actor of sac_standard.py or sac_corrected.py (no trunk or "
+                 "fc_mean layers); give a final_model.pt or a run folder")
+    shapes = (trunk[0].shape[1], weights["fc_mean.weight"].shape[0])
     if shapes != (obs_dim, action_dim):
         sac.fail(f"{path} was trained on {shapes[0]}-dim observations and {shapes[1]}-dim "
                  f"actions; {env_id} has {obs_dim} and {action_dim}: pass the --env-id it was "
@@ -163,7 +213,11 @@ def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Act
     actor = sac.Actor(obs_dim, tuple(w.shape[0] for w in trunk), env.action_space,
                       config.get("log_std_min", sac.Args.log_std_min),
                       config.get("log_std_max", sac.Args.log_std_max))
-    actor.load_state_dict(weights)
+    try:
+        actor.load_state_dict(weights)
+    except RuntimeError as error:  # layers missing, extra or of the wrong shape
+        sac.fail(f"{path}: its actor does not fit our Actor ({' '.join(str(error).split())[:200]})"
+                 "; give a final_model.pt of sac_standard.py or sac_corrected.py")
     return actor
 
 
@@ -185,7 +239,11 @@ def load_sb3(path: Path, env_id: str | None) -> tuple[nn.Module, str, dict]:
     except ImportError:
         sac.fail("an SB3 .zip needs stable-baselines3: pip install stable-baselines3==2.9.2")
     env = sac.make_env(env_id)
-    model = SAC.load(path, device="cpu")
+    try:
+        model = SAC.load(path, device="cpu")
+    except Exception as error:  # a damaged archive or one from an incompatible SB3 version
+        sac.fail(f"{path} cannot be loaded by stable-baselines3 ({type(error).__name__}: "
+                 f"{' '.join(str(error).split())[:160]}); give an SB3 SAC .zip it can load")
     spaces = (model.observation_space.shape, model.action_space.shape)
     if spaces != (env.observation_space.shape, env.action_space.shape):
         sac.fail(f"{path} was trained on observations {spaces[0]} and actions {spaces[1]}; "
@@ -207,11 +265,49 @@ def sample_policy(actor: nn.Module, generator: torch.Generator):
     return policy
 
 
+def finite_policy(policy: Callable) -> Callable:
+    """The policy, refusing a non-finite output with one line (the scripts' own check speaks
+    of training; here the model is someone's finished policy)."""
+
+    def checked(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        action, mu, log_std = policy(obs)
+        if not (action.isfinite().all() and mu.isfinite().all() and log_std.isfinite().all()):
+            sac.fail("the policy gave a NaN/inf action, mu or log sigma at an observation "
+                     f"{'with NaN/inf' if not obs.isfinite().all() else 'that is finite'}; "
+                     "the model is damaged or does not belong to this env")
+        return action, mu, log_std
+
+    return checked
+
+
+def progress_bar(label: str, total: int) -> Callable[[int, float], None]:
+    """Episodes done out of total on stderr: redrawn in place on a terminal, else a line at
+    every tenth (a log file keeps ten lines, not one per episode)."""
+    start, shown, tty = time.perf_counter(), [0], sys.stderr.isatty()
+
+    def update(done: int, last_return: float) -> None:
+        elapsed = time.perf_counter() - start
+        filled = 24 * done // total
+        line = (f"{label:>8} [{'#' * filled}{'.' * (24 - filled)}] {done}/{total} episodes, "
+                f"{elapsed:.0f} s, ~{elapsed / done * (total - done):.0f} s left, last return "
+                f"{last_return:.2f}")
+        if tty:
+            # \r back to the line's start, ESC[K clears what a longer earlier line left.
+            print(f"\r{line}\033[K", end="\n" if done == total else "", file=sys.stderr,
+                  flush=True)
+        elif 10 * done // total > shown[0]:
+            shown[0] = 10 * done // total
+            print(line, file=sys.stderr, flush=True)
+
+    return update
+
+
 def evaluate_selector(actor: nn.Module, selector: str, args: Args, env: gym.Env,
                       seeds: list[int], device: torch.device) -> dict:
-    """Every episode of one selector, one at a time (for the progress line)."""
+    """Every episode of one selector, one at a time (for the progress bar)."""
     episodes = {"returns": [], "lengths": [], "successes": [], "mu": [], "log_std": []}
     video = args.video / f"{selector}.mp4" if args.video else None
+    progress = progress_bar(selector, len(seeds))
     for k, seed in enumerate(seeds):
         if selector == "sample":
             generator = torch.Generator(device).manual_seed(seed)
@@ -220,19 +316,19 @@ def evaluate_selector(actor: nn.Module, selector: str, args: Args, env: gym.Env,
             select = (lambda mu, s: mode_action(mu, s, args.solver)) if selector == "mode" \
                 else (lambda mu, s: torch.tanh(mu))
             policy = sac.eval_policy(actor, select)
-        one = sac.run_episodes(policy, env, [seed], device, video if k == 0 else None)
+        one = sac.run_episodes(finite_policy(policy), env, [seed], device,
+                               video if k == 0 else None)
         for key in episodes:
             episodes[key] += one[key] if isinstance(one[key], list) else [one[key]]
-        print(f"\r{selector:>8}: episode {k + 1}/{len(seeds)}, return {one['returns'][0]:10.2f}",
-              end="", file=sys.stderr, flush=True)
-    print(file=sys.stderr)
+        progress(k + 1, one["returns"][0])
     episodes["mu"], episodes["log_std"] = torch.cat(episodes["mu"]), torch.cat(episodes["log_std"])
     return episodes
 
 
 def mean_with_ci(values: np.ndarray, reps: int, seed: int) -> tuple[float, float, float]:
     """The mean over episodes with rliable's bootstrap CI (episodes as runs of one task)."""
-    np.random.seed(seed)  # noqa: NPY002  (rliable draws from NumPy's global generator)
+    # rliable draws from NumPy's legacy global generator, which takes seeds below 2**32 only.
+    np.random.seed(seed % 2**32)  # noqa: NPY002
     point, interval = rly.get_interval_estimates(
         {"x": np.asarray(values, float)[:, None]}, lambda s: np.array([s.mean()]), reps=reps,
         confidence_interval_size=CONFIDENCE)
@@ -283,7 +379,14 @@ def print_summary(summary: dict) -> None:
 
 
 def write_outputs(out: Path, results: dict, seeds: list[int], summary: dict) -> None:
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        write_files(out, results, seeds, summary)
+    except OSError as error:
+        sac.fail(f"--out {out}: cannot write there ({error.strerror}); give a writable folder")
+
+
+def write_files(out: Path, results: dict, seeds: list[int], summary: dict) -> None:
     with open(out / "episodes.csv", "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(["selector", "episode", "reset_seed", "return", "length", "success"])
@@ -295,8 +398,8 @@ def write_outputs(out: Path, results: dict, seeds: list[int], summary: dict) -> 
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
 
 
-def main() -> None:
-    args = tyro.cli(Args)
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
     check_args(args)
     device = torch.device("cuda" if args.cuda and torch.cuda.is_available() else "cpu")
     if args.cuda and device.type == "cpu":
@@ -305,7 +408,11 @@ def main() -> None:
     actor = actor.to(device).eval()
     env = sac.make_env(env_id, render=args.video is not None)
     if args.video:
-        args.video.mkdir(parents=True, exist_ok=True)
+        try:
+            args.video.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            sac.fail(f"--video {args.video}: cannot create it ({error.strerror}); give a "
+                     "writable folder")
     seeds = sac.eval_seeds(args.seed, args.eval_round, args.episodes)
     results = {s: evaluate_selector(actor, s, args, env, seeds, device)
                for s in dict.fromkeys(args.selectors)}

@@ -1,26 +1,50 @@
 """evaluate.py on a real Stable-Baselines3 SAC and on a run of ours: paired, deterministic,
-agreeing with the training run's own evaluation, and clear about bad input."""
+agreeing with the training run's own evaluation and with SB3's own action distribution, and
+clear about bad input. Most calls run evaluate.main in this process (an import of torch, gym
+and rliable per call would cost seconds); one of each kind runs the real command line."""
 
 import csv
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import gymnasium as gym
+import numpy as np
 import pytest
+import torch
+
+import evaluate
+from mode_search import tanh_normal_log_prob
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def evaluate(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(ROOT / "evaluate.py"), *args],
-                          capture_output=True, text=True, cwd=ROOT, timeout=300)
+def cli(*args: str, code: str = "") -> subprocess.CompletedProcess:
+    """evaluate.py as a user runs it (with `code` run first, inside the same interpreter)."""
+    command = [sys.executable, str(ROOT / "evaluate.py"), *args] if not code else [
+        sys.executable, "-c", f"import runpy, sys; {code}; sys.argv = {['evaluate.py', *args]!r}"
+        "; runpy.run_path('evaluate.py', run_name='__main__')"]
+    return subprocess.run(command, capture_output=True, text=True, cwd=ROOT, timeout=300)
 
 
-def refused(result: subprocess.CompletedProcess, fragment: str) -> None:
-    assert result.returncode == 2, result.stderr
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in result.stderr, lines
+def run(capsys, *args: str) -> tuple[int, str, str]:
+    """evaluate.main in this process: exit code, stdout, stderr."""
+    try:
+        evaluate.main(list(args))
+        code = 0
+    except SystemExit as exit_:
+        code = exit_.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def refused(capsys, fragment: str, *args: str) -> None:
+    code, out, err = run(capsys, *args)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and fragment in lines[0], (code, err)
+    assert "error: " in lines[0] and out == ""
 
 
 def read_rows(path: Path) -> list[dict]:
@@ -30,40 +54,44 @@ def read_rows(path: Path) -> list[dict]:
 
 @pytest.fixture(scope="module")
 def sb3_models(tmp_path_factory) -> dict[str, Path]:
-    """A real SB3 SAC (a few hundred steps on Pendulum-v1) and, for the refusal, a PPO."""
-    import gymnasium as gym
+    """Real SB3 SACs (a few hundred steps on Pendulum-v1; one with gSDE, whose sigma is not a
+    network output) and, for the refusal, a PPO."""
     from stable_baselines3 import PPO, SAC
 
     out = tmp_path_factory.mktemp("sb3")
-    sac = SAC("MlpPolicy", gym.make("Pendulum-v1"), learning_starts=100, batch_size=32,
-              policy_kwargs={"net_arch": [32, 32]}, seed=0, device="cpu")
-    sac.learn(300)
-    sac.save(out / "sac_pendulum.zip")
+    for name, sde in (("sac", False), ("sac_gsde", True)):
+        model = SAC("MlpPolicy", gym.make("Pendulum-v1"), learning_starts=100, batch_size=32,
+                    use_sde=sde, policy_kwargs={"net_arch": [32, 32]}, seed=0, device="cpu")
+        model.learn(300)
+        model.save(out / f"{name}.zip")
     ppo = PPO("MlpPolicy", gym.make("Pendulum-v1"), n_steps=64, batch_size=32, seed=0,
               device="cpu")
     ppo.learn(64)
-    ppo.save(out / "ppo_pendulum.zip")
-    return {"sac": out / "sac_pendulum.zip", "ppo": out / "ppo_pendulum.zip"}
+    ppo.save(out / "ppo.zip")
+    return {name: out / f"{name}.zip" for name in ("sac", "sac_gsde", "ppo")}
 
 
 @pytest.fixture(scope="module")
 def our_run(tmp_path_factory) -> Path:
+    """A tiny run whose checkpoint (step 1600, an episode's end) and last evaluation (round 2)
+    both hold the final model."""
     out = tmp_path_factory.mktemp("runs")
     result = subprocess.run(
         [sys.executable, str(ROOT / "sac_corrected.py"), "--env-id", "Pendulum-v1",
-         "--total-timesteps", "1500", "--learning-starts", "500", "--eval-interval", "500",
-         "--eval-episodes", "2", "--hidden-sizes", "32", "32", "--checkpoint-interval", "0",
+         "--total-timesteps", "1600", "--learning-starts", "500", "--eval-interval", "800",
+         "--eval-episodes", "2", "--hidden-sizes", "32", "32", "--checkpoint-interval", "1600",
          "--output-dir", str(out), "--run-name", "ours"], capture_output=True, text=True, cwd=ROOT)
     assert result.returncode == 0, result.stderr
     return out / "ours"
 
 
-def test_sb3_sac_paired_and_deterministic(sb3_models, tmp_path):
+def test_sb3_sac_paired_and_deterministic(sb3_models, tmp_path, capsys):
     args = [str(sb3_models["sac"]), "--env-id", "Pendulum-v1", "--episodes", "3", "--selectors",
             "mode", "tanh_mu", "sample", "--reps", "200"]
-    first = evaluate(*args, "--out", str(tmp_path / "a"))
+    first = cli(*args, "--out", str(tmp_path / "a"))
     assert first.returncode == 0, first.stderr
     assert "mode - tanh_mu, paired:" in first.stdout and "distribution shift" in first.stdout
+    assert "mode [########################] 3/3 episodes" in first.stderr  # the progress bar
     rows = read_rows(tmp_path / "a" / "episodes.csv")
     assert [r["selector"] for r in rows] == ["mode"] * 3 + ["tanh_mu"] * 3 + ["sample"] * 3
     # Paired: episode k of every selector starts from the same reset seed.
@@ -78,18 +106,48 @@ def test_sb3_sac_paired_and_deterministic(sb3_models, tmp_path):
     diffs = [m - t for m, t in zip(returns["mode"], returns["tanh_mu"], strict=True)]
     assert paired["mean"] == pytest.approx(sum(diffs) / 3)
     assert paired["ci_low"] <= paired["mean"] <= paired["ci_high"]
-    # Deterministic for a seed, sampled episodes included.
-    second = evaluate(*args, "--out", str(tmp_path / "b"))
-    assert second.returncode == 0, second.stderr
-    assert (tmp_path / "a" / "episodes.csv").read_text() == \
-        (tmp_path / "b" / "episodes.csv").read_text()
+    # Deterministic for a seed, sampled episodes and CIs included: another process gives the
+    # same files.
+    code, _, err = run(capsys, *args, "--out", str(tmp_path / "b"))
+    assert code == 0, err
+    for name in ("episodes.csv", "summary.json"):
+        assert (tmp_path / "a" / name).read_text() == (tmp_path / "b" / name).read_text()
 
 
-def test_our_run_agrees_with_its_own_last_evaluation(our_run, tmp_path):
+@pytest.mark.parametrize("name", ["sac", "sac_gsde"])
+def test_sb3_actor_is_sb3s_own_distribution(sb3_models, name):
+    """mu and sigma as evaluate.py reads them are the distribution SB3 samples from: SB3's own
+    sampled actions have the log-density SB3 reports, and tanh(mu), rescaled, is SB3's
+    deterministic action."""
+    actor, env_id, _ = evaluate.load_sb3(sb3_models[name], "Pendulum-v1")
+    policy = actor.policy
+    obs = torch.as_tensor(np.stack([gym.make(env_id).reset(seed=s)[0] for s in range(8)]))
+    with torch.no_grad():
+        mu, log_std = actor(obs)
+        if policy.actor.use_sde:
+            policy.actor.reset_noise(batch_size=8)
+        squashed, sb3_log_prob = policy.actor.action_log_prob(obs)
+        ours = tanh_normal_log_prob(squashed.double(), mu.double(), log_std.double()).sum(1)
+        deterministic = policy.predict(obs.numpy(), deterministic=True)[0]
+    # SB3 adds 1e-6 inside log(1 - tanh(u)^2), and gSDE 1e-6 to the variance.
+    assert ours.numpy() == pytest.approx(sb3_log_prob.double().numpy(), abs=1e-3)
+    assert actor.scale(torch.tanh(mu)).numpy() == pytest.approx(deterministic, abs=1e-6)
+    assert policy.actor.use_sde == (name == "sac_gsde")
+
+
+def test_sb3_gsde_policy_evaluates(sb3_models, capsys, tmp_path):
+    code, out, err = run(capsys, str(sb3_models["sac_gsde"]), "--env-id", "Pendulum-v1",
+                         "--episodes", "2", "--reps", "50", "--out", str(tmp_path))
+    assert code == 0, err
+    shift = json.loads((tmp_path / "summary.json").read_text())["shift_at_visited_states"]
+    assert 0 < shift["sigma_mean"] < 10 and shift["mode_shift_abs_mean"] >= 0
+
+
+def test_our_run_agrees_with_its_own_last_evaluation(our_run, tmp_path, capsys):
     last = read_rows(our_run / "eval.csv")[-1]
-    result = evaluate(str(our_run), "--seed", "0", "--eval-round", last["eval_round"],
-                      "--episodes", "2", "--reps", "100", "--out", str(tmp_path / "out"))
-    assert result.returncode == 0, result.stderr
+    code, _, err = run(capsys, str(our_run), "--seed", "0", "--eval-round", last["eval_round"],
+                       "--episodes", "2", "--reps", "100", "--out", str(tmp_path / "out"))
+    assert code == 0, err
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["source"].endswith("final_model.pt") and summary["env_id"] == "Pendulum-v1"
     selectors = summary["selectors"]
@@ -101,24 +159,102 @@ def test_our_run_agrees_with_its_own_last_evaluation(our_run, tmp_path):
     assert shift["mode_shift_abs_mean"] > 0  # the mode is not tanh(mu)
 
 
-def test_a_bare_weights_file_carries_its_env(our_run):
-    result = evaluate(str(our_run / "final_model.pt"), "--episodes", "1", "--reps", "50")
-    assert result.returncode == 0, result.stderr
-    assert "on Pendulum-v1" in result.stdout
+def test_weights_files_alone(our_run, tmp_path, capsys):
+    """final_model.pt names its env; checkpoint.pt (loaded with weights_only=True) too, and a
+    run folder without final_model.pt falls back to it: here both hold the same actor."""
+    args = ("--episodes", "1", "--reps", "20")
+    tables = {}
+    for name, source in (("final", our_run / "final_model.pt"),
+                         ("checkpoint", our_run / "checkpoint.pt")):
+        code, out, err = run(capsys, str(source), *args)
+        assert code == 0 and "on Pendulum-v1" in out, err
+        tables[name] = out.split("\n", 2)[2]  # the table, after the line naming the source
+    assert tables["final"] == tables["checkpoint"]
+    partial = tmp_path / "partial"
+    shutil.copytree(our_run, partial, ignore=shutil.ignore_patterns("final_model.pt"))
+    code, out, err = run(capsys, str(partial), *args)
+    assert code == 0 and "checkpoint.pt on Pendulum-v1" in out, err
 
 
-def test_bad_sources_fail_clearly(sb3_models, our_run, tmp_path):
-    refused(evaluate(str(ROOT / "tests")), "is not a run folder (no config.json)")
-    refused(evaluate(str(our_run), "--env-id", "InvertedPendulum-v5"),
-            "was trained on 3-dim observations and 1-dim actions; InvertedPendulum-v5 has 4 and 1")
-    refused(evaluate(str(sb3_models["ppo"]), "--env-id", "Pendulum-v1"),
-            "is not a Stable-Baselines3 SAC model (its policy comes from "
-            "stable_baselines3.common.policies)")
-    refused(evaluate(str(sb3_models["sac"])), "pass --env-id")
-    refused(evaluate(str(sb3_models["sac"]), "--env-id", "Hopper-v5"),
-            "was trained on observations (3,) and actions (1,)")
+def test_bad_sources_fail_clearly(sb3_models, our_run, tmp_path, capsys):
+    refused(capsys, "is not a run folder (no config.json)", str(ROOT / "tests"))
+    refused(capsys, "was trained on 3-dim observations and 1-dim actions; InvertedPendulum-v5 "
+            "has 4 and 1", str(our_run), "--env-id", "InvertedPendulum-v5")
+    refused(capsys, "is not a Stable-Baselines3 SAC model (its policy comes from "
+            "stable_baselines3.common.policies)", str(sb3_models["ppo"]), "--env-id",
+            "Pendulum-v1")
+    refused(capsys, "pass --env-id", str(sb3_models["sac"]))
+    refused(capsys, "was trained on observations (3,) and actions (1,)", str(sb3_models["sac"]),
+            "--env-id", "Hopper-v5")
+    refused(capsys, "unknown env id 'Pendulum-v9'", str(sb3_models["sac"]), "--env-id",
+            "Pendulum-v9")
     text = tmp_path / "model.pt"
     text.write_text("not weights")
-    refused(evaluate(str(text), "--env-id", "Pendulum-v1"), "is not a weights file of ours")
-    refused(evaluate(str(our_run), "--episodes", "0"), "--episodes 0: must be at least 1")
-    refused(evaluate(str(tmp_path / "missing")), "does not exist")
+    refused(capsys, "is not a weights file of ours", str(text), "--env-id", "Pendulum-v1")
+    not_zip = tmp_path / "model.zip"
+    not_zip.write_text("not a zip")
+    refused(capsys, "is not a Stable-Baselines3 model", str(not_zip), "--env-id", "Pendulum-v1")
+    refused(capsys, "does not exist", str(tmp_path / "missing"))
+    # Weights without a usable actor, or with NaN in it.
+    torch.save({"actor": {"fc_mean.weight": torch.zeros(1, 32)}}, tmp_path / "headless.pt")
+    refused(capsys, "holds no actor of sac_standard.py or sac_corrected.py",
+            str(tmp_path / "headless.pt"), "--env-id", "Pendulum-v1")
+    state = torch.load(our_run / "final_model.pt", weights_only=True)
+    state["actor"]["fc_mean.bias"][0] = float("nan")
+    torch.save(state, tmp_path / "nan.pt")
+    refused(capsys, "fc_mean.bias holds NaN/inf", str(tmp_path / "nan.pt"))
+    # A run folder whose config.json is damaged, or that holds no weights yet.
+    damaged = tmp_path / "damaged"
+    shutil.copytree(our_run, damaged)
+    (damaged / "config.json").write_text("[1, 2]")
+    refused(capsys, "does not hold a JSON object", str(damaged))
+    (damaged / "config.json").write_text(json.dumps({"seed": 0}))
+    refused(capsys, "names no env_id", str(damaged))
+    for name in ("final_model.pt", "checkpoint.pt"):
+        (damaged / name).unlink()
+    refused(capsys, "holds no final_model.pt or checkpoint.pt", str(damaged), "--env-id",
+            "Pendulum-v1")
+
+
+def test_bad_flags_fail_clearly_before_running(our_run, tmp_path, capsys, monkeypatch):
+    run_dir = str(our_run)
+    refused(capsys, "--episodes 0: must be at least 1", run_dir, "--episodes", "0")
+    refused(capsys, "--reps 0: must be at least 1", run_dir, "--reps", "0")
+    refused(capsys, "--seed -1: must be a non-negative integer", run_dir, "--seed", "-1")
+    refused(capsys, "--eval-round -1: must be 0 or more", run_dir, "--eval-round", "-1")
+    refused(capsys, "--selectors : must be one or more", run_dir, "--selectors")
+    # tyro's own parse errors, on one line.
+    refused(capsys, "invalid choice 'bogus' for argument '--solver'", run_dir, "--solver",
+            "bogus")
+    refused(capsys, "Error parsing --episodes: invalid literal for int()", run_dir,
+            "--episodes", "ten")
+    refused(capsys, "invalid choice 'mean' for argument '--selectors'", run_dir, "--selectors",
+            "mean")
+    refused(capsys, "Unrecognized options: --episode", run_dir, "--episode", "3")
+    refused(capsys, "Missing from evaluate.py: PATH")
+    # Output folders that are files, refused before a single episode runs.
+    taken = tmp_path / "taken"
+    taken.write_text("mine")
+    refused(capsys, f"--out {taken}: a file of that name exists", run_dir, "--out", str(taken))
+    refused(capsys, f"--video {taken}: a file of that name exists", run_dir, "--video",
+            str(taken))
+    assert taken.read_text() == "mine"
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    refused(capsys, "--cuda: no CUDA GPU found", run_dir, "--cuda")
+    # A seed above 2**32 (NumPy's legacy generator's limit) still evaluates.
+    code, _, err = run(capsys, run_dir, "--seed", str(2**40), "--episodes", "1", "--reps", "10")
+    assert code == 0, err
+
+
+def test_command_line_refusals_are_one_line(sb3_models):
+    """The real command line: exit code 2, one line, no traceback; and without
+    stable-baselines3 installed, a .zip asks for it."""
+    for result, fragment in (
+            (cli(str(sb3_models["ppo"]), "--env-id", "Pendulum-v1"),
+             "is not a Stable-Baselines3 SAC model"),
+            (cli(str(sb3_models["sac"]), "--env-id", "Pendulum-v1",
+                 code="sys.modules['stable_baselines3'] = None"),
+             "needs stable-baselines3: pip install stable-baselines3==2.9.2")):
+        lines = result.stderr.strip().splitlines()
+        assert result.returncode == 2 and len(lines) == 1, result.stderr
+        assert lines[0].startswith("evaluate.py: error: ") and fragment in lines[0]
