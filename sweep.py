@@ -69,7 +69,7 @@ class Preset:
 
 # A corrected run also evaluates tanh(mu) of the same actor from the same start states, and the
 # two scripts make identical training decisions for a seed: its paired columns are the standard
-# run of that seed (tests/test_sac.py::test_one_corrected_run_is_both_algorithms pins this), so
+# run of that seed (tests/test_protocol.py pins this on real runs), so
 # presets run sac_corrected.py only.
 ONE_RUN_IS_BOTH = ("sac_corrected.py only: each run's paired tanh(mu) evaluation is the "
                    "sac_standard.py run of its seed (identical training decisions), so analyze.py "
