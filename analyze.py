@@ -1041,7 +1041,25 @@ class Dimension:
     scale: float  # the range of the task's tanh(mu) returns in the folder
     steps: dict[float, int]  # training fraction -> step
     differences: dict[float, np.ndarray]  # training fraction -> per-seed difference (raw)
-    shift: dict[str, float]  # SHIFT_COLUMNS at the final step, mean over seeds
+    shift: dict[str, np.ndarray]  # SHIFT_COLUMN -> per-seed value at the final step (logged ones)
+
+
+def training_fraction_steps(steps: np.ndarray, scored_step: int) -> dict[float, int]:
+    """The shared step at each of TRAINING_FRACTIONS: the last one within that share of the
+    steps (the scored step at 1.0)."""
+    picks = {f: int(steps[max(0, math.ceil(f * steps.size) - 1)]) for f in TRAINING_FRACTIONS}
+    return {**picks, 1.0: scored_step}
+
+
+def shift_at(curves: list[Curve], step: int) -> dict[str, np.ndarray]:
+    """Each SHIFT_COLUMN at `step`, one value per run that logged it (empty cells left out)."""
+    shift = {}
+    for column in SHIFT_COLUMNS:
+        values = np.array([c.shift[column][c.steps == step][0]
+                           for c in curves if column in c.shift])
+        if np.isfinite(values).any():
+            shift[column] = values[np.isfinite(values)]
+    return shift
 
 
 def dimension_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
@@ -1059,36 +1077,66 @@ def dimension_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
             continue
         paired = data.returns[pair]
         scale = float(paired.max() - paired.min()) or 1.0
-        steps = {f: int(data.steps[max(0, math.ceil(f * data.steps.size) - 1)])
-                 for f in TRAINING_FRACTIONS}
-        steps[1.0] = data.scored_step
+        steps = training_fraction_steps(data.steps, data.scored_step)
         differences = {f: data.at(CORRECTED, np.array([step]))[:, 0]
                        - data.at(pair, np.array([step]))[:, 0] for f, step in steps.items()}
-        curves = runs[task][CORRECTED]
-        shift = {c: float(np.mean([curve.shift[c][curve.steps == data.scored_step][0]
-                                   for curve in curves if c in curve.shift]))
-                 for c in SHIFT_COLUMNS if all(c in curve.shift for curve in curves)}
+        shift = shift_at(runs[task][CORRECTED], data.scored_step)
         study[task] = Dimension(dims.pop(), scale, steps, differences, shift)
     return study, notes
 
 
+def dimension_estimates(study: dict[str, Dimension], reps: int, seed: int) -> dict:
+    """Mean over seeds with its bootstrap CI (rliable), (mean, low, high): keyed (task, fraction)
+    for the normalised paired difference, (task, column) for the measured shift."""
+    samples = {(t, f): d.differences[f] / d.scale for t, d in study.items() for f in d.steps}
+    samples |= {(t, column): v for t, d in study.items() for column, v in d.shift.items()}
+    return seed_mean_estimates(samples, reps, seed)
+
+
+def dimension_positions(study: dict[str, Dimension]) -> dict[str, float]:
+    """Each task's x on the log dimension axis: its action dimension, tasks that share one
+    spread a little around it so that their CIs do not hide each other."""
+    positions = {}
+    for dim in {d.action_dim for d in study.values()}:
+        same = [t for t, d in study.items() if d.action_dim == dim]
+        for k, task in enumerate(same):
+            positions[task] = dim * 1.07 ** (k - (len(same) - 1) / 2)
+    return positions
+
+
+def _errorbar(ax, x: float, estimate: tuple[float, float, float], **style) -> None:
+    point, low, high = estimate
+    ax.errorbar(x, point, yerr=[[point - low], [high - point]], capsize=3, **style)
+
+
 def plot_dimensions(study: dict[str, Dimension], estimates: dict, colors: list):
-    """The paired difference against the action dimension, against training, and the shift."""
+    """The paired difference against the action dimension and against training, the measured
+    shift beside mode_search's theory curve, and sigma / bimodal share against the dimension."""
     from mode_search import SPREADS, summed_shift_by_dimension  # torch: only for this figure
 
-    fig, (ax_dim, ax_progress, ax_shift) = plt.subplots(1, 3, figsize=(16, 4.5))
+    fig, ((ax_dim, ax_progress), (ax_shift, ax_sigma)) = plt.subplots(2, 2, figsize=(13, 9.5))
+    ax_bimodal = ax_sigma.twinx()
+    xs = dimension_positions(study)
     for (task, d), color in zip(study.items(), colors, strict=False):
-        point, low, high = estimates[task, 1.0]
-        ax_dim.errorbar(d.action_dim, point, yerr=[[point - low], [high - point]], fmt="o",
-                        color=color, capsize=4, label=f"{task} ({d.action_dim})")
         fractions = sorted(d.steps)
+        _errorbar(ax_dim, xs[task], estimates[task, 1.0], fmt="o", color=color, ms=7,
+                  label=f"{task} ({d.action_dim})")
+        for f in fractions[:-1]:  # earlier in training: hollow, fainter the earlier
+            ax_dim.plot(xs[task], estimates[task, f][0], "o", mfc="none", color=color,
+                        alpha=0.25 + 0.6 * f, ms=4 + 3 * f)
         ax_progress.plot(fractions, [estimates[task, f][0] for f in fractions], "o-",
                          color=color, label=task)
         ax_progress.fill_between(fractions, [estimates[task, f][1] for f in fractions],
                                  [estimates[task, f][2] for f in fractions], color=color,
                                  alpha=0.15)
         if "mode_shift_abs_sum" in d.shift:
-            ax_shift.plot(d.action_dim, d.shift["mode_shift_abs_sum"], "o", color=color)
+            _errorbar(ax_shift, xs[task], estimates[task, "mode_shift_abs_sum"], fmt="o",
+                      color=color, zorder=3)
+        if "sigma_mean" in d.shift:
+            _errorbar(ax_sigma, xs[task], estimates[task, "sigma_mean"], fmt="o", color=color)
+        if "bimodal_fraction" in d.shift:
+            _errorbar(ax_bimodal, xs[task], estimates[task, "bimodal_fraction"], fmt="s",
+                      mfc="none", color=color)
     top = max(d.action_dim for d in study.values())
     n = np.arange(1, top + 1)
     for i, ((name, spread), color) in enumerate(zip(SPREADS.items(), ("0.3", "0.6"),
@@ -1098,19 +1146,25 @@ def plot_dimensions(study: dict[str, Dimension], estimates: dict, colors: list):
         ax_shift.fill_between(n, low, high, color=color, alpha=0.15)
     for ax in (ax_dim, ax_progress):
         ax.axhline(0, color="0.4", ls=":", lw=1)
-    ax_dim.set(xscale="log", xlabel="action dimensions", ylabel="mode - tanh(mu), normalised",
-               title="Paired difference at the final step (95% CI)")
-    ax_progress.set(xlabel="fraction of training", ylabel="mode - tanh(mu), normalised",
-                    title="... as training goes on")
+    ylabel = "mode - tanh(mu), normalised"
+    ax_dim.set(xscale="log", xlabel="action dimensions", ylabel=ylabel,
+               title="Paired difference: final step (95% CI); hollow: 25/50/75% of training")
+    ax_progress.set(xlabel="fraction of training", ylabel=ylabel, title="... as training goes on")
     ax_shift.set(xscale="log", yscale="log", xlabel="action dimensions",
                  ylabel="sum |mode - tanh(mu)| at visited states",
-                 title="Measured shift (dots) and theory (mode_search)")
+                 title="Measured shift at the final step (95% CI) and theory (mode_search)")
+    ax_sigma.set(xscale="log", xlabel="action dimensions", ylabel="sigma_mean (dots)",
+                 title="Policy sigma and share of bimodal dimensions at the final step")
+    ax_bimodal.set(ylabel="bimodal_fraction (squares)", ylim=(-0.02, 1.02))
     dims = sorted({d.action_dim for d in study.values()})
-    for ax in (ax_dim, ax_shift):  # label the dimensions themselves, not log-scale decades
+    for ax in (ax_dim, ax_shift, ax_sigma):  # label the dimensions themselves, not decades
         ax.set_xticks(dims, [str(d) for d in dims])
         ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+    for ax in (ax_dim, ax_progress, ax_shift, ax_sigma):
+        ax.grid(alpha=0.25)
     ax_dim.legend(fontsize=7)
-    ax_shift.legend(fontsize=7)
+    ax_shift.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
     return fig
 
 
@@ -1127,9 +1181,8 @@ def report_dimensions(report: Report, args: Args, runs: Runs, tasks: dict[str, T
         return
     print(f"dimension study over {len(study)} tasks ({args.reps:,} reps) ...")
     study = dict(sorted(study.items(), key=lambda item: (item[1].action_dim, item[0])))
-    estimates = seed_mean_estimates({(t, f): d.differences[f] / d.scale for t, d in study.items()
-                                     for f in d.steps}, args.reps, args.seed)
-    table = []
+    estimates = dimension_estimates(study, args.reps, args.seed)
+    table, shift_table = [], []
     for task, d in study.items():
         for f, step in d.steps.items():
             diffs, runs_n = d.differences[f], d.differences[f].size
@@ -1141,11 +1194,11 @@ def report_dimensions(report: Report, args: Args, runs: Runs, tasks: dict[str, T
             table.append([task, d.action_dim, runs_n, f"{f:g} ({_fmt(step)})",
                           _ci(point * d.scale, low * d.scale, high * d.scale, 1),
                           _ci(point, low, high), f"{int((diffs > 0).sum())} of {runs_n}"])
-        for column, value in d.shift.items():
-            report.row("dimension_shift", task, CORRECTED, column, d.steps[1.0],
-                       len(runs[task][CORRECTED]), value, math.nan, math.nan)
-    shift_table = [[t, d.action_dim, *(f"{d.shift[c]:.3f}" if c in d.shift else "-"
-                                       for c in SHIFT_COLUMNS)] for t, d in study.items()]
+        for column, values in d.shift.items():
+            report.row("dimension_shift", task, CORRECTED, column, d.steps[1.0], values.size,
+                       *estimates[task, column])
+        shift_table.append([task, d.action_dim, *(_ci(*estimates[task, c]) if c in d.shift
+                                                  else "-" for c in SHIFT_COLUMNS)])
     colors = sns.color_palette("viridis", n_colors=len(study))
     report.figure(plot_dimensions(study, estimates, colors), "dimension_study")
     report.section(
@@ -1156,8 +1209,9 @@ def report_dimensions(report: Report, args: Args, runs: Runs, tasks: dict[str, T
         "bootstrap CI. Raw numbers are in summary.csv (section `dimension`).", "",
         markdown_table(["task", "action dims", "seeds", "fraction (step)", "raw difference",
                         "normalised difference", "won"], table), "",
-        "Measured shift at the final step (eval.csv, mean over seeds), beside the theory curve "
-        "of mode_search.py (figure, right panel):", "",
+        "Measured shift at the final step (eval.csv, over the states the mode policy visited; "
+        "mean over seeds with a 95% bootstrap CI), beside the theory curve of mode_search.py "
+        "(figure, lower panels):", "",
         markdown_table(["task", "action dims", *SHIFT_COLUMNS], shift_table))
 
 

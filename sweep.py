@@ -69,8 +69,8 @@ class Preset:
 
 # A corrected run also evaluates tanh(mu) of the same actor from the same start states, and the
 # two scripts make identical training decisions for a seed: its paired columns are the standard
-# run of that seed (tests/test_sac.py::test_one_corrected_run_is_both_algorithms pins this), so
-# presets run sac_corrected.py only.
+# run of that seed (tests/test_protocol.py pins this on real runs), so presets run
+# sac_corrected.py only.
 ONE_RUN_IS_BOTH = ("sac_corrected.py only: each run's paired tanh(mu) evaluation is the "
                    "sac_standard.py run of its seed (identical training decisions), so analyze.py "
                    "gets both algorithms from half the runs")
@@ -95,6 +95,21 @@ EXIT_INTERRUPTED = 3
 # torch thread, one gradient update per step, an evaluation round every 10,000 steps: about
 # 9.5 ms of CPU per step on our 2-core machines (README, "Running the paper's experiment").
 DEFAULT_STEPS_PER_SECOND = 105.0
+# One run's training speed per env id, the same measurement on each preset's env ids
+# (bench/bench_presets.py: process CPU time per training-loop step after the start steps, one
+# torch thread, the faster of two runs on our shared 2-core machine; evaluation rounds not
+# counted; README, "Beyond the paper"). The estimate uses these unless --steps-per-second is
+# given; other env ids get the default above.
+CPU_STEPS_PER_SECOND = {
+    "Hopper-v5": 217.0,
+    "HalfCheetah-v5": 270.0,
+    "Ant-v5": 179.0,
+    "Humanoid-v5": 129.0,
+    "h1hand-powerlift-v0": 115.0,
+    "h1hand-cube-v0": 126.0,
+    "h1hand-bookshelf_simple-v0": 105.0,
+    "h1hand-bookshelf_hard-v0": 100.0,
+}
 # The same on one GPU node (one H100, 16 CPU cores): 16 runs at once with CUDA graphs under MPS
 # (--workers 16 --mps), h1hand-powerlift-v0, update phase, steps/s of all 16 together
 # (bench/bench_gpu.py; README, "Speed on a GPU").
@@ -142,8 +157,9 @@ class Args:
     """the W&B entity of the runs"""
     dry_run: bool = False
     """print the grid, the run folders, what exists and a compute estimate; start nothing"""
-    steps_per_second: float = DEFAULT_STEPS_PER_SECOND
-    """training speed of one run for the compute estimate (env steps per second)"""
+    steps_per_second: float | None = None
+    """training speed of one run for the compute estimate (env steps per second; default: the
+    speed measured for its env id, CPU_STEPS_PER_SECOND, else 105)"""
     gpu_node_steps_per_second: float = DEFAULT_GPU_NODE_STEPS_PER_SECOND
     """for the estimate on one GPU node: env steps per second of all its runs together"""
     analyze: str | None = None
@@ -322,7 +338,8 @@ def check_ranges(args: Args) -> None:
         ("workers", args.workers >= 1, "at least 1"),
         ("checkpoint_interval", args.checkpoint_interval >= 1,
          "at least 1 (a run is only resumable from a checkpoint)"),
-        ("steps_per_second", math.isfinite(args.steps_per_second) and args.steps_per_second > 0,
+        ("steps_per_second", args.steps_per_second is None
+         or (math.isfinite(args.steps_per_second) and args.steps_per_second > 0),
          "a positive number"),
         ("gpu_node_steps_per_second", math.isfinite(args.gpu_node_steps_per_second)
          and args.gpu_node_steps_per_second > 0, "a positive number"),
@@ -350,11 +367,14 @@ def preset_args(preset: Preset | None, env_id: str, extra_args: tuple[str, ...])
 
 
 def check_output_dir(runs: list[Run]) -> None:
-    """Refuse a folder that holds runs made with other arguments: they would mix in analysis."""
+    """Refuse a folder that holds runs made with other arguments: they would mix in analysis.
+    A preset gives each env id its own step budget, so a run of an env id in the grid must have
+    that env id's arguments; a run of another env id, one of the grid's argument lists."""
     output_dir = runs[0].output_dir
     if not output_dir.is_dir():
         return
-    extra_args = list(runs[0].extra_args)
+    expected = {run.env_id: list(run.extra_args) for run in runs}
+    allowed = list(expected.values())
     others = []
     for run_dir in sorted(output_dir.iterdir()):
         if run_dir.name.startswith(".") or not run_dir.is_dir():
@@ -362,14 +382,18 @@ def check_output_dir(runs: list[Run]) -> None:
         identity = read_json(run_dir / IDENTITY_FILE)
         if identity is None and (run_dir / "config.json").exists():
             others.append(f"{run_dir.name} (not made by sweep.py)")
-        elif identity is not None and identity["extra_args"] != extra_args:
+        elif identity is not None and (
+            identity["extra_args"] != expected[identity["env_id"]]
+            if identity.get("env_id") in expected else identity["extra_args"] not in allowed
+        ):
             others.append(f"{run_dir.name} (arguments: {shlex.join(identity['extra_args'])})")
     if others:
         shown = others[:10] + ([f"... and {len(others) - 10} more"] if len(others) > 10 else [])
         listing = "\n  ".join(shown)
+        theirs = sorted({shlex.join(args) or "none" for args in allowed})
         raise SweepError(
             f"{output_dir} holds runs made with other arguments than this sweep's "
-            f"({shlex.join(extra_args) or 'none'}):\n  {listing}\n"
+            f"({'; '.join(theirs)}):\n  {listing}\n"
             "Use another --output-dir, or rerun with the same arguments after `--`."
         )
 
@@ -740,19 +764,39 @@ def print_plan(runs: list[Run], args: Args, extra_args: tuple[str, ...]) -> None
     if args.preset and not args.scripts:
         print(f"preset {args.preset}: {PRESETS[args.preset].why}")
     total = steps_left = 0
+    left = {}
     for run in runs:
         state = run_state(run.run_dir)
         budget = total_timesteps(run)
         total += budget
-        steps_left += 0 if state == "done" else budget - (last_eval_step(run.run_dir) or 0)
+        left[run] = 0 if state == "done" else budget - (last_eval_step(run.run_dir) or 0)
+        steps_left += left[run]
         print(f"  {run.name:<60} {state:<12} {action_for(state)}")
-    hours = steps_left / args.steps_per_second / 3600
+    hours, longest, speeds = cpu_estimate(left, args.steps_per_second)
     print(f"compute: {len(runs)} runs, {total:,} env steps in all, {steps_left:,} still to run; "
-          f"at {args.steps_per_second:g} steps/s per run that is {hours:,.1f} run-hours "
-          f"({hours / len(runs):,.1f} h per run)")
+          f"at {speeds} that is {hours:,.1f} run-hours ({hours / len(runs):,.1f} h per run, "
+          f"the longest {longest:,.1f} h)")
     node_hours = steps_left / args.gpu_node_steps_per_second / 3600
     print(f"on one GPU node at {args.gpu_node_steps_per_second:,g} steps/s in all (16 runs at once "
           f"under MPS: --workers 16 --mps): {node_hours:,.1f} h ({node_hours / 24:,.1f} days)")
+
+
+def cpu_steps_per_second(env_id: str, given: float | None) -> float:
+    """One run's CPU training speed for the estimate: --steps-per-second, else measured."""
+    return given if given is not None else CPU_STEPS_PER_SECOND.get(env_id,
+                                                                    DEFAULT_STEPS_PER_SECOND)
+
+
+def cpu_estimate(steps_left: dict[Run, int], given: float | None) -> tuple[float, float, str]:
+    """Run-hours on CPU cores for the steps each run has left, the longest run's hours, and the
+    speeds used, in words."""
+    hours = [left / cpu_steps_per_second(run.env_id, given) / 3600
+             for run, left in steps_left.items()]
+    if given is not None:
+        return sum(hours), max(hours), f"{given:g} steps/s per run"
+    speeds = {run.env_id: cpu_steps_per_second(run.env_id, None) for run in steps_left}
+    return sum(hours), max(hours), "the steps/s per run measured for each env id (" + ", ".join(
+        f"{env_id} {speed:g}" for env_id, speed in speeds.items()) + ")"
 
 
 def action_for(state: str) -> str:

@@ -443,33 +443,85 @@ def test_standard_runs_are_checked_against_the_paired_evaluation(tmp_path):
             "evaluation at all 6 shared (seed, step) points.") in text
 
 
+def exact_bootstrap_quantiles(values: np.ndarray, qs: tuple[float, ...]) -> np.ndarray:
+    """Quantiles of the exact bootstrap distribution of the mean of `values`: every resample
+    with replacement (n^n equally likely tuples), so no Monte Carlo error."""
+    grid = np.stack(np.meshgrid(*[values] * values.size, indexing="ij"), -1)
+    return np.quantile(grid.reshape(-1, values.size).mean(axis=1), qs)
+
+
+def set_columns(run_dir: Path, **columns: float) -> None:
+    """Overwrite whole eval.csv columns with one value each (the shift columns)."""
+    with (run_dir / "eval.csv").open(newline="") as file:
+        rows = list(csv.DictReader(file))
+    with (run_dir / "eval.csv").open("w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows({**row, **columns} for row in rows)
+
+
 def test_dimension_study_recovers_known_offsets_per_dimension(tmp_path):
-    """Known paired offsets per action dimension come back as the study's points, normalised
-    by the range of each task's tanh(mu) returns, with degenerate CIs (constant offsets)."""
-    steps = 10_000 * np.arange(1, 5)
-    offsets = {"Hopper-v5": (3, -30.2), "Ant-v5": (8, 0.0), TASKS[0]: (61, 60.4)}
-    for task, (dims, offset) in offsets.items():
-        for seed in range(3):
-            paired = 100.0 * np.arange(4) + seed  # range over seeds and steps: 302
-            run_dir = write_run(tmp_path / "runs", task, "corrected", seed, steps,
+    """Known paired offsets per action dimension and training fraction come back as the study's
+    points, normalised by the range of each task's tanh(mu) returns, with the 95% percentile
+    bootstrap CI over seeds (checked against the exact bootstrap distribution)."""
+    steps = 10_000 * np.arange(1, 9)  # fractions 0.25 / 0.5 / 0.75 / 1 -> steps 20k, 40k, 60k, 80k
+    seeds = np.arange(5)
+    # Offset of seed s at evaluation k: base x (k + 1) / 8 + spread x (s - 2), mean over seeds
+    # base x (k + 1) / 8; the measured shift 0.04 x dims x (1 + 0.1 (s - 2)).
+    offsets = {"Hopper-v5": (3, -30.0, 4.0), "Ant-v5": (8, 0.0, 10.0), TASKS[0]: (61, 60.0, 2.0)}
+    for task, (dims, base, spread) in offsets.items():
+        for seed in seeds:
+            paired = 100.0 * np.arange(8) + seed  # range over seeds and steps: 704
+            offset = base * np.arange(1, 9) / 8 + spread * (seed - 2)
+            run_dir = write_run(tmp_path / "runs", task, "corrected", int(seed), steps,
                                 paired + offset, paired)
             config = json.loads((run_dir / "config.json").read_text())
             (run_dir / "config.json").write_text(json.dumps({**config, "action_dim": dims}))
-    assert run_analysis(tmp_path / "runs", tmp_path / "out", "--normalize", "min-max") == 0
+            set_columns(run_dir, mode_shift_abs_sum=0.04 * dims * (1 + 0.1 * (seed - 2)),
+                        sigma_mean=0.3, bimodal_fraction=0.01 * seed)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out", "--normalize", "min-max",
+                        "--reps", "4000") == 0
     assert (tmp_path / "out" / "dimension_study.png").exists()
     summary = read_summary(tmp_path / "out")
-    for task, (_, offset) in offsets.items():
-        for fraction in ("0.25", "0.5", "0.75", "1"):
+    for task, (dims, base, spread) in offsets.items():
+        for fraction, k in (("0.25", 1), ("0.5", 3), ("0.75", 5), ("1", 7)):
+            row = summary["dimension", task, "corrected", f"normalised_difference@{fraction}"]
+            assert int(row["step"]) == steps[k] and int(row["n_runs"]) == 5
             point, low, high = estimate(summary, "dimension", task, "corrected",
                                         f"normalised_difference@{fraction}")
-            assert np.isclose(point, offset / 302) and np.isclose(low, high)
-        raw = estimate(summary, "dimension", task, "corrected", "raw_difference@1")
-        assert np.isclose(raw[0], offset)
-        assert estimate(summary, "dimension_shift", task, "corrected",
-                        "mode_shift_abs_sum")[0] == 7.3
+            assert np.isclose(point, base * (k + 1) / 8 / 704)
+            per_seed = (base * (k + 1) / 8 + spread * (seeds - 2)) / 704
+            # rliable's 4,000 replicates: its 2.5% and 97.5% points lie within the exact
+            # distribution's 1.5-3.5% and 96.5-98.5% (four standard errors either way).
+            inner_low, outer_low, outer_high, inner_high = exact_bootstrap_quantiles(
+                per_seed, (0.015, 0.035, 0.965, 0.985))
+            assert inner_low <= low <= outer_low and outer_high <= high <= inner_high
+            assert low < point < high
+            raw = estimate(summary, "dimension", task, "corrected", f"raw_difference@{fraction}")
+            assert np.allclose(raw, np.array([point, low, high]) * 704)
+        shift = estimate(summary, "dimension_shift", task, "corrected", "mode_shift_abs_sum")
+        assert np.isclose(shift[0], 0.04 * dims) and shift[1] < shift[0] < shift[2]
+        assert np.allclose(estimate(summary, "dimension_shift", task, "corrected",
+                                    "sigma_mean"), 0.3)
+        assert np.isclose(estimate(summary, "dimension_shift", task, "corrected",
+                                   "bimodal_fraction")[0], 0.02)
     text = (tmp_path / "out" / "summary.md").read_text()
     assert "## Beyond the paper: the paired difference against the action dimension" in text
     assert text.index("| Hopper-v5 | 3 |") < text.index("| Ant-v5 | 8 |")  # by dimension
+    final_rows = {line.split(" | ")[0][2:]: line for line in text.splitlines()
+                  if " | 1 (80k) | " in line}
+    assert final_rows["Hopper-v5"].startswith("| Hopper-v5 | 3 | 5 | 1 (80k) | -30.0 [")
+    # Seeds where the mode won: Hopper's offsets -38..-22, Ant's -20..20, powerlift's 56..64.
+    assert [final_rows[t].endswith(f"| {won} of 5 |") for t, won in
+            (("Hopper-v5", 0), ("Ant-v5", 2), (TASKS[0], 5))] == [True] * 3
+
+
+def test_dimension_positions_spread_tasks_that_share_a_dimension():
+    study = {t: analyze.Dimension(d, 1.0, {}, {}, {}) for t, d in
+             (("a", 3), ("b", 61), ("c", 61), ("d", 61))}
+    xs = analyze.dimension_positions(study)
+    assert xs["a"] == 3 and np.isclose(xs["c"], 61) and xs["b"] < 61 < xs["d"]
+    assert np.isclose(xs["b"] * xs["d"], 61**2)  # symmetric on the log axis
 
 
 def test_dimension_study_needs_two_dimensions(tmp_path):

@@ -156,6 +156,47 @@ def test_dry_run_prints_the_plan_and_starts_nothing(reference, tmp_path):
     assert not (tmp_path / "paper").exists() and not (tmp_path / "dims").exists()
 
 
+def test_dry_run_estimate_uses_each_env_ids_measured_speed(tmp_path):
+    """Without --steps-per-second, each run is costed at the CPU speed measured for its env id
+    (sweep.CPU_STEPS_PER_SECOND); an env id not measured gets the default."""
+    import sweep as sweep_module
+
+    out = sweep("--env-ids", "Pendulum-v1", "Hopper-v5", "--seeds", "0", "1", "--scripts",
+                "sac_corrected.py", "--output-dir", str(tmp_path / "out"), "--dry-run", "--",
+                "--total-timesteps", "3600000").stdout
+    hopper = sweep_module.CPU_STEPS_PER_SECOND["Hopper-v5"]
+    pendulum = sweep_module.DEFAULT_STEPS_PER_SECOND
+    assert "Pendulum-v1" not in sweep_module.CPU_STEPS_PER_SECOND
+    hours = [3600000 / speed / 3600 for speed in (pendulum, hopper)]  # per run
+    assert (f"(Pendulum-v1 {pendulum:g}, Hopper-v5 {hopper:g}) that is "
+            f"{2 * sum(hours):,.1f} run-hours ({sum(hours) / 2:,.1f} h per run, the longest "
+            f"{max(hours):,.1f} h)") in out
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_preset_with_per_env_budgets_accepts_its_own_runs(tmp_path):
+    """--preset dimensions gives classic tasks 1M steps and h1hand tasks the default: a folder
+    holding some of its runs is its own (rerun, resume), and the paper preset's h1hand runs are
+    the same runs; a run of a grid env id made with other arguments is still refused."""
+    import sweep as sweep_module
+
+    def grid(preset: str, *extra: str) -> list:
+        args = sweep_module.Args(preset=preset, output_dir=str(tmp_path / "runs"))
+        return sweep_module.build_grid(args, extra)
+
+    dims = grid("dimensions")
+    assert {r.env_id: r.extra_args for r in dims}["Hopper-v5"] == ("--total-timesteps",
+                                                                   "1000000")
+    paper_run = grid("paper")[0]
+    for run in (dims[0], paper_run):  # Hopper-v5 (1M) and an h1hand run (no arguments)
+        sweep_module.prepare_run_dir(run)
+    assert paper_run in dims
+    sweep_module.check_output_dir(dims)  # no error: both are runs of this grid
+    with pytest.raises(sweep_module.SweepError, match=r"Hopper-v5__corrected__seed0__\w+ "
+                       r"\(arguments: --total-timesteps 1000000\)"):
+        sweep_module.check_output_dir(grid("dimensions", "--total-timesteps", "5000"))
+
+
 # ----------------------------------------------------------------------------- bad input
 @pytest.mark.parametrize(("args", "message"), [
     (["--env-ids", "Pendulum-v1", "--seeds", "0", "--scripts", "sac_nope.py"],
