@@ -24,13 +24,14 @@ collision classes have them, minus its four excluded body pairs; so is its frict
 
 Why fitted to the hull and not to the bounding box (this model's previous shapes): with
 self-collisions on, bounding-box shapes touch each other where HumanoidBench's meshes do not.
-On 1500 poses of HumanoidBench's own model under random controls, robot self-contacts between
-body links (pairs of bodies in contact, hand bodies aside) were: both models 227, only the
-bounding boxes 1837 (the two hip-roll boxes touching each other in 946 poses, the thighs the
-hip-yaw cylinders and the pelvis), only HumanoidBench 0; with the hull fits 179 / 15 / 48.
-Floor contacts: 1094 / 176 / 61 before, 1085 / 85 / 70 now. Fall times from the keyframe on 20
-fixed action sequences stay as close to HumanoidBench's as before (mean difference 6.5 env
-steps, 6.0 before; a chaotic measure).
+`python bench/bench_contacts.py --humanoidbench PATH` sets both models to 1500 poses of
+HumanoidBench's own model under random controls: robot self-contacts between body links
+((pose, body pair) contacts, hand bodies aside) were in both models 227, only the bounding
+boxes 1837 (the two hip-roll boxes touching each other in 946 poses, the thighs the hip-yaw
+cylinders and the pelvis), only HumanoidBench 0; with the hull fits 179 / 15 / 48. Floor
+contacts: 1620 / 191 / 69 before, 1604 / 89 / 85 now. Fall times from the keyframe on 20 fixed
+action sequences stay as close to HumanoidBench's as before (mean difference 6.3 env steps, 6.0
+before; a chaotic measure).
 
 What fidelity costs, bare physics in env steps per second (`python bench/bench_robot.py`: 10 x
 mj_step with uniform random ctrl, back to the keyframe when the pelvis drops below 0.2 m; thread
