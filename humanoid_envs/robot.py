@@ -7,26 +7,45 @@ options (0.002 s, Newton, 100/50 iterations, Euler, pyramidal cone) are Humanoid
 h1hand numbers.
 
 How it differs from HumanoidBench's model: collision shapes are primitives instead of 28
-collision meshes (we ship no third-party meshes). Each mesh became a box or a capsule fitted to
-the mesh's bounding box (capsules along the long axis of limb-like meshes, boxes for pelvis,
-torso and feet; each foot's sole is flat at the height that touches the floor at the keyframe),
-with one correction: the torso box is 0.165 m wide to each side, not the bounding box's 0.172,
-because robot self-collisions are on (as HumanoidBench's collision classes have them, minus its
-excluded pairs) and at 0.172 it overlapped the shoulder-roll capsules by 6 mm at the keyframe,
-where HumanoidBench's meshes leave a gap. The hands' own primitive collision geoms are kept, and
-so is HumanoidBench's friction loss of 0.01 on the 48 hand joints. Nothing is drawn but these
-primitives (plus a visor on the head).
+collision meshes (we ship no third-party meshes). MuJoCo collides a mesh as its convex hull, so
+each primitive was fitted to the convex hull of HumanoidBench's mesh, in the body frame, by
+maximising their intersection over union (volumes estimated on 30 000 points; a one-off fit
+whose numbers are written into assets/h1hand.xml; the left side fitted, the right side its
+mirror image, as the meshes are): one box or capsule per link, two where one shape leaves much
+of the hull out or sticks far out of it (torso: trunk box and head-and-chest box; thigh and
+shin: capsule plus box). Two constraints on top: each foot is a sole plate, flat at the height
+that touches the floor at the keyframe and as long and wide as the hull's cross-section there,
+plus an ankle block that never reaches below it; the thigh's hub box is shrunk to 90% of its
+fit so that, as the mesh, it clears the hip-yaw cylinder at the keyframe. The hands' own
+primitives are kept (the thumb tips, meshes too, are fitted capsules). Nothing is drawn but
+these primitives (plus a visor on the head). Robot self-collisions are on, as HumanoidBench's
+collision classes have them, minus its four excluded body pairs; so is its friction loss of
+0.01 on the 48 hand joints.
+
+Why fitted to the hull and not to the bounding box (this model's previous shapes): with
+self-collisions on, bounding-box shapes touch each other where HumanoidBench's meshes do not.
+`python bench/bench_contacts.py --humanoidbench PATH` sets both models to 1500 poses of
+HumanoidBench's own model under random controls: robot self-contacts between body links
+((pose, body pair) contacts, hand bodies aside) were in both models 227, only the bounding
+boxes 1837 (the two hip-roll boxes touching each other in 946 poses, the thighs the hip-yaw
+cylinders and the pelvis), only HumanoidBench 0; with the hull fits 179 / 15 / 48. Floor
+contacts: 1620 / 191 / 69 before, 1604 / 89 / 85 now. Fall times from the keyframe on 20 fixed
+action sequences stay as close to HumanoidBench's as before (mean difference 6.3 env steps, 6.0
+before; a chaotic measure).
 
 What fidelity costs, bare physics in env steps per second (`python bench/bench_robot.py`: 10 x
 mj_step with uniform random ctrl, back to the keyframe when the pelvis drops below 0.2 m; thread
-CPU time, median of 5 x 1500 steps on the 2-core dev machine, nothing else running), each task
-scene built from robot_spec() with HumanoidBench's choices undone:
-    scene       this model (HumanoidBench's)  no self-collisions  both off (the model before)
-    stand       1221 (nefc  66)               1628 (nefc  57)     2252 (nefc   9)
-    powerlift   1086 (nefc  82)               1429 (nefc  73)     1869 (nefc  26)
-    cube        1112 (nefc  84)               1497 (nefc  73)     1987 (nefc  26)
-    bookshelf    700 (nefc 259)                813 (nefc 250)      982 (nefc 202)
-(nefc: mean number of constraint rows; collision shapes are our primitives in all three.)
+CPU time, median of 5 x 1500 steps on the shared 2-core dev machine, one other process busy),
+each task scene built from robot_spec() with HumanoidBench's choices undone:
+    scene       this model (HumanoidBench's)  no self-collisions  both off
+    stand       1179 (nefc  69)               1577 (nefc  59)     2210 (nefc  10)
+    powerlift   1074 (nefc  86)               1396 (nefc  75)     1818 (nefc  26)
+    cube        1119 (nefc  85)               1483 (nefc  74)     1989 (nefc  25)
+    bookshelf    683 (nefc 263)                804 (nefc 251)      919 (nefc 203)
+(nefc: mean number of constraint rows; collision shapes are our primitives in all three.) The
+bounding-box shapes ran at 1215, 1116, 1130 and 678 in the first column in the same session:
+the hull fits' seven more geoms cost 1-4% on stand, powerlift and cube, nothing measurable on
+bookshelf.
 MuJoCo's default sparse Jacobian beats a dense one here: 1698 vs 1476 env steps/s on powerlift
 (measured with both choices off).
 """

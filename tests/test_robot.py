@@ -231,6 +231,32 @@ def test_no_self_contact_at_the_keyframe(model):
                 if model.geom_bodyid[c.geom1] in robot and model.geom_bodyid[c.geom2] in robot]
 
 
+def _robot_contact_pairs(model, data) -> set[tuple[str, str]]:
+    robot = robot_body_ids(model)
+    return {tuple(sorted((model.body(model.geom_bodyid[c.geom1]).name,
+                          model.body(model.geom_bodyid[c.geom2]).name)))
+            for c in data.contact
+            if model.geom_bodyid[c.geom1] in robot and model.geom_bodyid[c.geom2] in robot}
+
+
+@pytest.mark.parametrize("roll", [-0.2, 0.2])
+def test_legs_touch_where_humanoidbench_meshes_touch(model, roll):
+    """Shapes fitted to the meshes' hulls, not their bounding boxes: rolling the hips clears
+    (the bounding boxes of the two hip-roll links touched each other here); raising the thighs
+    by 0.5 rad brings each against its hip-yaw cylinder, as HumanoidBench's meshes do."""
+    data = at_keyframe(model)
+    for side, sign in (("left", 1), ("right", -1)):
+        data.qpos[model.joint(f"{side}_hip_roll").qposadr[0]] = sign * roll
+    mujoco.mj_forward(model, data)
+    assert _robot_contact_pairs(model, data) == set()
+    for side in ("left", "right"):
+        data.qpos[model.joint(f"{side}_hip_pitch").qposadr[0]] = 0.5
+    mujoco.mj_forward(model, data)
+    assert _robot_contact_pairs(model, data) == {
+        ("left_hip_pitch_link", "left_hip_yaw_link"), ("right_hip_pitch_link", "right_hip_yaw_link")
+    }
+
+
 def test_an_arm_driven_into_the_torso_collides_with_it(model):
     """Self-collisions are on, as HumanoidBench's collision classes have them."""
     data = at_keyframe(model)
