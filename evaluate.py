@@ -271,7 +271,7 @@ def finite_policy(policy: Callable) -> Callable:
 
     def checked(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         action, mu, log_std = policy(obs)
-        if not (action.isfinite().all() and mu.isfinite().all() and log_std.isfinite().all()):
+        if not torch.isfinite(torch.cat((action, mu, log_std), 1)).all():  # one sync a step
             sac.fail("the policy gave a NaN/inf action, mu or log sigma at an observation "
                      f"{'with NaN/inf' if not obs.isfinite().all() else 'that is finite'}; "
                      "the model is damaged or does not belong to this env")
@@ -308,15 +308,14 @@ def evaluate_selector(actor: nn.Module, selector: str, args: Args, env: gym.Env,
     episodes = {"returns": [], "lengths": [], "successes": [], "mu": [], "log_std": []}
     video = args.video / f"{selector}.mp4" if args.video else None
     progress = progress_bar(selector, len(seeds))
+    select = (lambda mu, s: mode_action(mu, s, args.solver)) if selector == "mode" \
+        else (lambda mu, s: torch.tanh(mu))
+    deterministic = finite_policy(sac.eval_policy(actor, select))
     for k, seed in enumerate(seeds):
-        if selector == "sample":
-            generator = torch.Generator(device).manual_seed(seed)
-            policy = sample_policy(actor, generator)
-        else:
-            select = (lambda mu, s: mode_action(mu, s, args.solver)) if selector == "mode" \
-                else (lambda mu, s: torch.tanh(mu))
-            policy = sac.eval_policy(actor, select)
-        one = sac.run_episodes(finite_policy(policy), env, [seed], device,
+        # A sampled episode draws its noise from a generator seeded by its reset seed.
+        policy = finite_policy(sample_policy(actor, torch.Generator(device).manual_seed(seed))) \
+            if selector == "sample" else deterministic
+        one = sac.run_episodes(policy, env, [seed], device,
                                video if k == 0 else None)
         for key in episodes:
             episodes[key] += one[key] if isinstance(one[key], list) else [one[key]]
