@@ -83,33 +83,6 @@ def test_scripts_train_identically_and_pair_evaluations(standard_run, corrected_
         assert c["mode_shift_abs_sum"] == c["mode_shift_abs_mean"]  # one action dimension
 
 
-def test_one_corrected_run_is_both_algorithms(standard_run, corrected_run, tmp_path):
-    """What lets `sweep.py --preset paper` run sac_corrected.py only: its tanh_mu_* columns are
-    the standard run of the same seed, statistic for statistic, step for step."""
-    import shutil
-
-    from sac_standard import EVAL_STATS
-
-    standard_eval, corrected_eval = (read_csv(r / "eval.csv") for r in (standard_run,
-                                                                        corrected_run))
-    assert len(standard_eval) == len(corrected_eval) == 3
-    for s, c in zip(standard_eval, corrected_eval, strict=True):
-        assert s["global_step"] == c["global_step"]
-        for stat in EVAL_STATS:
-            assert c["tanh_mu_" + stat] == s[stat], stat
-    # analyze.py finds them equal where both kinds are in a folder.
-    for run_dir in (standard_run, corrected_run):
-        shutil.copytree(run_dir, tmp_path / "runs" / run_dir.name)
-    run_analysis = subprocess.run(
-        [sys.executable, str(ROOT / "analyze.py"), str(tmp_path / "runs"), "--out",
-         str(tmp_path / "report"), "--normalize", "none", "--reps", "200", "--curve-reps", "20"],
-        capture_output=True, text=True, cwd=ROOT)
-    assert run_analysis.returncode == 0, run_analysis.stderr
-    summary = (tmp_path / "report" / "summary.md").read_text()
-    assert ("Pendulum-v1: the standard runs equal the corrected runs' paired tanh(mu) evaluation "
-            "at all 3 shared (seed, step) points.") in summary
-
-
 def test_run_folder_outputs(standard_run):
     config = json.loads((standard_run / "config.json").read_text())
     assert config["algorithm"] == "standard" and config["script"] == "sac_standard.py"
