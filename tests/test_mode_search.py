@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from mode_search import GRID_STEP, mode_action, tanh_normal_log_prob
+from mode_search import GRID_STEP, mean_action, mode_action, tanh_normal_log_prob
 
 DTYPES = [torch.float32, torch.float64]
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -44,6 +44,35 @@ def near_double_root_params() -> tuple[torch.Tensor, torch.Tensor]:
     m = torch.cat([torch.zeros(1), torch.logspace(-14, 0, 60)])
     c, m = torch.meshgrid(c.double(), m.double(), indexing="ij")
     return m.reshape(-1), 0.5 * torch.log(c.reshape(-1) / 2.0)
+
+
+def quad_mean(mu: float, sigma: float) -> float:
+    """Reference E[tanh(u)], u ~ N(mu, sigma^2): scipy's adaptive quad in z = (u - mu) / sigma
+    over [-12, 12] (the mass beyond: 4e-33), told where tanh's step at u = 0 lies."""
+    from scipy import integrate
+
+    def integrand(z: float) -> float:
+        return math.tanh(mu + sigma * z) * math.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
+
+    kink = -mu / sigma
+    points = [kink] if abs(kink) < 12 else None
+    value, _ = integrate.quad(
+        integrand, -12.0, 12.0, points=points, epsabs=1e-13, epsrel=1e-12, limit=500
+    )
+    return value
+
+
+def mean_cases(n_random: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(mu, sigma): log-uniform sigma in [1e-4, 10] with |mu| <= 20, plus the corners: sigma
+    1e-4 (with mu at and near the kink), |mu| = 20, the bimodal sigma 1-3, sigma 10."""
+    g = np.random.default_rng(seed)
+    mu = np.concatenate([g.uniform(-20, 20, n_random // 4), g.normal(0, 2, n_random)])
+    sigma = np.exp(g.uniform(math.log(1e-4), math.log(10.0), mu.size))
+    corner_mu = np.array([0.0, 1e-4, -3e-4, 0.25, 0.5, 1.0, 2.0, -2.0, 20.0, -20.0])
+    corner_sigma = np.array([1e-4, 3e-4, 1.0, 1.5, 2.0, 3.0, 8.0, 10.0])
+    grid_mu, grid_sigma = np.meshgrid(corner_mu, corner_sigma)
+    mu = np.concatenate([mu, grid_mu.ravel()]).clip(-20, 20)
+    return mu, np.concatenate([sigma, grid_sigma.ravel()])
 
 
 # --- the density ---------------------------------------------------------------------------
@@ -279,7 +308,80 @@ def test_mode_solves_the_stationarity_condition() -> None:
     np.testing.assert_allclose(x, mu + 2 * sigma**2 * np.tanh(x), atol=1e-9)
 
 
-def test_figures_command_writes_the_five_pngs(tmp_path) -> None:
+# --- the mean ------------------------------------------------------------------------------
+
+
+def test_mean_matches_quad_over_the_whole_range() -> None:
+    mu, sigma = mean_cases(400, seed=0)
+    reference = torch.tensor(
+        [quad_mean(m, s) for m, s in zip(mu, sigma, strict=True)], dtype=torch.float64
+    )
+    mean = mean_action(torch.from_numpy(mu), torch.from_numpy(np.log(sigma)))
+    # The docstring promises 1e-10; plain Gauss-Hermite (180 nodes) misses by 2e-3 at sigma 8.
+    assert (mean - reference).abs().max().item() <= 1e-9
+    assert ((sigma > 1) & (np.abs(mu) < 3)).sum() > 50
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_mean_at_tiny_sigma_is_tanh_mu(dtype: torch.dtype) -> None:
+    mu = torch.cat([torch.linspace(-20, 20, 81), torch.tensor([1e-4, -1e-4, 0.0])]).to(dtype)
+    mean = mean_action(mu, torch.full_like(mu, math.log(1e-4)))
+    # E[tanh u] - tanh(mu) ~ tanh''(mu) sigma^2 / 2, and |tanh''| <= 0.77.
+    atol = max(0.77 * 1e-8 / 2, 2 * torch.finfo(dtype).eps)
+    torch.testing.assert_close(mean, torch.tanh(mu), rtol=0, atol=atol)
+
+
+def test_mean_of_a_point_mass_is_tanh_mu() -> None:
+    mu = torch.tensor([-2.0, 0.0, 0.5], dtype=torch.float64)
+    torch.testing.assert_close(mean_action(mu, torch.full_like(mu, -math.inf)), torch.tanh(mu))
+
+
+def test_mean_lies_between_zero_and_the_median_tanh_mu() -> None:
+    # Pairing mu + d with mu - d: tanh(mu + d) + tanh(mu - d) lies in [0, 2 tanh(mu)] for mu >= 0.
+    mu, sigma = mean_cases(2000, seed=1)
+    mu, log_std = torch.from_numpy(mu), torch.from_numpy(np.log(sigma))
+    signed = torch.sign(mu) * mean_action(mu, log_std)
+    assert torch.all(signed >= -1e-15) and torch.all(signed <= torch.tanh(mu).abs() + 1e-15)
+    assert torch.equal(mean_action(-mu, log_std), -mean_action(mu, log_std))
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_mean_shape_dtype_device_and_broadcasting(dtype: torch.dtype, device: str) -> None:
+    mu = 3.0 * torch.randn(3, 4, 5, dtype=dtype, device=device)
+    log_std = torch.linspace(math.log(1e-4), math.log(10.0), 5, dtype=dtype, device=device)
+    mean = mean_action(mu, log_std)
+    assert mean.shape == (3, 4, 5) and mean.dtype == dtype and mean.device == mu.device
+    torch.testing.assert_close(mean, mean_action(mu, log_std.expand_as(mu).clone()))
+    # float32 in, float64 inside: the float32 result is the float64 one rounded.
+    in_float64 = mean_action(mu.double(), log_std.double())
+    torch.testing.assert_close(mean.double(), in_float64, rtol=0, atol=2 * torch.finfo(dtype).eps)
+    assert mean_action(mu[0, 0, 0], log_std[0]).shape == ()
+    assert mean_action(mu[:0], log_std).shape == (0, 4, 5)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_mean_on_cuda_equals_the_cpu_result() -> None:
+    mu, sigma = mean_cases(400, seed=2)
+    mu, log_std = torch.from_numpy(mu), torch.from_numpy(np.log(sigma))
+    on_gpu = mean_action(mu.cuda(), log_std.cuda())
+    assert on_gpu.is_cuda
+    torch.testing.assert_close(on_gpu.cpu(), mean_action(mu, log_std), rtol=0, atol=1e-13)
+
+
+def test_mean_nan_in_gives_nan_out_only_where_nan() -> None:
+    mu = torch.tensor([math.nan, 1.0, 1.0, 0.5])
+    log_std = torch.tensor([0.0, math.nan, -1.0, -1.0])
+    mean = mean_action(mu, log_std)
+    assert torch.isnan(mean[:2]).all() and torch.isfinite(mean[2:]).all()
+
+
+def test_mean_of_integer_mu_is_a_clear_error() -> None:
+    with pytest.raises(TypeError, match="floating-point"):
+        mean_action(torch.zeros(3, dtype=torch.int64), torch.zeros(3))
+
+
+def test_figures_command_writes_the_six_pngs(tmp_path) -> None:
     root = Path(__file__).resolve().parent.parent
     out = subprocess.run(
         [sys.executable, str(root / "mode_search.py"), "--figures", str(tmp_path / "figs")],
@@ -295,5 +397,6 @@ def test_figures_command_writes_the_five_pngs(tmp_path) -> None:
         "fig3_action_bias.png",
         "fig4_2d_example.png",
         "fig5_shift_vs_dimensions.png",
+        "fig6_mode_median_mean.png",
     ]
     assert all(p.read_bytes().startswith(b"\x89PNG") and p.stat().st_size > 10_000 for p in written)
