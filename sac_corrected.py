@@ -8,6 +8,7 @@ acts with tanh(mu) from the same start states (a paired comparison on the same a
 far the mode is from tanh(mu): the paper's distribution shift, measured during training.
 """
 
+import copy
 import csv
 import dataclasses
 import difflib
@@ -27,7 +28,6 @@ from pathlib import Path
 from typing import Literal, NoReturn
 
 import gymnasium as gym
-import imageio
 import mujoco
 import numpy as np
 import torch
@@ -36,9 +36,11 @@ import tyro
 from torch.utils.tensorboard import SummaryWriter
 
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
-from mode_search import mode_action
+from eval_runner import EvalPool, Round, default_workers, eval_columns, eval_seeds, round_statistics
 
 ALGORITHM = "corrected"
+# eval.csv's shift columns: how far the mode is from tanh(mu) at the states the mode visits.
+SHIFT_OF = ""
 
 
 @dataclass
@@ -79,6 +81,16 @@ class Args:
     """evaluate every this many environment steps"""
     eval_episodes: int = 10
     """episodes per evaluation round"""
+    eval_selectors: tuple[Literal["mode", "tanh_mu", "mean", "q_best"], ...] = ()
+    """more evaluation actions, each paired (same start states) with the script's own: "mean"
+    (E[tanh(u)]), "q_best" (the critic's pick of tanh(mu), mode and mean at each state), "mode",
+    "tanh_mu" (see eval_runner.py); eval.csv columns <name>_*"""
+    mode_solver: Literal["exact", "grid"] = "exact"
+    """how to find the mode (for the evaluation actions that use it): "exact" (iterative solve)
+    or "grid" (the paper's Algorithm 1)"""
+    eval_workers: int | None = None
+    """processes that run evaluation rounds while training goes on (default: the cores that
+    training leaves free); 0 runs each round in-process, training waiting"""
     log_interval: int = 1000
     """write a train.csv / TensorBoard row every this many steps"""
     print_interval: int = 10_000
@@ -112,21 +124,16 @@ class Args:
     """the W&B entity (team or user; default: yours)"""
     wandb_group: str | None = None
     """the W&B group (sweep.py sets {env_id}__{algorithm})"""
-    mode_solver: Literal["exact", "grid"] = "exact"
-    """how to find the mode: "exact" (iterative solve) or "grid" (the paper's Algorithm 1)"""
 
 
 # Flags that may differ when resuming: they change where and how fast, not what is computed.
 TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
 RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "print_interval",
                   "cuda", "cudagraphs", "gpu_buffer", "torch_threads", "capture_video",
-                  *TRACKING_FIELDS)
-EVAL_STATS = ("return_mean", "return_std", "return_min", "return_max", "length_mean",
-              "success_rate")
+                  "eval_workers", *TRACKING_FIELDS)
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
                  "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
                  "episode_return_mean", "episode_length_mean")
-SHIFT_COLUMNS = ("mode_shift_abs_mean", "mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
 INTERRUPTED_EXIT_CODE = 3
 # What final_model.pt keeps of the arguments, so that it alone rebuilds the actor (evaluate.py).
 MODEL_FIELDS = ("env_id", "hidden_sizes", "log_std_min", "log_std_max")
@@ -135,20 +142,10 @@ CHECKPOINT_KEYS = ("args", "global_step", "elapsed", "progress", "actor", "qf", 
                    "rng")
 
 
-def eval_selectors(args: Args) -> dict[str, Callable]:
-    """Evaluation actions in (-1, 1)^A by eval.csv column prefix: the mode, and tanh(mu) paired."""
-    return {"": lambda mu, log_std: mode_action(mu, log_std, args.mode_solver),
-            "tanh_mu_": lambda mu, log_std: torch.tanh(mu)}
-
-
-def shift_statistics(mu: torch.Tensor, log_std: torch.Tensor, solver: str) -> dict[str, float]:
-    """How far the mode is from tanh(mu) at the given states (rows), and how wide sigma is:
-    2 sigma^2 > 1 is the regime where the squashed density can have two modes."""
-    shift = (mode_action(mu, log_std, solver) - torch.tanh(mu)).abs()
-    sigma = log_std.exp()
-    return {"mode_shift_abs_mean": shift.mean().item(),
-            "mode_shift_abs_sum": shift.sum(1).mean().item(), "sigma_mean": sigma.mean().item(),
-            "bimodal_fraction": (2 * sigma**2 > 1).float().mean().item()}
+def eval_actions(args: Args) -> dict[str, str]:
+    """Evaluation actions (eval_runner.py) by eval.csv column prefix: the mode, tanh(mu) paired,
+    and the --eval-selectors."""
+    return {"": "mode", "tanh_mu_": "tanh_mu", **{f"{s}_": s for s in args.eval_selectors}}
 
 
 def parse_args() -> Args:
@@ -162,7 +159,8 @@ def parse_args() -> Args:
     config = read_run_config(Path(args.resume))
     stored = {f.name: config[f.name] for f in dataclasses.fields(Args)
               if f.name in config and f.name not in RUNTIME_FIELDS}
-    stored["hidden_sizes"] = tuple(stored.get("hidden_sizes", args.hidden_sizes))
+    for key in ("hidden_sizes", "eval_selectors"):  # JSON lists back to the flags' tuples
+        stored[key] = tuple(stored.get(key, getattr(args, key)))
     # A tracked run goes on being tracked, to the same W&B run, unless told otherwise.
     tracking = {k: config[k] for k in TRACKING_FIELDS if k in config}
     wrong = [k for k, v in (stored | tracking).items() if not same_type(v, getattr(args, k))]
@@ -184,13 +182,16 @@ def same_type(value: object, default: object) -> bool:
         return True
     if isinstance(default, float):
         return isinstance(value, int | float) and not isinstance(value, bool)
-    return type(value) is type(default) and (not isinstance(value, tuple)
-                                            or all(type(v) is int for v in value))
+    if isinstance(default, tuple):  # hidden_sizes holds ints, eval_selectors names
+        return isinstance(value, tuple) and all(type(v) is type(default[0]) if default
+                                                else type(v) is str for v in value)
+    return type(value) is type(default)
 
 
 def check_args(args: Args) -> None:
     """Every flag's valid range, checked before anything is created or written."""
     finite = math.isfinite
+    own_actions = eval_actions(dataclasses.replace(args, eval_selectors=())).values()
     rules = (
         ("seed", args.seed >= 0, "a non-negative integer"),
         ("total_timesteps", args.total_timesteps >= 1, "at least 1"),
@@ -215,6 +216,10 @@ def check_args(args: Args) -> None:
          "evaluation)"),
         ("eval_episodes", args.eval_episodes >= 1, "at least 1 (to skip evaluation, set "
          "--eval-interval above --total-timesteps)"),
+        ("eval_selectors", len(set(eval_actions(args).values())) == len(eval_actions(args)),
+         f"evaluation actions other than this script's own ({', '.join(own_actions)}), each once"),
+        ("eval_workers", args.eval_workers is None or args.eval_workers >= 0,
+         "0 (in-process) or more"),
         ("log_interval", args.log_interval >= 1, "at least 1"),
         ("print_interval", args.print_interval >= 1, "at least 1"),
         ("checkpoint_interval", args.checkpoint_interval >= 0, "0 (off) or more"),
@@ -434,57 +439,22 @@ def sac_update(batch: tuple[torch.Tensor, ...], actor: Actor, qf: TwinQ, qf_targ
     return qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi
 
 
-def eval_policy(actor: Actor, select: Callable) -> Callable:
-    """The evaluation policy: a batch of observations -> (env action, mu, log sigma)."""
-
-    @torch.no_grad()
-    def policy(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        mu, log_std = actor(obs)
-        return actor.scale(select(mu, log_std)), mu, log_std
-
-    return policy
-
-
-def run_episodes(policy: Callable, env: gym.Env, seeds: list[int], device: torch.device,
-                 video_path: Path | None = None) -> dict:
-    """One episode per reset seed, acting with `policy` (see eval_policy).
-
-    Returns each episode's return, length and success, and the policy's mu and log sigma at
-    every visited state. Uses only the given env and the policy: no training random stream is
-    touched. evaluate.py runs the same function."""
-    returns, lengths, successes, mus, log_stds, frames = [], [], [], [], [], []
-    for episode, seed in enumerate(seeds):
-        obs, info = env.reset(seed=seed)
-        done, episode_return, length = False, 0.0, 0
-        while not done:
-            if video_path is not None and episode == 0:
-                frames.append(env.render())
-            action, mu, log_std = policy(torch.as_tensor(obs, dtype=torch.float32,
-                                                         device=device)[None])
-            action = action[0].cpu().numpy()
-            check_finite(action, "evaluation action")
-            mus.append(mu.clone())  # a CUDA graph overwrites its outputs at the next replay
-            log_stds.append(log_std.clone())
-            obs, reward, terminated, truncated, info = env.step(action)
-            episode_return, length = episode_return + float(reward), length + 1
-            done = terminated or truncated
-        returns.append(episode_return)
-        lengths.append(length)
-        successes.append(info.get("success"))
-    if frames:
-        imageio.mimsave(video_path, frames, fps=env.metadata.get("render_fps", 30))
-    return {"returns": returns, "lengths": lengths, "successes": successes,
-            "mu": torch.cat(mus), "log_std": torch.cat(log_stds)}
-
-
-def episode_statistics(episodes: dict) -> dict:
-    """eval.csv's statistics of a round (success_rate None where the env reports none)."""
-    returns, successes = episodes["returns"], episodes["successes"]
-    stats = {"return_mean": np.mean(returns), "return_std": np.std(returns),
-             "return_min": np.min(returns), "return_max": np.max(returns),
-             "length_mean": np.mean(episodes["lengths"]),
-             "success_rate": None if None in successes else np.mean(successes)}
-    return {k: None if v is None else float(v) for k, v in stats.items()}
+def evaluation_round(args: Args, actor: Actor, qf: TwinQ, actions: dict[str, str],
+                     global_step: int, wall_time: float, run_dir: Path) -> Round:
+    """The evaluation round at this step, on CPU copies of the networks: training goes on while
+    a worker runs it (eval_runner.py)."""
+    eval_round = global_step // args.eval_interval
+    videos = {"": run_dir / "videos" / f"eval_step{global_step}.mp4"} if args.capture_video \
+        else {}
+    if videos:
+        videos[""].parent.mkdir(exist_ok=True)
+    return Round(args.env_id, eval_seeds(args.seed, eval_round, args.eval_episodes), actions,
+                 copy.deepcopy(actor).cpu(),
+                 copy.deepcopy(qf).cpu() if "q_best" in actions.values() else None,
+                 mode_solver=args.mode_solver, shift_of=SHIFT_OF, videos=videos,
+                 label=f"evaluation at step {global_step}",
+                 info={"global_step": global_step, "wall_time": wall_time,
+                       "eval_round": eval_round})
 
 
 # CUDA graphs (LeanRL's recipe with torch.cuda.graphs): eager PyTorch launches ~300 small kernels
@@ -556,12 +526,6 @@ def make_train_step(rb: ReplayBuffer, update: Callable, batch_size: int, device:
         return cuda_graph(lambda: update(rb.sample(batch_size, device)), learner)
     update_graph = cuda_graph(lambda *batch: update(batch), learner)
     return lambda: update_graph(*rb.sample(batch_size, device))
-
-
-def eval_seeds(seed: int, eval_round: int, episodes: int) -> list[int]:
-    """Reset seeds from (run seed, round, episode): every run with this seed sees these starts."""
-    return [int(np.random.SeedSequence([seed, eval_round, e]).generate_state(1)[0])
-            for e in range(episodes)]
 
 
 def check_finite(x: np.ndarray, what: str) -> None:
@@ -764,7 +728,6 @@ if __name__ == "__main__":
                                  else ""), flush=True)
 
     env = make_env(args.env_id)
-    eval_env = make_env(args.env_id, render=args.capture_video)
     env.action_space.seed(args.seed)
     obs_dim, action_dim = env.observation_space.shape[0], int(np.prod(env.action_space.shape))
 
@@ -785,9 +748,9 @@ if __name__ == "__main__":
     rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim,
                       device if args.gpu_buffer else torch.device("cpu"))
 
-    selectors = eval_selectors(args)
-    eval_columns = ["global_step", "wall_time", "eval_round",
-                    *[p + s for p in selectors for s in EVAL_STATS], *SHIFT_COLUMNS]
+    actions = eval_actions(args)
+    eval_header = ["global_step", "wall_time", "eval_round",
+                   *eval_columns(actions, shift=SHIFT_OF is not None)]
 
     # A run folder: fresh, or resumed from its checkpoint, or restarted if it has none yet.
     checkpoint_path = run_dir / "checkpoint.pt"
@@ -799,7 +762,7 @@ if __name__ == "__main__":
         if config_args != wanted:
             fail(f"{checkpoint_path} was made with other arguments than "
                  f"{run_dir / 'config.json'}; the run folder is inconsistent")
-        check_csv(run_dir / "eval.csv", eval_columns)  # before anything is written
+        check_csv(run_dir / "eval.csv", eval_header)  # before anything is written
         check_csv(run_dir / "train.csv", list(TRAIN_COLUMNS))
         for module, key in ((actor, "actor"), (qf, "qf"), (qf_target, "qf_target"),
                             (q_optimizer, "q_optimizer"), (actor_optimizer, "actor_optimizer"),
@@ -826,13 +789,11 @@ if __name__ == "__main__":
     graphs = device.type == "cuda" and args.cudagraphs
     graphed = cuda_graph if graphs else (lambda fn, restore=(): fn)
     train_action = graphed(torch.no_grad()(lambda obs: actor.get_action(obs)[0]))
-    eval_policies = {prefix: graphed(eval_policy(actor, select))
-                     for prefix, select in selectors.items()}
     train_step = make_train_step(
         rb, lambda batch: sac_update(batch, actor, qf, qf_target, log_alpha, optimizers,
                                      args.gamma, args.tau, target_entropy),
         args.batch_size, device, graphs, (actor, qf, qf_target, log_alpha, *optimizers))
-    eval_file, eval_csv = open_csv(run_dir / "eval.csv", eval_columns, keep)
+    eval_file, eval_csv = open_csv(run_dir / "eval.csv", eval_header, keep)
     train_file, train_csv = open_csv(run_dir / "train.csv", list(TRAIN_COLUMNS), keep)
     tb = SummaryWriter(run_dir, purge_step=global_step + 1 if ckpt is not None else None)
     if ckpt is None:
@@ -840,6 +801,18 @@ if __name__ == "__main__":
             f"|{k}|{v}|" for k, v in dataclasses.asdict(args).items()))
     del ckpt
     tracker = start_tracking(args, run_dir)
+
+    def log_evaluation(round_: Round, result: dict) -> None:
+        """An evaluation round's eval.csv row; EvalPool calls this in step order."""
+        row = dict(round_.info)
+        for prefix in actions:
+            row |= round_statistics(result, prefix)
+        write_row(eval_file, eval_csv, tb, tracker, "eval", row | result.get("shift", {}),
+                  round_.videos.get(""))
+        progress["last_eval"] = (row["global_step"], row["return_mean"])
+
+    eval_pool = EvalPool(default_workers() if args.eval_workers is None else args.eval_workers,
+                         log_evaluation)
 
     session_start, row_start, row_step = time.time(), time.time(), global_step
     episode_return, episode_length, losses = 0.0, 0, None
@@ -872,22 +845,9 @@ if __name__ == "__main__":
             row_start, row_step = now, global_step
 
         if global_step % args.eval_interval == 0:
-            eval_round = global_step // args.eval_interval
-            seeds = eval_seeds(args.seed, eval_round, args.eval_episodes)
-            video = run_dir / "videos" / f"eval_step{global_step}.mp4" \
-                if args.capture_video else None
-            if video is not None:
-                video.parent.mkdir(exist_ok=True)
-            row = {"global_step": global_step, "eval_round": eval_round}
-            for prefix, policy in eval_policies.items():
-                episodes = run_episodes(policy, eval_env, seeds, device,
-                                        video if prefix == "" else None)
-                row |= {prefix + k: v for k, v in episode_statistics(episodes).items()}
-                if prefix == "":  # the shift at the states that the mode policy visits
-                    row |= shift_statistics(episodes["mu"], episodes["log_std"], args.mode_solver)
-            row["wall_time"] = elapsed + time.time() - session_start
-            write_row(eval_file, eval_csv, tb, tracker, "eval", row, video)
-            progress["last_eval"] = (global_step, row["return_mean"])
+            eval_pool.submit(evaluation_round(args, actor, qf, actions, global_step,
+                                              elapsed + time.time() - session_start, run_dir))
+        eval_pool.poll()
 
         if global_step % args.print_interval == 0:
             last = progress["last_eval"]
@@ -901,6 +861,7 @@ if __name__ == "__main__":
             progress["episode_lengths"].append(episode_length)
             episode_return, episode_length = 0.0, 0
             if stop.requested or (next_checkpoint is not None and global_step >= next_checkpoint):
+                eval_pool.drain()  # a checkpoint follows every round before it into eval.csv
                 state = {"args": dataclasses.asdict(args), "global_step": global_step,
                          "elapsed": elapsed + time.time() - session_start, "progress": progress,
                          "actor": actor.state_dict(), "qf": qf.state_dict(),
@@ -923,6 +884,8 @@ if __name__ == "__main__":
                     sys.exit(INTERRUPTED_EXIT_CODE)
             obs, _ = env.reset()
 
+    eval_pool.drain()
+    eval_pool.close()
     atomic_write(run_dir / "final_model.pt", lambda tmp: torch.save(
         {"actor": actor.state_dict(), "qf": qf.state_dict(),
          "config": {k: getattr(args, k) for k in MODEL_FIELDS}}, tmp))

@@ -11,6 +11,7 @@ the GPU, with graphs, with graphs and the buffer in host memory; and --concurren
 CPU only, sharing the GPU, and sharing it under MPS.
 """
 
+import copy
 import csv
 import statistics
 import subprocess
@@ -27,17 +28,15 @@ import tyro
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from eval_runner import Round, eval_seeds, run_round  # noqa: E402
 from mode_search import mode_action  # noqa: E402
 from sac_standard import (  # noqa: E402
     Actor,
     ReplayBuffer,
     TwinQ,
     cuda_graph,
-    eval_policy,
-    eval_seeds,
     make_env,
     make_train_step,
-    run_episodes,
     sac_update,
 )
 from sweep import mps_daemon  # noqa: E402
@@ -179,15 +178,13 @@ if __name__ == "__main__":
               f"mode of one action (exact): {mode_time * 1e3:6.3f} ms")
     env_step = time_env_step(env, args.repeats)
     print(f"env step on this CPU:              {env_step * 1e3:6.3f} ms")
-    seeds = eval_seeds(0, 1, args.eval_episodes)
-    for graphs in (False, True):
-        policy = eval_policy(actor, lambda m, s: mode_action(m, s))
-        policy = cuda_graph(policy) if graphs else policy
-        start = time.perf_counter()
-        mus = run_episodes(policy, make_env(args.env_id), seeds, CUDA)["mu"]
-        print(f"eval round at the mode, {'CUDA graph' if graphs else 'eager':<10}: "
-              f"{args.eval_episodes} episodes, {len(mus)} steps in "
-              f"{time.perf_counter() - start:.2f} s")
+    # Evaluation runs on CPU workers (eval_runner.py); one round, in-process, one thread.
+    start = time.perf_counter()
+    result = run_round(Round(args.env_id, eval_seeds(0, 1, args.eval_episodes),
+                             {"": "mode", "tanh_mu_": "tanh_mu"}, copy.deepcopy(actor).cpu()))
+    steps = sum(sum(r["lengths"]) for r in result.values())
+    print(f"eval round, mode and tanh(mu), CPU: {args.eval_episodes} episodes each, {steps} "
+          f"steps in {time.perf_counter() - start:.2f} s")
 
     report_runs("one run, CPU (--no-cuda)", runs_sps(args, ["--no-cuda"], 1))
     report_runs("one run, GPU eager (--no-cudagraphs)", runs_sps(args, ["--no-cudagraphs"], 1))

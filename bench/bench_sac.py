@@ -30,14 +30,12 @@ import tyro
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from eval_runner import Round, eval_seeds, run_round  # noqa: E402
 from sac_standard import (  # noqa: E402
     Actor,
     ReplayBuffer,
     TwinQ,
-    eval_policy,
-    eval_seeds,
     make_env,
-    run_episodes,
     sac_update,
 )
 
@@ -230,9 +228,8 @@ def time_eval_round(env, episodes: int) -> tuple[float, float]:
     """Seconds of one evaluation round with tanh(mu) of an untrained actor, and its steps."""
     actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
     start = clock()
-    mu = run_episodes(eval_policy(actor, lambda m, s: torch.tanh(m)), env,
-                      eval_seeds(0, 1, episodes), torch.device("cpu"))["mu"]
-    return clock() - start, len(mu)
+    result = run_round(Round(env.spec.id, eval_seeds(0, 1, episodes), {"": "tanh_mu"}, actor))
+    return clock() - start, sum(result[""]["lengths"])
 
 
 def replay_buffer_memory_gb() -> float:

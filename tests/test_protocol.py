@@ -20,13 +20,14 @@ TINY = ["--env-id", "Pendulum-v1", "--seed", "3", "--total-timesteps", "1200",
         "--learning-starts", "300", "--eval-interval", "400", "--eval-episodes", "2",
         "--hidden-sizes", "32", "32", "--batch-size", "32", "--log-interval", "100",
         "--print-interval", "1200", "--checkpoint-interval", "0"]
-# The statistics each evaluation round logs for an evaluation action (sac_standard.EVAL_STATS).
+# The statistics each evaluation round logs for an evaluation action (eval_runner.EVAL_STATS).
 EVAL_STATS = ("return_mean", "return_std", "return_min", "return_max", "length_mean",
               "success_rate")
 # Columns that measure the machine, not the run.
 TIMING = ("wall_time", "sps")
 # config.json keys that may differ between the two scripts' runs of one seed.
-OWN_KEYS = {"algorithm", "script", "mode_solver", "run_name", "start_time"}
+OWN_KEYS = {"algorithm", "script", "mode_solver", "run_name", "start_time", "eval_selectors",
+            "eval_workers"}
 
 
 def read_csv(path: Path) -> list[dict]:
@@ -36,18 +37,23 @@ def read_csv(path: Path) -> list[dict]:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> Path:
-    """One run of each script, same seed and flags, in one folder."""
+    """One run of each script, same seed and flags, in one folder. The corrected run also
+    evaluates the paired selectors, in a worker process; the standard run evaluates in-process:
+    neither may change training or the tanh(mu) episodes."""
     out = tmp_path_factory.mktemp("protocol")
-    for script, name in (("sac_standard.py", "std"), ("sac_corrected.py", "cor")):
-        result = subprocess.run([sys.executable, str(ROOT / script), *TINY, "--output-dir",
-                                 str(out / "runs"), "--run-name", name],
+    for script, name, extra in (
+            ("sac_standard.py", "std", ["--eval-workers", "0"]),
+            ("sac_corrected.py", "cor", ["--eval-workers", "1", "--eval-selectors", "mean",
+                                         "q_best"])):
+        result = subprocess.run([sys.executable, str(ROOT / script), *TINY, *extra,
+                                 "--output-dir", str(out / "runs"), "--run-name", name],
                                 capture_output=True, text=True, cwd=ROOT)
         assert result.returncode == 0, result.stderr
     return out / "runs"
 
 
-def test_sac_standard_module_logs_the_statistics_compared_here():
-    from sac_standard import EVAL_STATS as logged
+def test_the_scripts_log_the_statistics_compared_here():
+    from eval_runner import EVAL_STATS as logged
 
     assert tuple(logged) == EVAL_STATS
 
@@ -60,6 +66,10 @@ def test_corrected_tanh_mu_columns_are_the_standard_run(runs):
         assert (c["global_step"], c["eval_round"]) == (s["global_step"], s["eval_round"])
         for stat in EVAL_STATS:  # the same text: the same floats, not merely close ones
             assert c["tanh_mu_" + stat] == s[stat], (s["global_step"], stat)
+    for row in corrected:  # the selectors' columns, and q_best's choice shares
+        assert float(row["mean_length_mean"]) == 200 and row["q_best_return_mean"]
+        shares = [float(row[f"q_best_share_{c}"]) for c in ("tanh_mu", "mode", "mean")]
+        assert abs(sum(shares) - 1) < 1e-9
     # The mode is a different action: its own columns are not the standard run's.
     assert any(c["return_mean"] != s["return_mean"] for s, c in zip(standard, corrected,
                                                                     strict=True))

@@ -1,0 +1,152 @@
+"""eval_runner.py: lockstep rounds, the worker pool, q_best, and their failures."""
+
+import copy
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+import tests.toy_envs  # noqa: F401  (registers Countdown-v0 here; workers import it by id)
+from eval_runner import (
+    Q_BEST_CANDIDATES,
+    EvalPool,
+    Round,
+    eval_columns,
+    eval_seeds,
+    q_best_choice,
+    round_statistics,
+    run_round,
+)
+from mode_search import mean_action, mode_action
+from tests.toy_envs import ToyActor, ToyCritic, episode_of
+
+COUNTDOWN = "tests.toy_envs:Countdown-v0"
+
+
+def collect(workers: int, rounds: list[Round]) -> list[tuple[str, dict]]:
+    """Every round's (label, result), in the order the pool hands them back."""
+    results = []
+    pool = EvalPool(workers, lambda round_, result: results.append((round_.label, result)))
+    for round_ in rounds:
+        pool.submit(round_)
+    pool.drain()
+    pool.close()
+    return results
+
+
+def test_episodes_of_different_lengths_in_one_batch_keep_their_own_return_and_length():
+    seeds = [3, 12, 0, 7, 25, 4]  # lengths 4, 13, 1, 8, 13, 5
+    actions = {"": "mode", "tanh_mu_": "tanh_mu", "mean_": "mean", "sample_": "sample"}
+    result = run_round(Round(COUNTDOWN, seeds, actions, ToyActor()))
+    for prefix in actions:
+        for k, seed in enumerate(seeds):
+            length, reward, success = episode_of(seed)
+            assert result[prefix]["lengths"][k] == length
+            assert result[prefix]["returns"][k] == pytest.approx(length * reward)
+            assert result[prefix]["successes"][k] is success
+    row = round_statistics(result, "tanh_mu_")
+    returns = [episode_of(s)[0] * episode_of(s)[1] for s in seeds]
+    assert row["tanh_mu_return_mean"] == pytest.approx(np.mean(returns))
+    assert row["tanh_mu_return_min"] == pytest.approx(min(returns))
+    assert row["tanh_mu_success_rate"] == pytest.approx(np.mean([episode_of(s)[2] for s in seeds]))
+
+
+def test_a_round_is_the_same_in_process_and_in_any_number_of_workers():
+    from sac_standard import Actor, TwinQ
+
+    torch.manual_seed(0)
+    env = gym.make("Pendulum-v1")
+    actor = Actor(3, (32, 32), env.action_space, -10.0, 2.0)
+    critic = TwinQ(3, 1, (32, 32))
+    with torch.no_grad():  # a wide policy, so that the mode, tanh(mu) and the mean differ
+        actor.fc_logstd.bias.fill_(0.5)
+    actions = {"": "mode", "tanh_mu_": "tanh_mu", "mean_": "mean", "q_best_": "q_best"}
+    rounds = [Round("Pendulum-v1", eval_seeds(1, r, 3), actions, actor, critic, shift_of="",
+                    label=f"round {r}") for r in (1, 2, 3)]
+    in_process = collect(0, copy.deepcopy(rounds))
+    assert collect(1, copy.deepcopy(rounds)) == in_process
+    assert collect(2, copy.deepcopy(rounds)) == in_process
+    first = in_process[0][1]
+    assert first[""]["returns"] != first["tanh_mu_"]["returns"]
+    assert sum(first["q_best_"]["shares"].values()) == pytest.approx(1.0)
+    assert set(first["shift"]) == {"mode_shift_abs_mean", "mode_shift_abs_sum", "sigma_mean",
+                                   "bimodal_fraction"}
+    assert first["shift"]["mode_shift_abs_mean"] > 0
+
+
+def test_rounds_are_handed_back_in_submission_order_when_a_later_one_finishes_first():
+    slow = "tests.toy_envs:SlowCountdown-v0"
+    long_round = Round(slow, [12, 25], {"": "tanh_mu"}, ToyActor(), label="long")  # 13 steps
+    short_round = Round(slow, [0, 13], {"": "tanh_mu"}, ToyActor(), label="short")  # 1 step
+    finished = []
+    pool = EvalPool(2, lambda round_, result: finished.append(round_.label))
+    pool.submit(long_round)
+    pool.submit(short_round)
+    pool.pending[1][0].result()  # the short round is done...
+    assert not pool.pending[0][0].done()  # ...while the long one still runs
+    pool.poll()
+    assert finished == []  # not handed back before the round submitted earlier
+    pool.drain()
+    pool.close()
+    assert finished == ["long", "short"]
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_a_nan_action_names_the_round_the_action_and_the_episode(workers):
+    seeds = [5, 9, 2]  # rewards 0.5, 4.5, 2.5: episode 1's mu is NaN
+    round_ = Round(COUNTDOWN, seeds, {"": "tanh_mu", "mode_": "mode"}, ToyActor(nan_reward=4.5),
+                   label="evaluation at step 3000")
+    handed_back = []
+    pool = EvalPool(workers, lambda r, result: handed_back.append(result))
+    with pytest.raises(SystemExit) as error:
+        pool.submit(round_)
+        pool.drain()
+    message = str(error.value)
+    assert "evaluation at step 3000" in message and "'tanh_mu'" in message
+    assert "episode 1 (reset seed 9)" in message and "\n" not in message
+    assert handed_back == []
+
+
+def test_q_best_picks_the_candidate_its_critic_scores_highest_and_ties_go_to_tanh_mu():
+    obs = torch.zeros(4, 3)
+    candidates = {"tanh_mu": torch.tensor([[0.0], [0.0], [0.3], [0.5]]),
+                  "mode": torch.tensor([[0.9], [-0.5], [0.3], [0.1]]),
+                  "mean": torch.tensor([[0.4], [0.2], [0.3], [0.5]])}
+    critic = ToyCritic(torch.tensor([0.8]))
+    choice = q_best_choice(obs, candidates, ToyActor(), critic)
+    # Row 0: the mode is nearest 0.8; row 1: the mean; row 2: all tie; row 3: tanh_mu ties mean.
+    names = [Q_BEST_CANDIDATES[i] for i in choice]
+    assert names == ["mode", "mean", "tanh_mu", "tanh_mu"]
+
+
+def test_q_best_acts_with_the_chosen_candidate_and_logs_shares():
+    seeds = [3, 7, 12]
+    mu_of = lambda obs: ToyActor()(obs)  # noqa: E731
+    obs = torch.tensor([[4.0, 3.5, 1.0]])
+    mu, log_std = mu_of(obs)
+    target = mean_action(mu, log_std)[0]  # the critic wants the mean of the first state
+    round_ = Round(COUNTDOWN, seeds, {"": "q_best"}, ToyActor(), ToyCritic(target))
+    result = run_round(round_)
+    shares = result[""]["shares"]
+    assert set(shares) == set(Q_BEST_CANDIDATES)
+    assert sum(shares.values()) == pytest.approx(1.0)
+    assert shares["mean"] > 0
+    row = round_statistics(result, "")
+    assert [k for k in row if "share" in k] == [f"share_{c}" for c in Q_BEST_CANDIDATES]
+    assert list(row) == eval_columns({"": "q_best"}, shift=False)
+    assert not torch.equal(mode_action(mu, log_std), mean_action(mu, log_std))
+
+
+def test_video_of_the_first_episode(tmp_path):
+    from sac_standard import Actor
+
+    env = gym.make("Hopper-v5")
+    video = tmp_path / "round.mp4"
+    result = run_round(Round("Hopper-v5", [1, 2], {"": "tanh_mu", "mode_": "mode"},
+                             Actor(11, (8,), env.action_space, -10.0, 2.0),
+                             videos={"mode_": video}))
+    assert video.stat().st_size > 1000
+    import imageio
+
+    assert len(imageio.mimread(video)) == result["mode_"]["lengths"][0]

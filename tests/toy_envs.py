@@ -1,0 +1,80 @@
+"""Tiny gymnasium envs whose episodes are known from their reset seed, for eval_runner's tests.
+
+gym.make("tests.toy_envs:Countdown-v0") imports this module, in a worker process too.
+"""
+
+import math
+import time
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn as nn
+
+
+def episode_of(seed: int) -> tuple[int, float, bool]:
+    """The length, per-step reward and success of the episode that reset seed starts."""
+    return 1 + seed % 13, 0.5 + seed % 5, seed % 2 == 0
+
+
+class Countdown(gym.Env):
+    """Ends after a length fixed by the reset seed; every step pays the same reward. The
+    observation is (steps left, the seed's reward, 1); actions are ignored. `step_seconds` slows
+    each step down, so that a long round takes visibly longer than a short one."""
+
+    observation_space = gym.spaces.Box(-np.inf, np.inf, (3,), np.float64)
+    action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+    def __init__(self, step_seconds: float = 0.0):
+        self.step_seconds = step_seconds
+        self.left, self.reward, self.success = 0, 0.0, False
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        length, self.reward, self.success = episode_of(seed if seed is not None else 0)
+        self.left = length
+        return self._obs(), {}
+
+    def step(self, action):
+        assert self.left > 0, "stepped after the episode ended"
+        time.sleep(self.step_seconds)
+        self.left -= 1
+        done = self.left == 0
+        return self._obs(), self.reward, done, False, {"success": self.success} if done else {}
+
+    def _obs(self) -> np.ndarray:
+        return np.array([self.left, self.reward, 1.0])
+
+
+gym.register("Countdown-v0", entry_point=Countdown)
+gym.register("SlowCountdown-v0", entry_point=Countdown, kwargs={"step_seconds": 0.004})
+
+
+class ToyActor(nn.Module):
+    """mu from the observation, sigma 1, actions unscaled; mu is NaN where the observation's
+    reward entry equals `nan_reward` (one chosen episode)."""
+
+    def __init__(self, nan_reward: float | None = None):
+        super().__init__()
+        self.nan_reward = nan_reward
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        mu = torch.stack([0.1 * obs[:, 1], -0.2 * obs[:, 2]], 1)
+        if self.nan_reward is not None:
+            mu = torch.where((obs[:, 1] == self.nan_reward)[:, None], math.nan, mu)
+        return mu, torch.zeros_like(mu)
+
+    def scale(self, y: torch.Tensor) -> torch.Tensor:
+        return y
+
+
+class ToyCritic(nn.Module):
+    """Q1 = -|a - target|^2, Q2 = Q1 + 1: the best action is the one nearest the target."""
+
+    def __init__(self, target: torch.Tensor):
+        super().__init__()
+        self.target = target
+
+    def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        q1 = -(action - self.target).pow(2).sum(1)
+        return torch.stack([q1, q1 + 1])
