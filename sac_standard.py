@@ -10,6 +10,7 @@ import copy
 import csv
 import dataclasses
 import difflib
+import fcntl
 import functools
 import json
 import math
@@ -657,6 +658,23 @@ def run_metadata(args: Args, obs_dim: int, action_dim: int) -> dict:
             "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
 
 
+def lock_run_folder(run_dir: Path) -> int:
+    """An exclusive OS lock on run_dir/lock, held while this process lives: one writer per run
+    folder (a Slurm requeue racing a job that has not died yet, a sweep started twice). The kernel
+    drops it when the process dies, SIGKILL included, so it is never stale. Returns its fd."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+        fail(f"{run_dir} is in use by process {holder} (it holds {run_dir / 'lock'}); let it "
+             "finish or stop it, then --resume")
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    return fd
+
+
 class StopRequest:
     """SIGTERM/SIGUSR1/SIGUSR2 ask for a graceful stop at the next episode end; a second signal
     exits at once (the last checkpoint stays valid)."""
@@ -749,6 +767,7 @@ if __name__ == "__main__":
     eval_header = ["global_step", "wall_time", "eval_round",
                    *eval_columns(actions, shift=SHIFT_OF is not None)]
 
+    lock_run_folder(run_dir)  # before anything in it is read or written
     # A run folder: fresh, or resumed from its checkpoint, or restarted if it has none yet.
     checkpoint_path = run_dir / "checkpoint.pt"
     ckpt = read_checkpoint(checkpoint_path) \

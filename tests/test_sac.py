@@ -337,3 +337,25 @@ def test_terminated_and_truncated_transitions_are_bootstrapped():
     assert not ends_without_bootstrap(terminated=True, truncated=True)  # as HumanoidBench
     assert not ends_without_bootstrap(terminated=False, truncated=True)
     assert not ends_without_bootstrap(terminated=False, truncated=False)
+
+
+def test_a_folder_in_use_refuses_a_second_process_until_its_holder_dies(tmp_path):
+    run_dir = tmp_path / "busy"
+    args = [*SHORT[:-1], "400", "--total-timesteps", "3000", "--eval-workers", "0",
+            "--output-dir", str(tmp_path), "--run-name", "busy"]
+    holder = subprocess.Popen(command("sac_standard.py", *args), cwd=ROOT,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        wait_for(lambda: (run_dir / "checkpoint.pt").exists())
+        holder.send_signal(signal.SIGSTOP)  # frozen, so that its files hold still
+        before = {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file()}
+        second = run("sac_standard.py", "--resume", str(run_dir), check=False)
+        assert second.returncode == 2 and "Traceback" not in second.stderr
+        assert f"is in use by process {holder.pid}" in second.stderr
+        assert {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file()} == before
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    # The kernel released the lock with its holder: the resume goes ahead at once.
+    run("sac_standard.py", "--resume", str(run_dir), "--eval-workers", "0")
+    assert (run_dir / "done.json").exists()
