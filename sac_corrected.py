@@ -14,6 +14,7 @@ import dataclasses
 import difflib
 import fcntl
 import functools
+import importlib
 import json
 import math
 import os
@@ -261,12 +262,20 @@ def read_run_config(run_dir: Path) -> dict:
 
 
 def make_env(env_id: str, render: bool = False) -> gym.Env:
-    """The gymnasium env, with a clear error for an id or a space that SAC cannot use."""
-    if env_id not in gym.registry:
-        close = difflib.get_close_matches(env_id, list(gym.registry), n=5, cutoff=0.5)
+    """The gymnasium env, with a clear error for an id or a space that SAC cannot use. An id
+    "package.module:EnvId" imports the module first, which registers the env (gymnasium's way)."""
+    module, _, name = env_id.rpartition(":")
+    if module:
+        try:
+            importlib.import_module(module)
+        except ImportError as error:
+            fail(f"--env-id {env_id}: cannot import {module!r} ({error}); check the module path "
+                 "(run from the folder that holds it)")
+    if name not in gym.registry:
+        close = difflib.get_close_matches(name, list(gym.registry), n=5, cutoff=0.5)
         ours = sorted(k for k in gym.registry if k.startswith("h1hand-"))
         fail(f"unknown env id {env_id!r}; close matches: {close}; our tasks: {ours}")
-    env = gym.make(env_id, render_mode="rgb_array" if render else None)
+    env = gym.make(env_id, **({"render_mode": "rgb_array"} if render else {}))
     space = env.action_space
     if not isinstance(space, gym.spaces.Box):
         fail(f"{env_id} has a {type(space).__name__} action space; SAC needs a Box")

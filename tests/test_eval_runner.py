@@ -1,6 +1,9 @@
 """eval_runner.py: lockstep rounds, the worker pool, q_best, and their failures."""
 
 import copy
+import signal
+import subprocess
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -22,6 +25,7 @@ from mode_search import mean_action, mode_action
 from tests.toy_envs import ToyActor, ToyCritic, episode_of
 
 COUNTDOWN = "tests.toy_envs:Countdown-v0"
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def collect(workers: int, rounds: list[Round]) -> list[tuple[str, dict]]:
@@ -150,3 +154,46 @@ def test_video_of_the_first_episode(tmp_path):
     import imageio
 
     assert len(imageio.mimread(video)) == result["mode_"]["lengths"][0]
+
+
+# --- in the training scripts ------------------------------------------------------------------
+TOY = ["--total-timesteps", "1200", "--learning-starts", "100", "--eval-interval", "300",
+       "--eval-episodes", "3", "--hidden-sizes", "8", "--batch-size", "16", "--log-interval",
+       "100", "--checkpoint-interval", "200"]
+
+
+def test_sigkill_with_a_round_in_flight_then_resume_gives_the_uninterrupted_eval_csv(tmp_path):
+    from tests.test_sac import command, read_csv, run, wait_for
+
+    env = ["--env-id", "tests.toy_envs:SlowEval-v0", "--output-dir", str(tmp_path)]
+    run("sac_standard.py", *TOY, *env, "--run-name", "whole", "--eval-workers", "0")
+    killed = tmp_path / "killed"
+    process = subprocess.Popen(command("sac_standard.py", *TOY, *env, "--run-name", "killed",
+                                       "--eval-workers", "1"), cwd=ROOT,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # Training has passed step 900 while the slow rounds are still being evaluated.
+    wait_for(lambda: (killed / "train.csv").exists()
+             and "\n900," in (killed / "train.csv").read_text())
+    in_flight = len(read_csv(killed / "eval.csv")) < 3
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    assert in_flight and not (killed / "done.json").exists()
+    run("sac_standard.py", "--resume", str(killed), "--eval-workers", "2")
+    for name in ("eval.csv", "train.csv"):
+        assert read_csv(killed / name) == read_csv(tmp_path / "whole" / name)
+    assert [row["global_step"] for row in read_csv(killed / "eval.csv")] == ["300", "600", "900",
+                                                                            "1200"]
+
+
+def test_a_nan_in_one_evaluation_episode_stops_the_run_in_one_line(tmp_path):
+    from tests.test_sac import run
+
+    result = run("sac_corrected.py", *TOY, "--env-id", "tests.toy_envs:NanEval-v0",
+                 "--output-dir", str(tmp_path), "--run-name", "nan", check=False)
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("evaluation at step 300: the evaluation action 'mode' is NaN/inf in "
+                           "episode 0 (reset seed ")
+    checkpoint = torch.load(tmp_path / "nan" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["global_step"] >= 200
+    assert not (tmp_path / "nan" / "eval.csv").read_text().count("\n") > 1  # no row written

@@ -17,37 +17,48 @@ def episode_of(seed: int) -> tuple[int, float, bool]:
     return 1 + seed % 13, 0.5 + seed % 5, seed % 2 == 0
 
 
+# Evaluation episodes reset with 32-bit seeds from eval_seeds; a training run's first reset uses
+# its small --seed and later ones none: seeds above this mark an evaluation episode.
+EVAL_SEEDS_ABOVE = 2**20
+
+
 class Countdown(gym.Env):
     """Ends after a length fixed by the reset seed; every step pays the same reward. The
     observation is (steps left, the seed's reward, 1); actions are ignored. `step_seconds` slows
-    each step down, so that a long round takes visibly longer than a short one."""
+    each step down, so that a long round takes visibly longer than a short one; `eval_only`
+    applies it (and `nan_obs`, NaN observations) to evaluation episodes only."""
 
     observation_space = gym.spaces.Box(-np.inf, np.inf, (3,), np.float64)
     action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
 
-    def __init__(self, step_seconds: float = 0.0):
-        self.step_seconds = step_seconds
-        self.left, self.reward, self.success = 0, 0.0, False
+    def __init__(self, step_seconds: float = 0.0, nan_obs: bool = False, eval_only: bool = False):
+        self.step_seconds, self.nan_obs, self.eval_only = step_seconds, nan_obs, eval_only
+        self.left, self.reward, self.success, self.evaluating = 0, 0.0, False, False
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
+        self.evaluating = seed is not None and seed > EVAL_SEEDS_ABOVE
         length, self.reward, self.success = episode_of(seed if seed is not None else 0)
         self.left = length
         return self._obs(), {}
 
     def step(self, action):
         assert self.left > 0, "stepped after the episode ended"
-        time.sleep(self.step_seconds)
+        if self.evaluating or not self.eval_only:
+            time.sleep(self.step_seconds)
         self.left -= 1
         done = self.left == 0
         return self._obs(), self.reward, done, False, {"success": self.success} if done else {}
 
     def _obs(self) -> np.ndarray:
-        return np.array([self.left, self.reward, 1.0])
+        nan = self.nan_obs and (self.evaluating or not self.eval_only)
+        return np.array([self.left, self.reward, math.nan if nan else 1.0])
 
 
 gym.register("Countdown-v0", entry_point=Countdown)
 gym.register("SlowCountdown-v0", entry_point=Countdown, kwargs={"step_seconds": 0.004})
+gym.register("SlowEval-v0", entry_point=Countdown, kwargs={"step_seconds": 0.02, "eval_only": True})
+gym.register("NanEval-v0", entry_point=Countdown, kwargs={"nan_obs": True, "eval_only": True})
 
 
 class ToyActor(nn.Module):
