@@ -14,12 +14,17 @@
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 from PIL import Image
+
+# Offscreen rendering without a display, as the tests render; read when mujoco is imported.
+if sys.platform.startswith("linux"):
+    os.environ.setdefault("MUJOCO_GL", "egl")
 
 DOCS = Path(__file__).resolve().parent
 ROOT = DOCS.parent
