@@ -363,7 +363,9 @@ def test_bad_inputs_give_one_clear_message(tmp_path, capsys):
             else:
                 write_config(root / f"run{i}", env_id=task, algorithm=algorithm, seed=seed)
                 (root / f"run{i}" / "eval.csv").write_text(text)
-        flags = ["--normalize", "none"] if name == "mixed_raw" else []
+        # The default, auto, falls back to min-max; asked for, success bars must all exist.
+        flags = {"mixed_raw": ["--normalize", "none"],
+                 "unknown_task": ["--normalize", "success-bar"]}.get(name, [])
         assert run_analysis(root, tmp_path / "out", *flags) == 2, name
         assert message in capsys.readouterr().err, name
     assert analyze.main([str(tmp_path / "empty"), "--reps", "0"]) == 2
@@ -510,7 +512,8 @@ def test_dimension_study_recovers_known_offsets_per_dimension(tmp_path):
     assert text.index("| Hopper-v5 | 3 |") < text.index("| Ant-v5 | 8 |")  # by dimension
     final_rows = {line.split(" | ")[0][2:]: line for line in text.splitlines()
                   if " | 1 (80k) | " in line}
-    assert final_rows["Hopper-v5"].startswith("| Hopper-v5 | 3 | 5 | 1 (80k) | -30.0 [")
+    assert final_rows["Hopper-v5"].startswith(
+        "| Hopper-v5 | 3 | Corrected SAC | mode | 5 | 1 (80k) | -30.0 [")
     # Seeds where the mode won: Hopper's offsets -38..-22, Ant's -20..20, powerlift's 56..64.
     assert [final_rows[t].endswith(f"| {won} of 5 |") for t, won in
             (("Hopper-v5", 0), ("Ant-v5", 2), (TASKS[0], 5))] == [True] * 3
@@ -530,6 +533,7 @@ def test_dimension_study_needs_two_dimensions(tmp_path):
         write_run(tmp_path / "runs", task, "corrected", 0, steps, steps / 1e3, steps / 1e3 - 1)
     assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
     assert not (tmp_path / "out" / "dimension_study.png").exists()
-    assert ("dimension study skipped: it needs corrected runs (with their paired tanh(mu) "
-            "evaluation) on tasks of at least two action dimensions; found [61]"
+    assert ("dimension study skipped: it needs paired evaluations against tanh(mu) (corrected "
+            "runs, or runs made with --eval-selectors) on tasks of at least two action "
+            "dimensions; found [61]"
             in (tmp_path / "out" / "summary.md").read_text())
