@@ -76,7 +76,7 @@ PAIRED_CORRECTED = CORRECTED + PAIRED_SUFFIX
 COMPARISON = (CORRECTED, STANDARD)
 GROUP_ORDER = (STANDARD, CORRECTED, PAIRED_CORRECTED,
                *(algorithm + suffix for algorithm in (CORRECTED, STANDARD)
-                 for suffix in (" (mean eval)", " (q_best eval)", " (mode eval)")
+                 for suffix in (" (mode eval)", " (mean eval)", " (q_best eval)")
                  if (algorithm, suffix) != (CORRECTED, " (mode eval)")))
 STANDARD_LABEL = "Standard SAC"
 LABELS = {
