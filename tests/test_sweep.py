@@ -123,6 +123,24 @@ def test_status_shows_state_progress_and_the_log_of_a_failed_run(reference, tmp_
     assert "failed" in table and "--no-such-flag" in table  # tyro's complaint, from the log
 
 
+def test_dimensions_preset_runs_and_analyzes_with_the_default_normalisation(tmp_path):
+    """--preset dimensions mixes tasks with and without a HumanoidBench success bar: --analyze
+    with analyze.py's defaults (no --normalize) gives a report once every run is done. Two of
+    the preset's env ids (3 and 61 action dimensions), one seed, 300 steps each (17 s here)."""
+    report = tmp_path / "report"
+    result = sweep("--preset", "dimensions", "--env-ids", "Hopper-v5", "h1hand-powerlift-v0",
+                   "--seeds", "0", "--workers", "2", "--output-dir", str(tmp_path / "runs"),
+                   "--analyze", str(report), "--analyze-args=--reps 200 --curve-reps 20", "--",
+                   "--total-timesteps", "300", "--learning-starts", "200", "--eval-interval",
+                   "100", "--eval-episodes", "1", "--batch-size", "32")
+    assert "2 done" in result.stdout
+    summary = (report / "summary.md").read_text()
+    assert "`auto` chose `min-max`: no HumanoidBench success bar for Hopper-v5" in summary
+    assert "| Hopper-v5 | 3 | Corrected SAC | mode | 1 | 1 (300) |" in summary
+    assert "| h1hand-powerlift-v0 | 61 | Corrected SAC | mode | 1 | 1 (300) |" in summary
+    assert (report / "dimension_study.png").stat().st_size > 0
+
+
 def test_dry_run_prints_the_plan_and_starts_nothing(reference, tmp_path):
     out = sweep(*GRID, "--scripts", "sac_standard.py", "--output-dir", str(reference),
                 "--dry-run", "--steps-per-second", "100", "--", *RUN_ARGS).stdout
