@@ -445,8 +445,8 @@ def slurm_cpus_per_task(args: Args) -> int:
     return int(given)
 
 
-def workers(count: int) -> str:
-    return f"{count} worker{'' if count == 1 else 's'}"
+def plural(count: int, noun: str) -> str:
+    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, str]:
@@ -456,18 +456,18 @@ def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, s
     CPUs only under task/affinity or task/cgroup; elsewhere (TaskPlugin=task/none, as in
     tests/slurm/) the mask is the whole node, and every run would start a worker per node core."""
     if given is not None:
-        return given, f"evaluation: {workers(given)} per run (--eval-workers after `--`)"
+        return given, f"evaluation: {plural(given, 'worker')} per run (--eval-workers after `--`)"
     if args.launcher == "slurm":
         cpus = slurm_cpus_per_task(args)
         count = eval_workers_per_run(cpus, 1)
-        return count, (f"evaluation: {workers(count)} per run ({cpus} CPUs per Slurm task, "
-                       "one for training)")
-    cores = len(os.sched_getaffinity(0))
-    # Fewer runs to launch than --workers: only that many run at once.
-    at_once = max(1, min(args.workers, to_launch))
-    count = eval_workers_per_run(cores, at_once)
-    return count, (f"evaluation: {workers(count)} per run ({cores} cores, {at_once} runs at "
-                   "a time)")
+        why = f"{plural(cpus, 'CPU')} per Slurm task, one for training"
+    else:
+        cores = len(os.sched_getaffinity(0))
+        # Fewer runs to launch than --workers: only that many run at once.
+        at_once = max(1, min(args.workers, to_launch))
+        count = eval_workers_per_run(cores, at_once)
+        why = f"{plural(cores, 'core')}, {plural(at_once, 'run')} at a time"
+    return count, f"evaluation: {plural(count, 'worker')} per run ({why})"
 
 
 # ---------------------------------------------------------------------------------------------
