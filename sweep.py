@@ -320,7 +320,7 @@ def split_eval_workers(extra_args: tuple[str, ...]) -> tuple[tuple[str, ...], in
             kept.append(arg)
             continue
         given = given if sep else next(args, "")
-        if not given.isdigit():
+        if not (given.isascii() and given.isdigit()):
             raise SweepError(f"{flag} {given or '(no value)'} after `--`: must be 0 (in-process) "
                              "or a number of evaluation processes")
         value = int(given)
@@ -440,7 +440,7 @@ def slurm_cpus_per_task(args: Args) -> int:
     """The CPUs each task gets: --cpus-per-task, unless --sbatch cpus-per-task=N overrides it
     (submitit writes additional sbatch parameters over its own)."""
     given = sbatch_options(args.sbatch).get("cpus_per_task", args.cpus_per_task)
-    if not str(given).isdigit() or int(given) < 1:
+    if not (str(given).isascii() and str(given).isdigit()) or int(given) < 1:
         raise SweepError(f"--sbatch cpus-per-task={given}: must be a whole number, at least 1")
     return int(given)
 
