@@ -37,7 +37,6 @@ import numpy as np
 import torch
 import torch.nn as nn
 import tyro
-from rliable import library as rly
 
 import sac_corrected as sac
 from eval_runner import ACTIONS, Q_BEST_CANDIDATES, SHIFT_COLUMNS, EvalPool, Round, eval_seeds
@@ -398,6 +397,10 @@ def progress_bar(label: str, total: int) -> Callable[[int], None]:
 
 def mean_with_ci(values: np.ndarray, reps: int, seed: int) -> tuple[float, float, float]:
     """The mean over episodes with rliable's bootstrap CI (episodes as runs of one task)."""
+    # Imported here, not at the top: a worker process re-imports this module, and rliable (arch,
+    # scipy) is 3 s of a worker's start-up that it never uses.
+    from rliable import library as rly
+
     # rliable draws from NumPy's legacy global generator, which takes seeds below 2**32 only.
     np.random.seed(seed % 2**32)  # noqa: NPY002
     point, interval = rly.get_interval_estimates(
