@@ -10,8 +10,10 @@ probability of improvement. Runs of sac_corrected.py also carry the paired evalu
 same actor with tanh(mu) on the same start states; the two scripts make the same training
 decisions for a seed, so that evaluation is the standard run of the seed: where a task has no
 sac_standard.py runs, it stands in for them ("Standard SAC (tanh(mu), paired)"), and where it
-has both, they are checked to agree. The headline is the paired analysis: per seed, the mode
-minus tanh(mu) of the same actor, per task and over tasks.
+has both, they are checked to agree. Runs made with `--eval-selectors` carry further paired
+evaluations of the same actor: the mean of the squashed policy, the critic's pick (q_best), and
+for a standard run the mode. The headline is the paired analysis: per seed, each selector minus
+tanh(mu) of the same actor, per task and over tasks.
 
 Pipeline: load -> pair -> align -> normalise -> estimate -> plot -> tables.
 """
@@ -45,20 +47,37 @@ REQUIRED_CONFIG_KEYS = ("env_id", "seed", "algorithm")
 STEP_COLUMN = "global_step"
 RETURN_COLUMN = "return_mean"  # mean return of the script's own evaluation action
 REQUIRED_EVAL_COLUMNS = (STEP_COLUMN, RETURN_COLUMN)
-# Optional (sac_corrected.py): the same actor evaluated with tanh(mu) on the same start states.
-PAIRED_RETURN_COLUMN = "tanh_mu_return_mean"
+# Optional: the same actor evaluated with another action on the same start states, a block of
+# columns per evaluation action with this prefix (sac_corrected.py always logs tanh_mu_; with
+# --eval-selectors both scripts log mean_ and q_best_, and sac_standard.py mode_). Each forms the
+# group "ALGORITHM SUFFIX".
+PAIRED_SUFFIX = " (tanh(mu) eval)"
+SELECTOR_PREFIXES = {
+    "tanh_mu_": PAIRED_SUFFIX,
+    "mode_": " (mode eval)",
+    "mean_": " (mean eval)",
+    "q_best_": " (q_best eval)",
+}
+SELECTOR_NAMES = {PAIRED_SUFFIX: "tanh_mu", " (mode eval)": "mode", " (mean eval)": "mean",
+                  " (q_best eval)": "q_best"}
+PAIRED_RETURN_COLUMN = "tanh_mu_" + RETURN_COLUMN
+SELECTOR_RETURN_COLUMNS = tuple(prefix + RETURN_COLUMN for prefix in SELECTOR_PREFIXES)
+# Optional (q_best_): how often the critic picked each candidate action (shares summing to 1).
+Q_BEST_SHARE_COLUMNS = ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_share_mean")
 # Optional (sac_corrected.py): the distribution shift at the states the mode policy visited.
 SHIFT_COLUMNS = ("mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
-OPTIONAL_COLUMNS = (PAIRED_RETURN_COLUMN, *SHIFT_COLUMNS)
+OPTIONAL_COLUMNS = (*SELECTOR_RETURN_COLUMNS, *Q_BEST_SHARE_COLUMNS, *SHIFT_COLUMNS)
 # The dimension study: paired differences at these fractions of each task's shared steps.
 TRAINING_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
-PAIRED_SUFFIX = " (tanh(mu) eval)"
 
 STANDARD, CORRECTED = "standard", "corrected"
 PAIRED_CORRECTED = CORRECTED + PAIRED_SUFFIX
 # Probability of improvement of the first over the second.
 COMPARISON = (CORRECTED, STANDARD)
-GROUP_ORDER = (STANDARD, CORRECTED, PAIRED_CORRECTED)
+GROUP_ORDER = (STANDARD, CORRECTED, PAIRED_CORRECTED,
+               *(algorithm + suffix for algorithm in (CORRECTED, STANDARD)
+                 for suffix in (" (mode eval)", " (mean eval)", " (q_best eval)")
+                 if (algorithm, suffix) != (CORRECTED, " (mode eval)")))
 STANDARD_LABEL = "Standard SAC"
 LABELS = {
     STANDARD: STANDARD_LABEL,
@@ -81,6 +100,7 @@ SUCCESS_BARS = {
     "h1hand-bookshelf_hard-v0": 2000.0,
 }
 NORMALIZATIONS = {
+    "auto": "success-bar when every task has a HumanoidBench success bar, otherwise min-max",
     "success-bar": "score = return / HumanoidBench success bar (1.0 = solved)",
     "min-max": "score = (return - task min) / (task max - task min), over every return logged "
     "for the task in this folder (all algorithms, seeds and steps)",
@@ -96,8 +116,9 @@ class Args:
     """folder holding the run folders (config.json + eval.csv), searched at any depth"""
     out: Path = Path("report")
     """folder the figures, summary.md and summary.csv are written to"""
-    normalize: Literal["success-bar", "min-max", "none"] = "success-bar"
-    """per-task scores: return / HumanoidBench success bar, task range to [0, 1], or raw"""
+    normalize: Literal["auto", "success-bar", "min-max", "none"] = "auto"
+    """per-task scores: return / HumanoidBench success bar, task range to [0, 1], or raw; auto:
+    success-bar when every task has a bar, otherwise min-max"""
     at_step: int | None = None
     """score every run at this step instead of the last step all runs of its task share"""
     reps: int = 50_000
@@ -126,6 +147,8 @@ class Curve:
     returns: np.ndarray
     action_dim: int | None = None  # config.json's, where it has one
     shift: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # SHIFT_COLUMNS
+    shares: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # Q_BEST_SHARE_COLUMNS
+    budget: int | None = None  # config.json's total_timesteps, where it has one
 
 
 # task -> group -> curves sorted by seed; a group is an algorithm or a paired evaluation
@@ -235,15 +258,22 @@ def load_runs(root: Path) -> tuple[Runs, list[str]]:
         steps = columns[STEP_COLUMN].astype(np.int64)
         action_dim = config.get("action_dim") if isinstance(config.get("action_dim"), int) \
             else None
+        budget = config.get("total_timesteps")
+        budget = budget if isinstance(budget, int) and budget > 0 else None
         shift = {c: columns[c] for c in SHIFT_COLUMNS if c in columns}
-        _add_curve(runs, task, algorithm,
-                   Curve(run_dir, seed, steps, columns[RETURN_COLUMN], action_dim, shift))
-        paired = columns.get(PAIRED_RETURN_COLUMN)
-        if paired is not None and np.isfinite(paired).all():
-            curve = Curve(run_dir, seed, steps, paired)
-            _add_curve(runs, task, algorithm + PAIRED_SUFFIX, curve)
-        elif paired is not None:
-            notes.append(f"{run_dir}: {PAIRED_RETURN_COLUMN} has empty cells; paired eval left out")
+        _add_curve(runs, task, algorithm, Curve(run_dir, seed, steps, columns[RETURN_COLUMN],
+                                                action_dim, shift, budget=budget))
+        for prefix, suffix in SELECTOR_PREFIXES.items():
+            paired = columns.get(prefix + RETURN_COLUMN)
+            if paired is not None and np.isfinite(paired).all():
+                shares = {c: columns[c] for c in Q_BEST_SHARE_COLUMNS
+                          if prefix == "q_best_" and c in columns}
+                curve = Curve(run_dir, seed, steps, paired, action_dim, shares=shares,
+                              budget=budget)
+                _add_curve(runs, task, algorithm + suffix, curve)
+            elif paired is not None:
+                notes.append(f"{run_dir}: {prefix + RETURN_COLUMN} has empty cells; "
+                             f"its paired {SELECTOR_NAMES[suffix]} eval left out")
     if not runs:
         raise AnalysisError(
             f"no runs found under {root}: a run is a folder holding {CONFIG_FILE} (keys "
@@ -265,6 +295,28 @@ def _add_curve(runs: Runs, task: str, group: str, curve: Curve) -> None:
             f"{curve.run_dir}; move one out of the folder"
         )
     curves.append(curve)
+
+
+def selector_suffix(group: str) -> str:
+    """The suffix naming a group's paired evaluation action, "" for an algorithm's own."""
+    return next((s for s in SELECTOR_PREFIXES.values() if group.endswith(s)), "")
+
+
+def algorithm_of(group: str) -> str:
+    return group.removesuffix(selector_suffix(group))
+
+
+def is_algorithm(group: str) -> bool:
+    """A group of the runs' own evaluations, not a paired evaluation of another action."""
+    return not selector_suffix(group)
+
+
+def selector_of(group: str) -> str:
+    """The action a group evaluates: mode, tanh_mu, mean, q_best, or the algorithm's name for
+    an algorithm other than the two scripts (its own action)."""
+    if selector_suffix(group):
+        return SELECTOR_NAMES[selector_suffix(group)]
+    return {CORRECTED: "mode", STANDARD: "tanh_mu"}.get(group, group)
 
 
 def ordered_groups(runs: Runs) -> list[str]:
@@ -349,6 +401,7 @@ class Task:
     returns: dict[str, np.ndarray]  # group -> (seeds, steps)
     seeds: dict[str, list[int]]
     scored_step: int  # the step final scores are taken at
+    budget: int  # the runs' total_timesteps where they agree, else the last shared step
 
     def at(self, group: str, steps: np.ndarray) -> np.ndarray:
         """The group's returns at some of the shared steps, (seeds, steps)."""
@@ -377,8 +430,16 @@ def align(runs: Runs, at_step: int | None) -> tuple[dict[str, Task], list[str]]:
             returns={g: np.stack([_at(c, steps) for c in cs]) for g, cs in groups.items()},
             seeds={g: [c.seed for c in cs] for g, cs in groups.items()},
             scored_step=scored_step,
+            budget=task_budget(curves, steps),
         )
     return tasks, notes
+
+
+def task_budget(curves: list[Curve], steps: np.ndarray) -> int:
+    """The task's training budget: its runs' total_timesteps where all give the same one,
+    else the last step its runs share."""
+    budgets = {curve.budget for curve in curves}
+    return budgets.pop() if len(budgets) == 1 and None not in budgets else int(steps[-1])
 
 
 def _scored_step(task: str, curves: list[Curve], steps: np.ndarray, at_step: int | None) -> int:
@@ -425,6 +486,17 @@ def _at(curve: Curve, steps: np.ndarray) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- normalise
+def resolve_normalization(mode: str, tasks: Sequence[str]) -> tuple[str, str]:
+    """`auto` made concrete, and a sentence for summary.md saying what was chosen and why."""
+    if mode != "auto":
+        return mode, ""
+    lacking = [task for task in tasks if task not in SUCCESS_BARS]
+    if not lacking:
+        return "success-bar", "`auto` chose `success-bar`: every task has a HumanoidBench bar. "
+    return "min-max", (f"`auto` chose `min-max`: no HumanoidBench success bar for "
+                       f"{', '.join(lacking)}. ")
+
+
 def normalizers(tasks: dict[str, Task], mode: str) -> dict[str, tuple[float, float]]:
     """Per task (offset, scale): score = (return - offset) / scale."""
     if mode == "none":
@@ -533,8 +605,9 @@ class Aggregate:
     tasks: list[str]
     groups: list[str]
     final: dict[str, np.ndarray]  # group -> (runs, tasks) at each task's scored step
-    frames: np.ndarray  # steps on the sample-efficiency curve
+    frames: np.ndarray  # x of the sample-efficiency curve: steps, or fractions of the budgets
     curves: dict[str, np.ndarray]  # group -> (runs, tasks, frames)
+    by_fraction: bool = False  # frames are fractions of each task's budget
 
 
 def build_aggregate(
@@ -542,7 +615,7 @@ def build_aggregate(
 ) -> tuple[Aggregate | None, list[str]]:
     """Score matrices over the tasks that every algorithm ran, and notes on what was left out."""
     notes = []
-    algorithms = [g for g in groups if not g.endswith(PAIRED_SUFFIX)]
+    algorithms = [g for g in groups if is_algorithm(g)]
     common = [t for t, data in tasks.items() if all(a in data.returns for a in algorithms)]
     for task in sorted(set(tasks) - set(common)):
         lacking = [a for a in algorithms if a not in tasks[task].returns]
@@ -560,39 +633,95 @@ def build_aggregate(
                 f"{g}: tasks have different numbers of seeds; the aggregate uses the "
                 f"{runs[g]} lowest seeds of each task"
             )
-    shared = functools.reduce(np.intersect1d, [tasks[t].steps for t in common])
-    picks = np.linspace(0, shared.size - 1, curve_points).round().astype(int) if shared.size else []
-    frames = shared[np.unique(picks)]
     final = {
         g: np.stack([normalize(tasks[t].scored(g)[: runs[g]], norms[t]) for t in common], axis=1)
         for g in members
     }
+    shared = functools.reduce(np.intersect1d, [tasks[t].steps for t in common])
+    by_fraction = shared.size == 0 or len({tasks[t].budget for t in common}) > 1
+    if by_fraction:
+        frames, steps, note = fraction_frames({t: tasks[t] for t in common}, curve_points)
+        notes.append(note)
+    else:
+        picks = np.linspace(0, shared.size - 1, curve_points).round().astype(int)
+        frames = shared[np.unique(picks)]
+        steps = dict.fromkeys(common, frames)
     curves = {
-        g: np.stack([normalize(tasks[t].at(g, frames)[: runs[g]], norms[t]) for t in common], 1)
+        g: np.stack([normalize(tasks[t].at(g, steps[t])[: runs[g]], norms[t]) for t in common],
+                    1) if frames.size else np.empty((runs[g], len(common), 0))
         for g in members
     }
-    return Aggregate(common, members, final, frames, curves), notes
+    return Aggregate(common, members, final, frames, curves, by_fraction), notes
+
+
+def fraction_frames(tasks: dict[str, Task], curve_points: int
+                    ) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
+    """Tasks with different budgets or no evaluation step in common: the sample-efficiency
+    curve's x is the fraction of each task's budget, over the range every task covers; a task
+    contributes its last evaluation at or before each fraction. Returns the fractions, each
+    task's steps at them, and summary.md's note saying so."""
+    first = max(data.steps[0] / data.budget for data in tasks.values())
+    last = min(data.steps[-1] / data.budget for data in tasks.values())
+    budgets = ", ".join(f"{t} {_fmt(data.budget)}" for t, data in tasks.items())
+    if first > last:
+        return np.empty(0), {}, (
+            f"the aggregated tasks' evaluations cover no common fraction of their budgets "
+            f"({budgets}): sample-efficiency curve skipped")
+    frames = np.unique(np.linspace(first, last, curve_points))
+    # A step's fraction is rounded so that an evaluation exactly at a frame counts as reached.
+    steps = {t: data.steps[np.searchsorted(np.round(data.steps / data.budget, 12),
+                                           np.round(frames, 12), side="right") - 1]
+             for t, data in tasks.items()}
+    return frames, steps, (
+        "the aggregated tasks have different budgets or share no evaluation step, so the "
+        "sample-efficiency curve's x axis is the fraction of each task's budget (config.json's "
+        "total_timesteps where a task's runs agree on it, else its last shared step: "
+        f"{budgets}); at each fraction a task contributes its last evaluation at or before it")
+
+
+def tanh_mu_group(groups: Sequence[str], algorithm: str, derived: bool) -> str | None:
+    """The group holding the tanh(mu) evaluation of an algorithm's actors, if the task has one."""
+    if algorithm + PAIRED_SUFFIX in groups:
+        return algorithm + PAIRED_SUFFIX
+    if algorithm == CORRECTED and derived and STANDARD in groups:
+        return STANDARD  # the standard group is the corrected runs' paired evaluation
+    return algorithm if algorithm == STANDARD and algorithm in groups else None
+
+
+def group_rank(group: str) -> tuple[int, str]:
+    """Sort key: the paper's groups first, in a fixed order."""
+    return (GROUP_ORDER.index(group) if group in GROUP_ORDER else len(GROUP_ORDER), group)
 
 
 def paired_groups(data: Task, derived: bool) -> list[tuple[str, str]]:
-    """(algorithm, the group holding its tanh(mu) evaluation) pairs present in a task."""
-    pairs = [(g.removesuffix(PAIRED_SUFFIX), g) for g in data.returns
-             if g.endswith(PAIRED_SUFFIX) and g.removesuffix(PAIRED_SUFFIX) in data.returns]
-    if derived and CORRECTED in data.returns and STANDARD in data.returns:
-        pairs.append((CORRECTED, STANDARD))  # the standard group is the paired evaluation
+    """(group of some evaluation action, group of tanh(mu) of the same actors) pairs present in
+    a task: the corrected runs' mode, each run's mean, q_best and (standard runs) mode."""
+    pairs = []
+    for group in sorted(data.returns, key=group_rank):
+        baseline = tanh_mu_group(list(data.returns), algorithm_of(group), derived)
+        if baseline is not None and baseline != group and selector_of(group) != "tanh_mu":
+            pairs.append((group, baseline))
     return pairs
+
+
+def paired_values(data: Task, group: str, baseline: str, steps: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(group, baseline) returns at `steps`, (seeds, steps) each, on the seeds both have: a run
+    made without some evaluation action has no partner there."""
+    seeds = sorted(set(data.seeds[group]) & set(data.seeds[baseline]))
+    rows = [[data.seeds[g].index(seed) for seed in seeds] for g in (group, baseline)]
+    return data.at(group, steps)[rows[0]], data.at(baseline, steps)[rows[1]]
 
 
 def paired_differences(tasks: dict[str, Task], derived: Sequence[str] = ()
                        ) -> dict[str, dict[str, np.ndarray]]:
-    """task -> algorithm -> per-seed (own eval minus tanh(mu) eval) at the scored step."""
+    """task -> group -> per-seed (that group's eval minus tanh(mu) eval of the same actors) at
+    the scored step; the group is the algorithm itself for its own action (the corrected mode)."""
     differences: dict[str, dict[str, np.ndarray]] = {}
     for task, data in tasks.items():
-        for algorithm, group in paired_groups(data, task in derived):
-            own = dict(zip(data.seeds[algorithm], data.scored(algorithm), strict=True))
-            paired = dict(zip(data.seeds[group], data.scored(group), strict=True))
-            diffs = np.array([own[seed] - paired[seed] for seed in paired])
-            differences.setdefault(task, {})[algorithm] = diffs
+        for group, baseline in paired_groups(data, task in derived):
+            own, paired = paired_values(data, group, baseline, np.array([data.scored_step]))
+            differences.setdefault(task, {})[group] = own[:, 0] - paired[:, 0]
     return differences
 
 
@@ -604,7 +733,9 @@ def group_colors(groups: list[str]) -> dict[str, tuple]:
 
 
 def label(group: str) -> str:
-    return LABELS.get(group, group)  # analyze() sets LABELS[STANDARD] to say where it comes from
+    """"Corrected SAC (mean eval)": analyze() sets LABELS[STANDARD] to say where it comes from."""
+    suffix = selector_suffix(group)
+    return LABELS.get(group, LABELS.get(algorithm_of(group), algorithm_of(group)) + suffix)
 
 
 def _steps_axis(max_step: float) -> tuple[float, str]:
@@ -629,7 +760,7 @@ def plot_reward_curves(
         width = 1.8 if data.steps.size <= 200 else 1.0  # dense curves: thin lines show the CIs
         for group in [g for g in groups if g in data.returns]:
             mean, (low, high) = curves[task][group]
-            style = "--" if group.endswith(PAIRED_SUFFIX) else "-"
+            style = "-" if is_algorithm(group) else "--"
             ax.plot(data.steps / unit, mean, style, color=colors[group], lw=width,
                     label=label(group))
             ax.fill_between(data.steps / unit, low, high, color=colors[group], alpha=0.2, lw=0)
@@ -681,10 +812,13 @@ def plot_profiles(taus: np.ndarray, profiles: dict, cis: dict, colors: dict, xla
 
 
 def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colors: dict,
-                           ylabel: str):
-    """Figure 8: aggregate IQM against environment steps with CIs."""
+                           ylabel: str, by_fraction: bool = False):
+    """Figure 8: aggregate IQM against environment steps (or fractions of each task's budget)
+    with CIs."""
     fig, ax = plt.subplots(figsize=(7, 4.5))
     unit, xlabel = _steps_axis(frames[-1])
+    if by_fraction:
+        unit, xlabel = 1.0, "Fraction of each task's budget (total_timesteps)"
     plot_utils.plot_sample_efficiency_curve(
         frames / unit,
         {label(g): v for g, v in point.items()},
@@ -736,10 +870,11 @@ def plot_paired(differences: dict, estimates: dict, norms: dict, colors: dict, x
     pad = 0.05 * (max(extent) - min(extent)) or 0.01
     ax.set_xlim(min(extent) - pad, max(extent) + pad)
     ax.set_yticks(range(len(rows)))
-    ax.set_yticklabels([f"{t}\n{label(a)}" if len(differences[t]) > 1 else t for t, a in rows])
+    ax.set_yticklabels([f"{t}\n{label(algorithm_of(g))}: {selector_of(g)}"
+                        if len(differences[t]) > 1 else t for t, g in rows])
     ax.invert_yaxis()
     ax.set_xlabel(xlabel)
-    ax.set_title("Own evaluation minus tanh(mu) evaluation: same actor, same start states\n"
+    ax.set_title("Evaluation action minus tanh(mu): same actor, same start states\n"
                  "dots: seeds; bar: 95% bootstrap CI of the mean; tick: mean", fontsize="medium")
     ax.grid(axis="x", alpha=0.25)
     return fig
@@ -860,10 +995,12 @@ def analyze(args: Args) -> Report:
     LABELS[STANDARD] = standard_label(pairing, list(runs))
     groups = ordered_groups(runs)
     n_runs = sum(len(curves) for by_group in runs.values()
-                 for group, curves in by_group.items() if not group.endswith(PAIRED_SUFFIX))
+                 for group, curves in by_group.items() if is_algorithm(group))
     found = f"Found {n_runs} runs under {args.runs_dir}:\n\n" + found_table(runs, groups)
     print(found + "\n")
     tasks, align_notes = align(runs, args.at_step)
+    normalization, chosen = resolve_normalization(args.normalize, list(tasks))
+    args = dataclasses.replace(args, normalize=normalization)
     norms = normalizers(tasks, args.normalize)
     aggregate, aggregate_notes = build_aggregate(tasks, norms, groups, args.curve_points)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -878,13 +1015,14 @@ def analyze(args: Args) -> Report:
     else:
         report.notes.append(f"no run carries the paired evaluation ({PAIRED_RETURN_COLUMN}): "
                             "paired differences skipped")
+    report_q_best_shares(report, args, runs, tasks)
     report_tasks(report, args, tasks, norms, groups, colors)
     if aggregate is not None:
         report_aggregate(report, args, aggregate, colors)
     report_dimensions(report, args, runs, tasks, pairing.derived)
     report.write([
         f"# Analysis of {args.runs_dir}", "",
-        f"Normalisation `{args.normalize}`: {NORMALIZATIONS[args.normalize]}. "
+        f"Normalisation {chosen}`{args.normalize}`: {NORMALIZATIONS[args.normalize]}. "
         + normalization_line(args.normalize, norms),
         f"Intervals: 95% stratified bootstrap (rliable), {args.reps:,} replications for point "
         f"estimates, {args.curve_reps:,} for curves, profiles and probability of improvement; "
@@ -945,9 +1083,8 @@ def report_aggregate(report: Report, args: Args, agg: Aggregate, colors: dict) -
     if agg.frames.size:
         point, interval = interval_estimates(agg.curves, iqm_per_step, args.curve_reps, args.seed)
         report.figure(plot_sample_efficiency(agg.frames, point, interval, colors,
-                                             f"IQM {score_name.lower()}"), "sample_efficiency")
-    else:
-        report.notes.append("the tasks share no evaluation step: sample-efficiency curve skipped")
+                                             f"IQM {score_name.lower()}", agg.by_fraction),
+                      "sample_efficiency")
 
     x, y = COMPARISON
     if x not in agg.groups or y not in agg.groups:
@@ -972,42 +1109,78 @@ def report_aggregate(report: Report, args: Args, agg: Aggregate, colors: dict) -
 
 def report_paired(report: Report, args: Args, tasks: dict[str, Task], differences: dict,
                   norms: dict, colors: dict) -> None:
-    """The headline: own evaluation minus tanh(mu) evaluation of the same actors (paired), per
-    task and over tasks, with the share of seeds where the own action won."""
+    """The headline: each evaluation action (the mode, the mean, q_best) minus tanh(mu) of the
+    same actors from the same start states (paired), per task and over tasks, with the share of
+    seeds where that action won."""
     print(f"paired differences ({args.reps:,} reps) ...")
-    estimates = seed_mean_estimates({(t, a): d for t, by_algorithm in differences.items()
-                                     for a, d in by_algorithm.items()}, args.reps, args.seed)
+    estimates = seed_mean_estimates({(t, g): d for t, by_group in differences.items()
+                                     for g, d in by_group.items()}, args.reps, args.seed)
     table = []
-    for (task, algorithm), values in estimates.items():
-        diffs = differences[task][algorithm]
-        runs, step = diffs.size, tasks[task].scored_step
-        scaled = [v / norms[task][1] for v in values]
-        won = int((diffs > 0).sum())
-        report.row("paired_difference", task, algorithm, "return", step, runs, *values)
-        report.row("paired_difference", task, algorithm, "score", step, runs, *scaled)
-        report.row("paired_difference", task, algorithm, "share_won", step, runs, won / runs,
-                   math.nan, math.nan)
-        table.append([task, _fmt(step), label(algorithm), runs, _ci(*values, 1), _ci(*scaled),
-                      f"{won} of {runs}"])
-    lines = ["Per seed, at each task's scored step: the return of the script's own evaluation "
-             "action minus that of tanh(mu), same actor, same start states (for Corrected SAC: "
-             "the mode minus tanh(mu)). Mean over seeds with a 95% bootstrap CI; 'won': seeds "
-             "where the difference is positive.", "",
-             markdown_table(["task", "step", "algorithm", "seeds", "return difference",
-                             "score difference", "won"], table)]
+    for task, by_group in differences.items():
+        for group, diffs in by_group.items():
+            values = estimates[task, group]
+            runs, step = diffs.size, tasks[task].scored_step
+            scaled = [v / norms[task][1] for v in values]
+            won = int((diffs > 0).sum())
+            report.row("paired_difference", task, group, "return", step, runs, *values)
+            report.row("paired_difference", task, group, "score", step, runs, *scaled)
+            report.row("paired_difference", task, group, "share_won", step, runs, won / runs,
+                       math.nan, math.nan)
+            table.append([task, _fmt(step), label(algorithm_of(group)), selector_of(group),
+                          runs, _ci(*values, 1), _ci(*scaled), f"{won} of {runs}"])
+    lines = ["Per seed, at each task's scored step: the return of an evaluation action minus "
+             "that of tanh(mu), same actor, same start states: the mode (Corrected SAC's own "
+             "action; a standard run's `mode_` columns), the mean of the squashed policy, and "
+             "q_best, the one of mode / tanh(mu) / mean the critic prefers. Mean over seeds with "
+             "a 95% bootstrap CI; 'won': seeds where the difference is positive.", "",
+             markdown_table(["task", "step", "algorithm", "action", "seeds",
+                             "return difference", "score difference", "won"], table)]
     lines += paired_aggregate_lines(report, args, differences, norms)
     xlabel = f"Difference in {SCORE_NAMES[args.normalize].lower()}"
     report.figure(plot_paired(differences, estimates, norms, colors, xlabel), "paired_difference")
-    report.section("Headline: paired difference, own action minus tanh(mu) of the same actors",
-                   *lines)
+    report.section("Headline: paired difference, each evaluation action minus tanh(mu) of the "
+                   "same actors", *lines)
+
+
+def report_q_best_shares(report: Report, args: Args, runs: Runs, tasks: dict[str, Task]) -> None:
+    """How often the critic picked the mode, tanh(mu) and the mean, at each task's scored step
+    (mean over seeds), where q_best was evaluated."""
+    samples = {}
+    for task, data in tasks.items():
+        for group, curves in runs[task].items():
+            for column in Q_BEST_SHARE_COLUMNS:
+                values = np.array([c.shares[column][c.steps == data.scored_step][0]
+                                   for c in curves if column in c.shares])
+                if np.isfinite(values).any():
+                    samples[task, group, column] = values[np.isfinite(values)]
+    if not samples:
+        return
+    estimates = seed_mean_estimates({(f"{t}|{g}", c): v for (t, g, c), v in samples.items()},
+                                    args.reps, args.seed)
+    table = {}
+    for (task, group, column), values in samples.items():
+        step = tasks[task].scored_step
+        estimate = estimates[f"{task}|{group}", column]
+        name = column.removeprefix("q_best_share_")
+        report.row("q_best_share", task, group, name, step, values.size, *estimate)
+        row = table.setdefault((task, group), [task, _fmt(step), label(algorithm_of(group)),
+                                               values.size, "-", "-", "-"])
+        row[4 + ("mode", "tanh_mu", "mean").index(name)] = _ci(*estimate)
+    report.section(
+        "q_best: which action the critic picked",
+        "Share of q_best's evaluation steps at which the critic preferred each candidate, at "
+        "each task's scored step; mean over seeds with a 95% bootstrap CI.", "",
+        markdown_table(["task", "step", "algorithm", "seeds", "mode", "tanh(mu)", "mean"],
+                       list(table.values())))
 
 
 def paired_aggregate_lines(report: Report, args: Args, differences: dict, norms: dict
                            ) -> list[str]:
     """Over tasks: the mean normalised paired difference (rliable's stratified bootstrap over
-    seeds within tasks) and the share of (task, seed) pairs won, per algorithm."""
+    seeds within tasks) and the share of (task, seed) pairs won, per evaluation action."""
     lines = []
-    for algorithm in sorted({a for by_algorithm in differences.values() for a in by_algorithm}):
+    found = {group for by_group in differences.values() for group in by_group}
+    for algorithm in sorted(found, key=group_rank):
         per_task = {t: d[algorithm] / norms[t][1] for t, d in differences.items()
                     if algorithm in d}
         if len(per_task) < 2:
@@ -1023,10 +1196,11 @@ def paired_aggregate_lines(report: Report, args: Args, differences: dict, norms:
                    point[algorithm], low, high)
         report.row("paired_difference", "all", algorithm, "share_won", "", pairs, won / pairs,
                    math.nan, math.nan)
-        lines += ["", f"Over {len(per_task)} tasks, {label(algorithm)}: mean "
-                  f"{SCORE_NAMES[args.normalize].lower()} difference "
+        action = selector_of(algorithm)
+        lines += ["", f"Over {len(per_task)} tasks, {label(algorithm_of(algorithm))}, {action} "
+                  f"minus tanh(mu): mean {SCORE_NAMES[args.normalize].lower()} difference "
                   f"{_ci(float(point[algorithm]), low, high)} ({seeds} seeds per task, "
-                  f"stratified bootstrap); the own action won in {won} of {pairs} (task, seed) "
+                  f"stratified bootstrap); the {action} won in {won} of {pairs} (task, seed) "
                   "pairs."]
     return lines
 
@@ -1034,13 +1208,14 @@ def paired_aggregate_lines(report: Report, args: Args, differences: dict, norms:
 # ----------------------------------------------------------------------------- dimensions
 @dataclasses.dataclass
 class Dimension:
-    """One task of the dimension study: its action dimension, the per-seed paired difference
-    (mode minus tanh(mu)) at fractions of training, and the shift measured at its final step."""
+    """One task of the dimension study: its action dimension, the per-seed paired difference of
+    each evaluation action (minus tanh(mu)) at fractions of training, and the shift measured at
+    its final step."""
 
     action_dim: int
     scale: float  # the range of the task's tanh(mu) returns in the folder
     steps: dict[float, int]  # training fraction -> step
-    differences: dict[float, np.ndarray]  # training fraction -> per-seed difference (raw)
+    differences: dict[str, dict[float, np.ndarray]]  # group -> fraction -> per-seed raw difference
     shift: dict[str, np.ndarray]  # SHIFT_COLUMN -> per-seed value at the final step (logged ones)
 
 
@@ -1064,31 +1239,39 @@ def shift_at(curves: list[Curve], step: int) -> dict[str, np.ndarray]:
 
 def dimension_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
                     ) -> tuple[dict[str, Dimension], list[str]]:
-    """Corrected SAC's paired difference and measured shift per task, keyed by action dim."""
+    """Each evaluation action's paired difference and the measured shift per task, keyed by
+    action dimension."""
     study, notes = {}, []
     for task, data in tasks.items():
-        pair = dict(paired_groups(data, task in derived)).get(CORRECTED)
-        dims = {c.action_dim for c in runs[task].get(CORRECTED, [])}
-        if pair is None:
+        pairs = paired_groups(data, task in derived)
+        if not pairs:
             continue
+        algorithms = {algorithm_of(group) for group, _ in pairs}
+        dims = {c.action_dim for a in algorithms for c in runs[task].get(a, [])}
         if None in dims or len(dims) != 1:
             notes.append(f"{task}: its runs' config.json give no single action_dim "
                          f"({sorted(dims, key=str)}); left out of the dimension study")
             continue
-        paired = data.returns[pair]
-        scale = float(paired.max() - paired.min()) or 1.0
+        baselines = np.concatenate([data.returns[b].ravel() for b in {b for _, b in pairs}])
+        scale = float(baselines.max() - baselines.min()) or 1.0
         steps = training_fraction_steps(data.steps, data.scored_step)
-        differences = {f: data.at(CORRECTED, np.array([step]))[:, 0]
-                       - data.at(pair, np.array([step]))[:, 0] for f, step in steps.items()}
-        shift = shift_at(runs[task][CORRECTED], data.scored_step)
+        differences = {}
+        for group, baseline in pairs:
+            own, paired = paired_values(data, group, baseline, np.array(list(steps.values())))
+            differences[group] = dict(zip(steps, (own - paired).T, strict=True))
+        shift = {}
+        for algorithm in sorted(algorithms, key=group_rank):  # corrected's shift first
+            shift = shift or shift_at(runs[task][algorithm], data.scored_step)
         study[task] = Dimension(dims.pop(), scale, steps, differences, shift)
     return study, notes
 
 
 def dimension_estimates(study: dict[str, Dimension], reps: int, seed: int) -> dict:
-    """Mean over seeds with its bootstrap CI (rliable), (mean, low, high): keyed (task, fraction)
-    for the normalised paired difference, (task, column) for the measured shift."""
-    samples = {(t, f): d.differences[f] / d.scale for t, d in study.items() for f in d.steps}
+    """Mean over seeds with its bootstrap CI (rliable), (mean, low, high): keyed
+    ((task, group), fraction) for the normalised paired difference, (task, column) for the
+    measured shift."""
+    samples = {((t, g), f): by_fraction[f] / d.scale for t, d in study.items()
+               for g, by_fraction in d.differences.items() for f in d.steps}
     samples |= {(t, column): v for t, d in study.items() for column, v in d.shift.items()}
     return seed_mean_estimates(samples, reps, seed)
 
@@ -1109,26 +1292,47 @@ def _errorbar(ax, x: float, estimate: tuple[float, float, float], **style) -> No
     ax.errorbar(x, point, yerr=[[point - low], [high - point]], capsize=3, **style)
 
 
+def study_actions(study: dict[str, Dimension]) -> list[str]:
+    """The evaluation actions compared with tanh(mu) in the study: mode, mean, q_best first."""
+    found = {selector_of(g) for d in study.values() for g in d.differences}
+    known = [a for a in ("mode", "mean", "q_best") if a in found]
+    return known + sorted(found - set(known))
+
+
 def plot_dimensions(study: dict[str, Dimension], estimates: dict, colors: list):
-    """The paired difference against the action dimension and against training, the measured
-    shift beside mode_search's theory curve, and sigma / bimodal share against the dimension."""
+    """Per evaluation action, a row: its paired difference against the action dimension and
+    against training; last row: the measured shift beside mode_search's theory curve, and
+    sigma / bimodal share against the dimension."""
     from mode_search import SPREADS, summed_shift_by_dimension  # torch: only for this figure
 
-    fig, ((ax_dim, ax_progress), (ax_shift, ax_sigma)) = plt.subplots(2, 2, figsize=(13, 9.5))
+    actions = study_actions(study)
+    fig, axes = plt.subplots(len(actions) + 1, 2, figsize=(13, 4.75 * (len(actions) + 1)),
+                             squeeze=False)
+    (ax_shift, ax_sigma) = axes[-1]
     ax_bimodal = ax_sigma.twinx()
     xs = dimension_positions(study)
+    markers = {CORRECTED: "o", STANDARD: "s"}
+    for (ax_dim, ax_progress), action in zip(axes[:-1], actions, strict=True):
+        groups = {g for d in study.values() for g in d.differences if selector_of(g) == action}
+        several = len({algorithm_of(g) for g in groups}) > 1
+        for (task, d), color in zip(study.items(), colors, strict=False):
+            for group in sorted(d.differences, key=group_rank):
+                if selector_of(group) != action:
+                    continue
+                name = f"{task} ({d.action_dim})" + (f", {label(algorithm_of(group))}"
+                                                     if several else "")
+                _plot_difference(ax_dim, ax_progress, xs[task], d, estimates, (task, group),
+                                 color=color, marker=markers.get(algorithm_of(group), "D"),
+                                 label=name)
+        ylabel = f"{action} - tanh(mu), normalised"
+        ax_dim.set(xscale="log", xlabel="action dimensions", ylabel=ylabel,
+                   title=f"{action}: paired difference, final step (95% CI); hollow: 25/50/75%")
+        ax_progress.set(xlabel="fraction of training", ylabel=ylabel,
+                        title=f"{action}: ... as training goes on")
+        for ax in (ax_dim, ax_progress):
+            ax.axhline(0, color="0.4", ls=":", lw=1)
+        ax_dim.legend(fontsize=7)
     for (task, d), color in zip(study.items(), colors, strict=False):
-        fractions = sorted(d.steps)
-        _errorbar(ax_dim, xs[task], estimates[task, 1.0], fmt="o", color=color, ms=7,
-                  label=f"{task} ({d.action_dim})")
-        for f in fractions[:-1]:  # earlier in training: hollow, fainter the earlier
-            ax_dim.plot(xs[task], estimates[task, f][0], "o", mfc="none", color=color,
-                        alpha=0.25 + 0.6 * f, ms=4 + 3 * f)
-        ax_progress.plot(fractions, [estimates[task, f][0] for f in fractions], "o-",
-                         color=color, label=task)
-        ax_progress.fill_between(fractions, [estimates[task, f][1] for f in fractions],
-                                 [estimates[task, f][2] for f in fractions], color=color,
-                                 alpha=0.15)
         if "mode_shift_abs_sum" in d.shift:
             _errorbar(ax_shift, xs[task], estimates[task, "mode_shift_abs_sum"], fmt="o",
                       color=color, zorder=3)
@@ -1144,12 +1348,6 @@ def plot_dimensions(study: dict[str, Dimension], estimates: dict, colors: list):
         mean, low, high = (t.numpy() for t in summed_shift_by_dimension(top, spread, seed=i))
         ax_shift.plot(n, mean, color=color, lw=1, label=f"theory, {name}")
         ax_shift.fill_between(n, low, high, color=color, alpha=0.15)
-    for ax in (ax_dim, ax_progress):
-        ax.axhline(0, color="0.4", ls=":", lw=1)
-    ylabel = "mode - tanh(mu), normalised"
-    ax_dim.set(xscale="log", xlabel="action dimensions", ylabel=ylabel,
-               title="Paired difference: final step (95% CI); hollow: 25/50/75% of training")
-    ax_progress.set(xlabel="fraction of training", ylabel=ylabel, title="... as training goes on")
     ax_shift.set(xscale="log", yscale="log", xlabel="action dimensions",
                  ylabel="sum |mode - tanh(mu)| at visited states",
                  title="Measured shift at the final step (95% CI) and theory (mode_search)")
@@ -1157,43 +1355,61 @@ def plot_dimensions(study: dict[str, Dimension], estimates: dict, colors: list):
                  title="Policy sigma and share of bimodal dimensions at the final step")
     ax_bimodal.set(ylabel="bimodal_fraction (squares)", ylim=(-0.02, 1.02))
     dims = sorted({d.action_dim for d in study.values()})
-    for ax in (ax_dim, ax_shift, ax_sigma):  # label the dimensions themselves, not decades
+    for ax in (*axes[:-1, 0], ax_shift, ax_sigma):  # label the dimensions themselves, not decades
         ax.set_xticks(dims, [str(d) for d in dims])
         ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
-    for ax in (ax_dim, ax_progress, ax_shift, ax_sigma):
+    for ax in axes.flat:
         ax.grid(alpha=0.25)
-    ax_dim.legend(fontsize=7)
     ax_shift.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     return fig
 
 
+def _plot_difference(ax_dim, ax_progress, x: float, d: Dimension, estimates: dict,
+                     key: tuple[str, str], color, marker: str, label: str) -> None:
+    """One (task, evaluation action): final step with CI and earlier fractions hollow against
+    the dimension; the mean with its CI band against the fraction of training."""
+    fractions = sorted(d.steps)
+    _errorbar(ax_dim, x, estimates[key, 1.0], fmt=marker, color=color, ms=7, label=label)
+    for f in fractions[:-1]:  # earlier in training: hollow, fainter the earlier
+        ax_dim.plot(x, estimates[key, f][0], marker, mfc="none", color=color,
+                    alpha=0.25 + 0.6 * f, ms=4 + 3 * f)
+    ax_progress.plot(fractions, [estimates[key, f][0] for f in fractions], f"{marker}-",
+                     color=color, label=label)
+    ax_progress.fill_between(fractions, [estimates[key, f][1] for f in fractions],
+                             [estimates[key, f][2] for f in fractions], color=color, alpha=0.15)
+
+
 def report_dimensions(report: Report, args: Args, runs: Runs, tasks: dict[str, Task],
                       derived: Sequence[str]) -> None:
-    """Beyond the paper: what the correction is worth as the action dimension grows."""
+    """Beyond the paper: what each evaluation action is worth as the action dimension grows."""
     study, notes = dimension_study(runs, tasks, derived)
     report.notes.extend(notes)
     dims = sorted({d.action_dim for d in study.values()})
     if len(dims) < 2:
         report.notes.append(
-            "dimension study skipped: it needs corrected runs (with their paired tanh(mu) "
-            f"evaluation) on tasks of at least two action dimensions; found {dims or 'none'}")
+            "dimension study skipped: it needs paired evaluations against tanh(mu) (corrected "
+            "runs, or runs made with --eval-selectors) on tasks of at least two action "
+            f"dimensions; found {dims or 'none'}")
         return
     print(f"dimension study over {len(study)} tasks ({args.reps:,} reps) ...")
     study = dict(sorted(study.items(), key=lambda item: (item[1].action_dim, item[0])))
     estimates = dimension_estimates(study, args.reps, args.seed)
     table, shift_table = [], []
     for task, d in study.items():
-        for f, step in d.steps.items():
-            diffs, runs_n = d.differences[f], d.differences[f].size
-            point, low, high = estimates[task, f]
-            report.row("dimension", task, CORRECTED, f"normalised_difference@{f:g}", step,
-                       runs_n, point, low, high)
-            report.row("dimension", task, CORRECTED, f"raw_difference@{f:g}", step, runs_n,
-                       *(v * d.scale for v in (point, low, high)))
-            table.append([task, d.action_dim, runs_n, f"{f:g} ({_fmt(step)})",
-                          _ci(point * d.scale, low * d.scale, high * d.scale, 1),
-                          _ci(point, low, high), f"{int((diffs > 0).sum())} of {runs_n}"])
+        for group in sorted(d.differences, key=group_rank):
+            for f, step in d.steps.items():
+                diffs = d.differences[group][f]
+                runs_n = diffs.size
+                point, low, high = estimates[(task, group), f]
+                report.row("dimension", task, group, f"normalised_difference@{f:g}", step,
+                           runs_n, point, low, high)
+                report.row("dimension", task, group, f"raw_difference@{f:g}", step, runs_n,
+                           *(v * d.scale for v in (point, low, high)))
+                table.append([task, d.action_dim, label(algorithm_of(group)), selector_of(group),
+                              runs_n, f"{f:g} ({_fmt(step)})",
+                              _ci(point * d.scale, low * d.scale, high * d.scale, 1),
+                              _ci(point, low, high), f"{int((diffs > 0).sum())} of {runs_n}"])
         for column, values in d.shift.items():
             report.row("dimension_shift", task, CORRECTED, column, d.steps[1.0], values.size,
                        *estimates[task, column])
@@ -1203,15 +1419,16 @@ def report_dimensions(report: Report, args: Args, runs: Runs, tasks: dict[str, T
     report.figure(plot_dimensions(study, estimates, colors), "dimension_study")
     report.section(
         "Beyond the paper: the paired difference against the action dimension",
-        "Corrected SAC's mode minus tanh(mu) of the same actors, per seed, at fractions of each "
-        "task's shared steps; normalised by the range of the task's tanh(mu) returns in this "
-        "folder (all seeds and steps), so that tasks compare; mean over seeds with a 95% "
-        "bootstrap CI. Raw numbers are in summary.csv (section `dimension`).", "",
-        markdown_table(["task", "action dims", "seeds", "fraction (step)", "raw difference",
-                        "normalised difference", "won"], table), "",
+        "Each evaluation action (the mode, and where logged the mean and q_best) minus tanh(mu) "
+        "of the same actors, per seed, at fractions of each task's shared steps; normalised by "
+        "the range of the task's tanh(mu) returns in this folder (all seeds and steps), so that "
+        "tasks compare; mean over seeds with a 95% bootstrap CI. Raw numbers are in summary.csv "
+        "(section `dimension`).", "",
+        markdown_table(["task", "action dims", "algorithm", "action", "seeds", "fraction (step)",
+                        "raw difference", "normalised difference", "won"], table), "",
         "Measured shift at the final step (eval.csv, over the states the mode policy visited; "
         "mean over seeds with a 95% bootstrap CI), beside the theory curve of mode_search.py "
-        "(figure, lower panels):", "",
+        "(figure, last row):", "",
         markdown_table(["task", "action dims", *SHIFT_COLUMNS], shift_table))
 
 

@@ -1,16 +1,21 @@
-"""Does the correction help my policy? A trained SAC policy evaluated at the mode of its squashed
-Gaussian and at tanh(mu), paired: every selector starts its episode k from the same state.
+"""Does the correction help my policy? A trained SAC policy evaluated with several evaluation
+actions (selectors), paired: every selector starts its episode k from the same state.
 
     python evaluate.py runs/h1hand-cube-v0__corrected__seed0__20261122-120000
-    python evaluate.py final_model.pt --env-id Hopper-v5 --episodes 100
-    python evaluate.py sb3_sac_hopper.zip --env-id Hopper-v5 --selectors mode tanh_mu sample
+    python evaluate.py final_model.pt --env-id Hopper-v5 --episodes 100 --selectors mode mean
+    python evaluate.py sb3_sac_hopper.zip --env-id Hopper-v5 --selectors mode tanh_mu q_best sample
 
 SOURCE is a run folder of ours (its final_model.pt, else its checkpoint.pt), one of our
 final_model.pt or checkpoint.pt files, or a Stable-Baselines3 SAC .zip (gSDE ones too). Our
 weight files are loaded with torch.load(weights_only=True): they cannot run code. An SB3 .zip
-is unpickled by SB3 itself and must come from a source you trust. The episodes run through
-sac_corrected.py's own evaluation (`run_episodes`), so the numbers are those a training run
-logs for the same seeds.
+is unpickled by SB3 itself and must come from a source you trust. `q_best` also needs the
+critic: our files' "qf", or the critic inside the SB3 .zip.
+
+The episodes run through eval_runner.py, the training runs' own evaluation: split into jobs of
+JOB_EPISODES episodes, each job stepping all its episodes of every selector in lockstep, the
+jobs spread over --workers processes. A job is the same whatever runs it, so the numbers do not
+depend on --workers; with a run's seed and --eval-round N they are those of the run's N-th
+evaluation.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import contextlib
 import csv
 import io
 import json
+import os
 import sys
 import time
 import zipfile
@@ -27,18 +33,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn as nn
 import tyro
-from rliable import library as rly
 
 import sac_corrected as sac
-from mode_search import mode_action
+from eval_runner import ACTIONS, Q_BEST_CANDIDATES, SHIFT_COLUMNS, EvalPool, Round, eval_seeds
 
-SELECTORS = ("mode", "tanh_mu", "sample")
+SELECTORS = ACTIONS
 CONFIDENCE = 0.95
+# Episodes per job. Fixed, not derived from --workers: a job's episodes share one batch per
+# actor call, and the numbers must not depend on how many processes ran the jobs.
+JOB_EPISODES = 10
 
 
 @dataclass
@@ -56,16 +63,19 @@ class Args:
     N-th evaluation (0, the default, is a round no training run evaluates)"""
     solver: Literal["exact", "grid"] = "exact"
     """how to find the mode (mode_search.py)"""
-    selectors: tuple[Literal["mode", "tanh_mu", "sample"], ...] = ("mode", "tanh_mu")
-    """evaluation actions: the mode, tanh(mu), a sampled action (stochastic, seeded)"""
+    selectors: tuple[Literal["mode", "tanh_mu", "mean", "q_best", "sample"], ...] = (
+        "mode", "tanh_mu")
+    """evaluation actions: the mode, tanh(mu), the mean E[tanh(u)], the critic's pick of those
+    three at each state (q_best), a sampled action (stochastic, seeded)"""
     video: Path | None = None
     """write the first episode of each selector as an MP4 into this folder"""
     out: Path | None = None
     """write episodes.csv (one row per episode and selector) and summary.json here"""
     reps: int = 10_000
     """bootstrap replications of the confidence intervals"""
-    cuda: bool = False
-    """run the policy on a CUDA GPU"""
+    workers: int | None = None
+    """worker processes that run the jobs (default: every core this process may use; 0: in
+    this process). The results do not depend on it."""
 
 
 def parse_args(argv: list[str] | None = None) -> Args:
@@ -99,6 +109,7 @@ def check_args(args: Args) -> None:
         ("eval_round", args.eval_round >= 0, "0 or more"),
         ("selectors", len(args.selectors) >= 1, f"one or more of {', '.join(SELECTORS)}"),
         ("reps", args.reps >= 1, "at least 1"),
+        ("workers", args.workers is None or args.workers >= 0, "0 (in-process) or more"),
     )
     for name, ok, allowed in rules:
         if not ok:
@@ -136,11 +147,28 @@ class SB3Actor(nn.Module):
         return low + 0.5 * (y + 1.0) * (high - low)
 
 
-def load_policy(args: Args) -> tuple[nn.Module, str, dict]:
-    """The actor, the env id and a description of where it came from."""
-    source = args.source
+class SB3Critic(nn.Module):
+    """A Stable-Baselines3 SAC critic behind our TwinQ's interface: env actions in (SB3's critic
+    takes them scaled to [-1, 1], as `policy.scale_action` does), (n_critics, batch) out."""
+
+    def __init__(self, policy) -> None:
+        super().__init__()
+        self.policy = policy
+
+    def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        low, high = (torch.as_tensor(b, dtype=action.dtype, device=action.device)
+                     for b in (self.policy.action_space.low, self.policy.action_space.high))
+        scaled = 2.0 * ((action - low) / (high - low)) - 1.0
+        return torch.cat(self.policy.critic(obs, scaled), 1).T
+
+
+def load_policy(args: Args) -> tuple[nn.Module, nn.Module | None, str, dict]:
+    """The actor, the critic (only when a selector needs it, else None), the env id and a
+    description of where they came from."""
+    source, need_critic = args.source, "q_best" in args.selectors
     if source.suffix == ".zip":
-        return load_sb3(source, args.env_id)
+        actor, env_id, info = load_sb3(source, args.env_id)
+        return actor, SB3Critic(actor.policy) if need_critic else None, env_id, info
     if source.is_dir():
         config = read_config(source)
         weights = next((source / n for n in ("final_model.pt", "checkpoint.pt")
@@ -151,7 +179,8 @@ def load_policy(args: Args) -> tuple[nn.Module, str, dict]:
         env_id = args.env_id or config.get("env_id")
         if not isinstance(env_id, str):
             sac.fail(f"{source / 'config.json'} names no env_id; restore it, or pass --env-id")
-        return build_actor(state["actor"], env_id, config, weights), env_id, \
+        actor = build_actor(state["actor"], env_id, config, weights)
+        return actor, build_critic(state, actor, weights) if need_critic else None, env_id, \
             {"source": str(weights), "kind": "run", "run_seed": config.get("seed")}
     state = load_weights(source)
     # final_model.pt keeps the fields that rebuild the actor; checkpoint.pt keeps all arguments.
@@ -159,7 +188,8 @@ def load_policy(args: Args) -> tuple[nn.Module, str, dict]:
     env_id = args.env_id or (config.get("env_id") if isinstance(config, dict) else None)
     if not isinstance(env_id, str):
         sac.fail(f"{source} does not say which env it was trained on; pass --env-id")
-    return build_actor(state["actor"], env_id, config, source), env_id, \
+    actor = build_actor(state["actor"], env_id, config, source)
+    return actor, build_critic(state, actor, source) if need_critic else None, env_id, \
         {"source": str(source), "kind": "weights"}
 
 
@@ -221,6 +251,37 @@ def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Act
     return actor
 
 
+def build_critic(state: dict, actor: sac.Actor, path: Path) -> sac.TwinQ:
+    """Our TwinQ from the file's "qf" weights, its widths read off them and checked against the
+    actor's observation and action sizes."""
+    weights = state.get("qf")
+    if not isinstance(weights, dict) or not weights or \
+            not all(torch.is_tensor(v) for v in weights.values()):
+        sac.fail(f"{path} holds no critic weights ('qf'), which q_best needs; give a "
+                 "final_model.pt or checkpoint.pt that holds them, or drop q_best from --selectors")
+    layers = [weights[k] for k in sorted((k for k in weights if k.startswith("qf1.")
+                                          and k.endswith(".weight")),
+                                         key=lambda k: int(k.split(".")[1]))]
+    obs_dim, action_dim = actor.trunk[0].in_features, actor.fc_mean.out_features
+    if not layers or any(w.dim() != 2 for w in layers) or layers[-1].shape[0] != 1 \
+            or layers[0].shape[1] != obs_dim + action_dim:
+        sac.fail(f"{path}: its 'qf' is not a critic of sac_standard.py or sac_corrected.py for "
+                 f"{obs_dim}-dim observations and {action_dim}-dim actions; give the run's own "
+                 "final_model.pt, or drop q_best from --selectors")
+    critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[0] for w in layers[:-1]))
+    try:
+        critic.load_state_dict(weights)
+    except RuntimeError as error:  # the second critic missing, or of other widths
+        sac.fail(f"{path}: its critic does not fit our TwinQ "
+                 f"({' '.join(str(error).split())[:200]}); give a final_model.pt of "
+                 "sac_standard.py or sac_corrected.py, or drop q_best from --selectors")
+    broken = [k for k, v in weights.items() if v.is_floating_point() and not v.isfinite().all()]
+    if broken:
+        sac.fail(f"{path}: the critic's {broken[0]} holds NaN/inf (training diverged); evaluate "
+                 "an earlier model, or drop q_best from --selectors")
+    return critic.eval()
+
+
 def load_sb3(path: Path, env_id: str | None) -> tuple[nn.Module, str, dict]:
     if env_id is None:
         sac.fail(f"{path} is a Stable-Baselines3 file: pass --env-id, the env it was trained on")
@@ -253,44 +314,76 @@ def load_sb3(path: Path, env_id: str | None) -> tuple[nn.Module, str, dict]:
 
 
 # ----------------------------------------------------------------------------- evaluate
-def sample_policy(actor: nn.Module, generator: torch.Generator):
-    """A stochastic policy: scale * tanh(u), u ~ N(mu, sigma^2), noise from its own generator."""
-
-    @torch.no_grad()
-    def policy(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        mu, log_std = actor(obs)
-        noise = torch.randn(mu.shape, generator=generator, device=generator.device)
-        return actor.scale(torch.tanh(mu + noise.to(mu) * log_std.exp())), mu, log_std
-
-    return policy
-
-
-def finite_policy(policy: Callable) -> Callable:
-    """The policy, refusing a non-finite output with one line (the scripts' own check speaks
-    of training; here the model is someone's finished policy)."""
-
-    def checked(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        action, mu, log_std = policy(obs)
-        if not torch.isfinite(torch.cat((action, mu, log_std), 1)).all():  # one sync a step
-            sac.fail("the policy gave a NaN/inf action, mu or log sigma at an observation "
-                     f"{'with NaN/inf' if not obs.isfinite().all() else 'that is finite'}; "
-                     "the model is damaged or does not belong to this env")
-        return action, mu, log_std
-
-    return checked
+def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: list[int],
+              selectors: list[str], args: Args) -> list[Round]:
+    """The episodes as rounds of JOB_EPISODES, each with every selector (eval.csv prefix =
+    selector name); the first one films each selector's first episode."""
+    shift_of = "mode" if "mode" in selectors else selectors[0]
+    jobs = []
+    for start in range(0, len(seeds), JOB_EPISODES):
+        part = seeds[start:start + JOB_EPISODES]
+        videos = {s: args.video / f"{s}.mp4" for s in selectors} if args.video and start == 0 \
+            else {}
+        jobs.append(Round(env_id, part, {s: s for s in selectors}, actor, critic,
+                          mode_solver=args.solver, shift_of=shift_of, videos=videos,
+                          label=f"episodes {start}-{start + len(part) - 1}"))
+    return jobs
 
 
-def progress_bar(label: str, total: int) -> Callable[[int, float], None]:
+def run_jobs(jobs: list[Round], workers: int, progress: Callable[[int], None]) -> list[dict]:
+    """Every job's result, in job order, the progress bar advanced as each one comes back."""
+    results: list[dict] = []
+
+    def done(job: Round, result: dict) -> None:
+        results.append(result)
+        progress(sum(len(j.seeds) for j in jobs[:len(results)]))
+
+    # More processes than jobs would only cost their start-up.
+    pool = EvalPool(min(workers, len(jobs)), done)
+    try:
+        for job in jobs:
+            pool.submit(job)
+        pool.drain()
+    except SystemExit as exit_:
+        if isinstance(exit_.code, str):  # the runner's one line; its advice is for training
+            fact = exit_.code.split("; ")[0]
+            sac.fail(f"{fact}; the model is damaged or does not belong to this env" if
+                     "NaN/inf" in fact else f"{fact}; run again, with --workers 0 to see why")
+        raise
+    finally:
+        pool.close()
+    return results
+
+
+def merge(results: list[dict], selectors: list[str]) -> tuple[dict, dict]:
+    """The jobs' episodes concatenated per selector, q_best's choice shares pooled over its
+    states; and the shift statistics pooled over the jobs' visited states (each is a mean over
+    states, so a job weighs as many states as it visited)."""
+    merged = {s: {k: [x for r in results for x in r[s][k]]
+                  for k in ("returns", "lengths", "successes")} for s in selectors}
+    for s in selectors:
+        if "shares" in results[0][s]:
+            # q_best chose once per step of each of its episodes: a job's steps are its states.
+            weights = np.array([sum(r[s]["lengths"]) for r in results], float)
+            merged[s]["shares"] = {c: float(np.average([r[s]["shares"][c] for r in results],
+                                                       weights=weights))
+                                   for c in Q_BEST_CANDIDATES}
+    states = np.array([r["shift_states"] for r in results], float)
+    shift = {k: float(np.average([r["shift"][k] for r in results], weights=states))
+             for k in SHIFT_COLUMNS}
+    return merged, shift
+
+
+def progress_bar(label: str, total: int) -> Callable[[int], None]:
     """Episodes done out of total on stderr: redrawn in place on a terminal, else a line at
-    every tenth (a log file keeps ten lines, not one per episode)."""
+    every tenth (a log file keeps ten lines at most, not one per job)."""
     start, shown, tty = time.perf_counter(), [0], sys.stderr.isatty()
 
-    def update(done: int, last_return: float) -> None:
+    def update(done: int) -> None:
         elapsed = time.perf_counter() - start
         filled = 24 * done // total
-        line = (f"{label:>8} [{'#' * filled}{'.' * (24 - filled)}] {done}/{total} episodes, "
-                f"{elapsed:.0f} s, ~{elapsed / done * (total - done):.0f} s left, last return "
-                f"{last_return:.2f}")
+        line = (f"{label} [{'#' * filled}{'.' * (24 - filled)}] {done}/{total} episodes, "
+                f"{elapsed:.0f} s, ~{elapsed / done * (total - done):.0f} s left")
         if tty:
             # \r back to the line's start, ESC[K clears what a longer earlier line left.
             print(f"\r{line}\033[K", end="\n" if done == total else "", file=sys.stderr,
@@ -302,30 +395,12 @@ def progress_bar(label: str, total: int) -> Callable[[int, float], None]:
     return update
 
 
-def evaluate_selector(actor: nn.Module, selector: str, args: Args, env: gym.Env,
-                      seeds: list[int], device: torch.device) -> dict:
-    """Every episode of one selector, one at a time (for the progress bar)."""
-    episodes = {"returns": [], "lengths": [], "successes": [], "mu": [], "log_std": []}
-    video = args.video / f"{selector}.mp4" if args.video else None
-    progress = progress_bar(selector, len(seeds))
-    select = (lambda mu, s: mode_action(mu, s, args.solver)) if selector == "mode" \
-        else (lambda mu, s: torch.tanh(mu))
-    deterministic = finite_policy(sac.eval_policy(actor, select))
-    for k, seed in enumerate(seeds):
-        # A sampled episode draws its noise from a generator seeded by its reset seed.
-        policy = finite_policy(sample_policy(actor, torch.Generator(device).manual_seed(seed))) \
-            if selector == "sample" else deterministic
-        one = sac.run_episodes(policy, env, [seed], device,
-                               video if k == 0 else None)
-        for key in episodes:
-            episodes[key] += one[key] if isinstance(one[key], list) else [one[key]]
-        progress(k + 1, one["returns"][0])
-    episodes["mu"], episodes["log_std"] = torch.cat(episodes["mu"]), torch.cat(episodes["log_std"])
-    return episodes
-
-
 def mean_with_ci(values: np.ndarray, reps: int, seed: int) -> tuple[float, float, float]:
     """The mean over episodes with rliable's bootstrap CI (episodes as runs of one task)."""
+    # Imported here, not at the top: a worker process re-imports this module, and rliable (arch,
+    # scipy) is 3 s of a worker's start-up that it never uses.
+    from rliable import library as rly
+
     # rliable draws from NumPy's legacy global generator, which takes seeds below 2**32 only.
     np.random.seed(seed % 2**32)  # noqa: NPY002
     point, interval = rly.get_interval_estimates(
@@ -334,26 +409,36 @@ def mean_with_ci(values: np.ndarray, reps: int, seed: int) -> tuple[float, float
     return float(point["x"][0]), float(interval["x"][0, 0]), float(interval["x"][1, 0])
 
 
-def summarise(results: dict, args: Args, info: dict, env_id: str) -> dict:
+def summarise(results: dict, shift: dict, args: Args, info: dict, env_id: str) -> dict:
     summary = {**info, "env_id": env_id, "episodes": args.episodes, "seed": args.seed,
-               "eval_round": args.eval_round, "solver": args.solver, "selectors": {}}
+               "eval_round": args.eval_round, "solver": args.solver,
+               "episodes_per_job": JOB_EPISODES, "selectors": {}}
     for selector, episodes in results.items():
         mean, low, high = mean_with_ci(np.array(episodes["returns"]), args.reps, args.seed)
         summary["selectors"][selector] = {
             "return_mean": mean, "ci_low": low, "ci_high": high,
             "return_std": float(np.std(episodes["returns"])),
             "length_mean": float(np.mean(episodes["lengths"]))}
-    if "mode" in results and "tanh_mu" in results:
-        diffs = np.array(results["mode"]["returns"]) - np.array(results["tanh_mu"]["returns"])
-        mean, low, high = mean_with_ci(diffs, args.reps, args.seed)
-        summary["paired_difference_mode_minus_tanh_mu"] = {
-            "mean": mean, "ci_low": low, "ci_high": high,
-            "share_mode_better": float(np.mean(diffs > 0)),
-            "share_equal": float(np.mean(diffs == 0))}
-    states = results.get("mode") or next(iter(results.values()))
-    summary["shift_at_visited_states"] = sac.shift_statistics(
-        states["mu"].double(), states["log_std"].double(), args.solver)
+        if "shares" in episodes:
+            summary["selectors"][selector]["choice_shares"] = episodes["shares"]
+    if "tanh_mu" in results:
+        summary["paired_difference_minus_tanh_mu"] = {
+            s: paired_difference(results[s]["returns"], results["tanh_mu"]["returns"], args)
+            for s in results if s != "tanh_mu"}
+    if "mode" in results and "tanh_mu" in results:  # the key before there were more selectors
+        mode = dict(summary["paired_difference_minus_tanh_mu"]["mode"])
+        mode["share_mode_better"] = mode.pop("share_better")
+        summary["paired_difference_mode_minus_tanh_mu"] = mode
+    summary["shift_at_visited_states"] = shift
     return summary
+
+
+def paired_difference(returns: list[float], baseline: list[float], args: Args) -> dict:
+    """Episode by episode (the same start state), returns minus the baseline's, with its CI."""
+    diffs = np.array(returns) - np.array(baseline)
+    mean, low, high = mean_with_ci(diffs, args.reps, args.seed)
+    return {"mean": mean, "ci_low": low, "ci_high": high,
+            "share_better": float(np.mean(diffs > 0)), "share_equal": float(np.mean(diffs == 0))}
 
 
 def print_summary(summary: dict) -> None:
@@ -364,11 +449,15 @@ def print_summary(summary: dict) -> None:
     for name, s in summary["selectors"].items():
         print(f"{name:<10} {s['return_mean']:12.2f}  [{s['ci_low']:10.2f}, {s['ci_high']:10.2f}]"
               f"  {s['return_std']:9.2f}  {s['length_mean']:7.1f}")
-    paired = summary.get("paired_difference_mode_minus_tanh_mu")
-    if paired:
-        print(f"\nmode - tanh_mu, paired: {paired['mean']:.2f} [{paired['ci_low']:.2f}, "
-              f"{paired['ci_high']:.2f}]; the mode did better in "
-              f"{100 * paired['share_mode_better']:.0f}% of episodes "
+    for name, s in summary["selectors"].items():
+        if "choice_shares" in s:
+            shares = ", ".join(f"{c} {100 * v:.1f}%" for c, v in s["choice_shares"].items())
+            print(f"{name} chose, over its visited states: {shares}")
+    print()
+    for name, paired in summary.get("paired_difference_minus_tanh_mu", {}).items():
+        print(f"{name} - tanh_mu, paired: {paired['mean']:.2f} [{paired['ci_low']:.2f}, "
+              f"{paired['ci_high']:.2f}]; {name} did better in "
+              f"{100 * paired['share_better']:.0f}% of episodes "
               f"(equal in {100 * paired['share_equal']:.0f}%)")
     shift = summary["shift_at_visited_states"]
     print(f"distribution shift at the visited states: mean |mode - tanh(mu)| "
@@ -400,22 +489,21 @@ def write_files(out: Path, results: dict, seeds: list[int], summary: dict) -> No
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     check_args(args)
-    device = torch.device("cuda" if args.cuda and torch.cuda.is_available() else "cpu")
-    if args.cuda and device.type == "cpu":
-        sac.fail("--cuda: no CUDA GPU found; drop --cuda")
-    actor, env_id, info = load_policy(args)
-    actor = actor.to(device).eval()
-    env = sac.make_env(env_id, render=args.video is not None)
+    actor, critic, env_id, info = load_policy(args)
+    actor = actor.eval()
     if args.video:
         try:
             args.video.mkdir(parents=True, exist_ok=True)
         except OSError as error:
             sac.fail(f"--video {args.video}: cannot create it ({error.strerror}); give a "
                      "writable folder")
-    seeds = sac.eval_seeds(args.seed, args.eval_round, args.episodes)
-    results = {s: evaluate_selector(actor, s, args, env, seeds, device)
-               for s in dict.fromkeys(args.selectors)}
-    summary = summarise(results, args, info, env_id)
+    seeds = eval_seeds(args.seed, args.eval_round, args.episodes)
+    selectors = list(dict.fromkeys(args.selectors))
+    workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
+    jobs = make_jobs(actor, critic, env_id, seeds, selectors, args)
+    results, shift = merge(run_jobs(jobs, workers, progress_bar(" ".join(selectors), len(seeds))),
+                           selectors)
+    summary = summarise(results, shift, args, info, env_id)
     print_summary(summary)
     if args.out:
         write_outputs(args.out, results, seeds, summary)

@@ -804,7 +804,8 @@ def run_metadata(args: Args, obs_dim: int, action_dim: int) -> dict:
 def lock_run_folder(run_dir: Path) -> int:
     """An exclusive OS lock on run_dir/lock, held while this process lives: one writer per run
     folder (a Slurm requeue racing a job that has not died yet, a sweep started twice). The kernel
-    drops it when the process dies, SIGKILL included, so it is never stale. Returns its fd."""
+    drops it when the process dies, SIGKILL included, so it is never stale. Returns its fd, for
+    record_holder once the folder has been checked (a refused start changes nothing)."""
     run_dir.mkdir(parents=True, exist_ok=True)
     fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
     try:
@@ -813,9 +814,13 @@ def lock_run_folder(run_dir: Path) -> int:
         holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
         fail(f"{run_dir} is in use by process {holder} (it holds {run_dir / 'lock'}); let it "
              "finish or stop it, then --resume")
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
     return fd
+
+
+def record_holder(lock_fd: int) -> None:
+    """Writes this process's pid into the lock file it holds, for a refused second process."""
+    os.ftruncate(lock_fd, 0)
+    os.pwrite(lock_fd, f"{os.getpid()}\n".encode(), 0)
 
 
 class StopRequest:
@@ -976,8 +981,7 @@ if __name__ == "__main__":
 
     # The batch's folders: fresh, or resumed from their checkpoints, or restarted if they have
     # none yet. Every folder is locked and checked before anything in any of them is written.
-    for run_dir in dirs:
-        lock_run_folder(run_dir)
+    locks = [lock_run_folder(run_dir) for run_dir in dirs]
     ckpts = read_batch_checkpoints(dirs) if args.resume is not None else None
     if ckpts is not None:
         wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}
@@ -1020,6 +1024,8 @@ if __name__ == "__main__":
             atomic_write(run_dir / "config.json", lambda tmp, c=config: tmp.write_text(
                 json.dumps(c | {"batch": batch}, indent=2)))
         obs, _ = envs.reset(seed=seeds)
+    for lock in locks:
+        record_holder(lock)
     keep = global_step if args.resume is not None else None
     graphs = device.type == "cuda" and args.cudagraphs
     graphed = cuda_graph if graphs else (lambda fn, restore=(): fn)

@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import difflib
+import fcntl
 import functools
 import hashlib
 import importlib.util
@@ -119,6 +121,10 @@ ATTEMPT_FILE = "sweep_attempt.json"
 LOG_FILE = "sweep.log"
 SLURM_POLL_SECONDS = 2.0
 LOG_TAIL_LINES = 8
+# The scripts' number of evaluation processes: how fast a run goes, not what it computes, so it
+# may differ on --resume and is no part of a run's identity.
+EVAL_WORKERS_FLAGS = ("--eval-workers", "--eval_workers")
+LAUNCH_ACTIONS = ("start", "resume", "retry")
 
 
 class SweepError(Exception):
@@ -207,6 +213,7 @@ class Run:
     output_dir: Path
     checkpoint_interval: int
     tracking: tuple[str, ...] = ()  # W&B flags: where the run logs, not what it computes
+    eval_workers: int | None = None  # --eval-workers; None: the script's default
 
     @property
     def algorithm(self) -> str:
@@ -301,6 +308,25 @@ def check_extra_args(extra_args: tuple[str, ...]) -> None:
             )
 
 
+def split_eval_workers(extra_args: tuple[str, ...]) -> tuple[tuple[str, ...], int | None]:
+    """The arguments after `--` without --eval-workers, and its value (the last one given, as
+    the scripts read it; None if not given)."""
+    kept: list[str] = []
+    value: int | None = None
+    args = iter(extra_args)
+    for arg in args:
+        flag, sep, given = arg.partition("=")
+        if flag not in EVAL_WORKERS_FLAGS:
+            kept.append(arg)
+            continue
+        given = given if sep else next(args, "")
+        if not (given.isascii() and given.isdigit()):
+            raise SweepError(f"{flag} {given or '(no value)'} after `--`: must be 0 (in-process) "
+                             "or a number of evaluation processes")
+        value = int(given)
+    return tuple(kept), value
+
+
 def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     """The runs of the sweep, seed-major so that every cell gets its first seed early."""
     preset = PRESETS.get(args.preset)
@@ -318,13 +344,14 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     scripts = [resolve_script(script) for script in dict.fromkeys(names)]
     check_env_ids(env_ids)
     check_extra_args(extra_args)
+    run_args, eval_workers = split_eval_workers(extra_args)
     output_dir = Path(args.output_dir).resolve()
     tracking = ("--track", "--wandb-project-name", args.wandb_project_name,
                 *(("--wandb-entity", args.wandb_entity) if args.wandb_entity else ())) \
         if args.track else ()
     return [
-        Run(script, env_id, seed, preset_args(preset, env_id, extra_args) + extra_args,
-            output_dir, args.checkpoint_interval, tracking)
+        Run(script, env_id, seed, preset_args(preset, env_id, run_args) + run_args,
+            output_dir, args.checkpoint_interval, tracking, eval_workers)
         for seed in dict.fromkeys(seeds)
         for env_id in dict.fromkeys(env_ids)
         for script in scripts
@@ -399,6 +426,51 @@ def check_output_dir(runs: list[Run]) -> None:
 
 
 # ---------------------------------------------------------------------------------------------
+# Cores for evaluation: each run trains on one core and evaluates in --eval-workers processes
+
+
+def eval_workers_per_run(cores: int, runs_at_once: int) -> int:
+    """The cores the training processes leave free, shared among the runs. At least one worker:
+    with none, every evaluation round would stop the run's training while it plays its
+    episodes; one worker on an oversubscribed core costs less."""
+    return max(1, (cores - runs_at_once) // runs_at_once)
+
+
+def slurm_cpus_per_task(args: Args) -> int:
+    """The CPUs each task gets: --cpus-per-task, unless --sbatch cpus-per-task=N overrides it
+    (submitit writes additional sbatch parameters over its own)."""
+    given = sbatch_options(args.sbatch).get("cpus_per_task", args.cpus_per_task)
+    if not (str(given).isascii() and str(given).isdigit()) or int(given) < 1:
+        raise SweepError(f"--sbatch cpus-per-task={given}: must be a whole number, at least 1")
+    return int(given)
+
+
+def plural(count: int, noun: str) -> str:
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
+def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, str]:
+    """Each run's --eval-workers, and the division in words. The user's --eval-workers after
+    `--` stands. On Slurm each run is one task and the count is passed explicitly rather than
+    left to the scripts' default (the CPUs in their affinity mask): Slurm confines a task to its
+    CPUs only under task/affinity or task/cgroup; elsewhere (TaskPlugin=task/none, as in
+    tests/slurm/) the mask is the whole node, and every run would start a worker per node core."""
+    if given is not None:
+        return given, f"evaluation: {plural(given, 'worker')} per run (--eval-workers after `--`)"
+    if args.launcher == "slurm":
+        cpus = slurm_cpus_per_task(args)
+        count = eval_workers_per_run(cpus, 1)
+        why = f"{plural(cpus, 'CPU')} per Slurm task, one for training"
+    else:
+        cores = len(os.sched_getaffinity(0))
+        # Fewer runs to launch than --workers: only that many run at once.
+        at_once = max(1, min(args.workers, to_launch))
+        count = eval_workers_per_run(cores, at_once)
+        why = f"{plural(cores, 'core')}, {plural(at_once, 'run')} at a time"
+    return count, f"evaluation: {plural(count, 'worker')} per run ({why})"
+
+
+# ---------------------------------------------------------------------------------------------
 # State of a run
 
 
@@ -426,10 +498,31 @@ def process_alive(attempt: dict) -> bool:
     return True
 
 
+def lock_holder(run_dir: Path) -> str | None:
+    """The pid written in run_dir/lock while a training script holds its flock on it, else None.
+    The kernel drops the flock when its holder dies, so a lock file alone means nothing. Only a
+    probe: the lock is released at once, and the file is never created here."""
+    try:
+        fd = os.open(run_dir / "lock", os.O_RDONLY)
+    except FileNotFoundError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+    finally:
+        os.close(fd)  # also releases the probe's lock
+    return None
+
+
 def run_state(run_dir: Path) -> str:
     """done, running, pending (queued on Slurm), interrupted, failed or not started."""
     if (run_dir / "done.json").exists():
         return "done"
+    # Before the attempt file: a process this sweep did not start (a sweep launched twice, a
+    # requeued job racing one not dead yet) is at work on the folder.
+    if lock_holder(run_dir) is not None:
+        return "running"
     identity = read_json(run_dir / IDENTITY_FILE) or {}
     if identity.get("slurm_job_id"):
         queued = slurm_job_state(identity["slurm_job_id"])
@@ -462,8 +555,10 @@ def run_command(run: Run) -> tuple[str, list[str]]:
     python = [sys.executable, str(run.script)]
     tracking = [*run.tracking, "--wandb-group", f"{run.env_id}__{run.algorithm}"] \
         if run.tracking else []
+    # A runtime flag: passed on resume too, where the stored arguments do not hold it.
+    runtime = ["--eval-workers", str(run.eval_workers)] if run.eval_workers is not None else []
     if (run.run_dir / "config.json").exists():
-        return "resume", [*python, "--resume", str(run.run_dir), *tracking]
+        return "resume", [*python, "--resume", str(run.run_dir), *runtime, *tracking]
     return "start", [
         *python,
         "--env-id", run.env_id,
@@ -472,6 +567,7 @@ def run_command(run: Run) -> tuple[str, list[str]]:
         "--run-name", run.name,
         "--checkpoint-interval", str(run.checkpoint_interval),
         *run.extra_args,
+        *runtime,
         *tracking,
     ]
 
@@ -576,6 +672,11 @@ def launch_local(runs: list[Run], workers: int) -> None:
 
     def work(run: Run) -> None:
         if stopping.is_set():
+            return
+        # A queued run may have been taken up meanwhile by another sweep of the same folder.
+        state = run_state(run.run_dir)
+        if action_for(state) not in LAUNCH_ACTIONS:
+            print(f"{run.name}: {state} by now (another process took it up): skipped", flush=True)
             return
         # Own session: a Ctrl-C at the terminal reaches the children once, through stop().
         child = start_run(run, new_session=True, block_user_signals=False)
@@ -754,7 +855,8 @@ def script_default_total_timesteps(script: Path) -> int:
     return module.Args().total_timesteps
 
 
-def print_plan(runs: list[Run], args: Args, extra_args: tuple[str, ...]) -> None:
+def print_plan(runs: list[Run], states: dict[Run, str], args: Args,
+               extra_args: tuple[str, ...]) -> None:
     n_env = len({r.env_id for r in runs})
     n_seed = len({r.seed for r in runs})
     n_script = len({r.script for r in runs})
@@ -766,7 +868,7 @@ def print_plan(runs: list[Run], args: Args, extra_args: tuple[str, ...]) -> None
     total = steps_left = 0
     left = {}
     for run in runs:
-        state = run_state(run.run_dir)
+        state = states[run]
         budget = total_timesteps(run)
         total += budget
         left[run] = 0 if state == "done" else budget - (last_eval_step(run.run_dir) or 0)
@@ -845,12 +947,18 @@ def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
     check_output_dir(runs)
     if args.launcher == "slurm" and not args.dry_run:
         check_slurm(args.partition)
-    if args.dry_run:
-        print_plan(runs, args, extra_args)
-        return 0
     states = {run: run_state(run.run_dir) for run in runs}
-    todo = [run for run in runs if action_for(states[run]) in ("start", "resume", "retry")]
+    todo = [run for run in runs if action_for(states[run]) in LAUNCH_ACTIONS]
+    count, division = eval_division(args, runs[0].eval_workers, len(todo))
+    if args.dry_run:
+        print_plan(runs, states, args, extra_args)
+        print(division)
+        return 0
+    todo = [dataclasses.replace(run, eval_workers=count) for run in todo]
     print(f"{len(runs)} runs: {len(runs) - len(todo)} done or under way, {len(todo)} to launch")
+    report_in_use(runs, states)
+    if todo:
+        print(division, flush=True)
     if todo and args.launcher == "local":
         with mps_daemon() if args.mps else contextlib.nullcontext():
             launch_local(todo, args.workers)
@@ -866,6 +974,14 @@ def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
             print(f"stopped waiting; the jobs go on (scancel {job_id} stops them)")
             return EXIT_INTERRUPTED
     return finish(runs, args)
+
+
+def report_in_use(runs: list[Run], states: dict[Run, str]) -> None:
+    for run in runs:
+        holder = lock_holder(run.run_dir) if states[run] == "running" else None
+        if holder is not None:
+            print(f"{run.name}: in use by process {holder} (it holds {run.run_dir / 'lock'}): "
+                  "skipped", flush=True)
 
 
 def finish(runs: list[Run], args: Args) -> int:

@@ -363,7 +363,9 @@ def test_bad_inputs_give_one_clear_message(tmp_path, capsys):
             else:
                 write_config(root / f"run{i}", env_id=task, algorithm=algorithm, seed=seed)
                 (root / f"run{i}" / "eval.csv").write_text(text)
-        flags = ["--normalize", "none"] if name == "mixed_raw" else []
+        # The default, auto, falls back to min-max; asked for, success bars must all exist.
+        flags = {"mixed_raw": ["--normalize", "none"],
+                 "unknown_task": ["--normalize", "success-bar"]}.get(name, [])
         assert run_analysis(root, tmp_path / "out", *flags) == 2, name
         assert message in capsys.readouterr().err, name
     assert analyze.main([str(tmp_path / "empty"), "--reps", "0"]) == 2
@@ -510,7 +512,8 @@ def test_dimension_study_recovers_known_offsets_per_dimension(tmp_path):
     assert text.index("| Hopper-v5 | 3 |") < text.index("| Ant-v5 | 8 |")  # by dimension
     final_rows = {line.split(" | ")[0][2:]: line for line in text.splitlines()
                   if " | 1 (80k) | " in line}
-    assert final_rows["Hopper-v5"].startswith("| Hopper-v5 | 3 | 5 | 1 (80k) | -30.0 [")
+    assert final_rows["Hopper-v5"].startswith(
+        "| Hopper-v5 | 3 | Corrected SAC | mode | 5 | 1 (80k) | -30.0 [")
     # Seeds where the mode won: Hopper's offsets -38..-22, Ant's -20..20, powerlift's 56..64.
     assert [final_rows[t].endswith(f"| {won} of 5 |") for t, won in
             (("Hopper-v5", 0), ("Ant-v5", 2), (TASKS[0], 5))] == [True] * 3
@@ -530,6 +533,141 @@ def test_dimension_study_needs_two_dimensions(tmp_path):
         write_run(tmp_path / "runs", task, "corrected", 0, steps, steps / 1e3, steps / 1e3 - 1)
     assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
     assert not (tmp_path / "out" / "dimension_study.png").exists()
-    assert ("dimension study skipped: it needs corrected runs (with their paired tanh(mu) "
-            "evaluation) on tasks of at least two action dimensions; found [61]"
+    assert ("dimension study skipped: it needs paired evaluations against tanh(mu) (corrected "
+            "runs, or runs made with --eval-selectors) on tasks of at least two action "
+            "dimensions; found [61]"
             in (tmp_path / "out" / "summary.md").read_text())
+
+
+STATS = ["return_mean", "return_std", "return_min", "return_max", "length_mean", "success_rate"]
+
+
+def write_selector_run(root: Path, env_id: str, algorithm: str, seed: int, steps: np.ndarray,
+                       blocks: dict[str, np.ndarray], action_dim: int = 61,
+                       **columns: np.ndarray) -> Path:
+    """A run whose eval.csv has a block of EVAL_STATS per evaluation action, keyed by column
+    prefix ("" is the script's own action), as --eval-selectors writes them, plus further
+    columns (q_best's shares, the shift statistics)."""
+    run_dir = root / f"{env_id}__{algorithm}__seed{seed}"
+    write_config(run_dir, env_id=env_id, seed=seed, algorithm=algorithm,
+                 total_timesteps=int(steps[-1]), action_dim=action_dim)
+    header = ["global_step", "wall_time", "eval_round"]
+    header += [prefix + stat for prefix in blocks for stat in STATS] + list(columns)
+    with (run_dir / "eval.csv").open("w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(header)
+        for i, step in enumerate(steps):
+            row = [int(step), 2.0 * i, i]
+            for returns in blocks.values():
+                row += [returns[i], 5.0, returns[i] - 9, returns[i] + 9, 1000.0, ""]
+            writer.writerow(row + [values[i] for values in columns.values()])
+    return run_dir
+
+
+def test_tasks_with_no_step_in_common_and_other_budgets_share_a_fraction_axis(tmp_path):
+    """One task evaluated every 30k steps of 300k, another every 25k of 250k: no step in
+    common (but 150k, which is half of one and 60% of the other). The report is written and the
+    sample-efficiency curve runs over fractions of each task's budget."""
+    runs = tmp_path / "runs"
+    grids = {TASKS[0]: 30_000 * np.arange(1, 11), TASKS[1]: 25_000 * np.arange(1, 11)}
+    grids[TASKS[1]] = grids[TASKS[1]][grids[TASKS[1]] != 150_000]  # no step in common at all
+    for task, steps in grids.items():
+        for seed in range(3):
+            mode = steps / 1_000.0 + seed
+            write_run(runs, task, "corrected", seed, steps, mode, mode - 10)
+    assert run_analysis(runs, tmp_path / "out") == 0
+    assert (tmp_path / "out" / "sample_efficiency.png").exists()
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert ("sample-efficiency curve's x axis is the fraction of each task's budget" in text
+            and f"{TASKS[1]} 250k, {TASKS[0]} 300k" in text)
+    # By hand: frames from max(30k/300k, 25k/250k) = 0.1 to 1; at 0.5 powerlift's 150k and
+    # cube's 125k; at 0.6 cube's last evaluation at or before 150k, which it skipped: 125k.
+    loaded, _ = analyze.load_runs(runs)
+    analyze.standard_from_paired(loaded)
+    tasks, _ = analyze.align(loaded, None)
+    norms = analyze.normalizers(tasks, "success-bar")
+    aggregate, _ = analyze.build_aggregate(tasks, norms, analyze.ordered_groups(loaded), 19)
+    assert aggregate.by_fraction and np.allclose(aggregate.frames, np.linspace(0.1, 1, 19))
+    assert aggregate.tasks == [TASKS[1], TASKS[0]]
+    seeds = np.arange(3)
+    for fraction, cube, powerlift in ((0.5, 125, 150), (0.6, 125, 180)):
+        frame = int(np.argmin(np.abs(aggregate.frames - fraction)))
+        expected = np.stack([(cube + seeds) / 370, (powerlift + seeds) / 800], axis=1)
+        assert np.allclose(aggregate.curves["corrected"][:, :, frame], expected)
+
+
+def test_auto_normalisation_falls_back_to_min_max_and_says_so(tmp_path):
+    runs = tmp_path / "runs"
+    steps = 10_000 * np.arange(1, 4)
+    for seed in range(2):
+        write_run(runs, TASKS[1], "corrected", seed, steps, np.array([100.0, 200, 300]) + seed,
+                  np.array([90.0, 190, 290]) + seed)
+        write_run(runs, "Hopper-v5", "corrected", seed, steps, np.array([10.0, 20, 40]) + seed,
+                  np.array([5.0, 15, 30]) + seed)
+    assert run_analysis(runs, tmp_path / "out") == 0
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert ("Normalisation `auto` chose `min-max`: no HumanoidBench success bar for Hopper-v5."
+            in text)
+    # Hopper's returns in the folder span 5 .. 41: seed means at the last step 40.5 -> 35.5/36.
+    score = estimate(read_summary(tmp_path / "out"), "task_final", "Hopper-v5", "corrected",
+                     "score")[0]
+    assert np.isclose(score, (40.5 - 5) / 36)
+    only_bars = tmp_path / "bars"
+    for seed in range(2):
+        write_run(only_bars, TASKS[1], "corrected", seed, steps, steps / 1e3, steps / 1e3 - 1)
+    assert run_analysis(only_bars, tmp_path / "bars_out") == 0
+    assert "`auto` chose `success-bar`" in (tmp_path / "bars_out" / "summary.md").read_text()
+
+
+def test_every_selector_is_compared_with_tanh_mu(tmp_path):
+    """Corrected runs with the mean and q_best blocks, standard runs with mode, mean and q_best
+    (one standard seed without them), on tasks of 3 and 61 action dimensions: each selector
+    gets its paired difference, its dimension-study rows and q_best its choice shares."""
+    runs = tmp_path / "runs"
+    steps = 10_000 * np.arange(1, 5)
+    rng = np.random.default_rng(5)
+    final = {}  # (task, seed) -> action -> return at the last step
+    for task, dims in (("Hopper-v5", 3), (TASKS[1], 61)):
+        for seed in range(3):
+            base = 100.0 * np.arange(1, 5) + 10 * seed
+            mode, mean, q_best = (base + rng.normal(0, 5, 4) for _ in range(3))
+            final[task, seed] = {"tanh_mu": base[-1], "mode": mode[-1], "q_best": q_best[-1]}
+            shares = {"q_best_share_mode": np.full(4, 0.5 + 0.1 * seed),
+                      "q_best_share_tanh_mu": np.full(4, 0.3),
+                      "q_best_share_mean": np.full(4, 0.2 - 0.1 * seed)}
+            write_selector_run(runs, task, "corrected", seed, steps,
+                               {"": mode, "tanh_mu_": base, "mean_": mean, "q_best_": q_best},
+                               dims, **shares)
+            blocks = {"": base, "mode_": mode, "mean_": mean, "q_best_": q_best}
+            write_selector_run(runs, task, "standard", seed, steps,
+                               blocks if seed < 2 else {"": base}, dims,
+                               **(shares if seed < 2 else {}))
+    assert run_analysis(runs, tmp_path / "out") == 0
+    summary = read_summary(tmp_path / "out")
+    groups = ["corrected", "corrected (mean eval)", "corrected (q_best eval)",
+              "standard (mode eval)", "standard (mean eval)", "standard (q_best eval)"]
+    for task in ("Hopper-v5", TASKS[1]):
+        for group in groups:
+            row = summary["paired_difference", task, group, "return"]
+            assert row["n_runs"] == ("2" if group.startswith("standard") else "3")
+            assert ("dimension", task, group, "normalised_difference@1") in summary
+    # By hand, at the last step (40k) of cube: q_best minus tanh(mu) over the three corrected
+    # seeds; the standard runs' mode_ minus their own tanh(mu) over the two seeds that have it.
+    def by_hand(action: str, seeds: range) -> float:
+        return float(np.mean([final[TASKS[1], s][action] - final[TASKS[1], s]["tanh_mu"]
+                              for s in seeds]))
+
+    assert np.isclose(estimate(summary, "paired_difference", TASKS[1], "corrected (q_best eval)",
+                               "return")[0], by_hand("q_best", range(3)))
+    assert np.isclose(estimate(summary, "paired_difference", TASKS[1], "standard (mode eval)",
+                               "return")[0], by_hand("mode", range(2)))
+    assert np.isclose(estimate(summary, "q_best_share", TASKS[1], "corrected (q_best eval)",
+                               "mode")[0], 0.6)
+    assert np.isclose(estimate(summary, "q_best_share", "Hopper-v5", "standard (q_best eval)",
+                               "mean")[0], 0.15)
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert "## q_best: which action the critic picked" in text
+    assert f"| {TASKS[1]} | 40k | Corrected SAC | q_best | 3 |" in text
+    assert f"| {TASKS[1]} | 40k | Standard SAC | mode | 2 |" in text
+    names = {p.name for p in (tmp_path / "out").iterdir()}
+    assert {"paired_difference.png", "dimension_study.png"} <= names

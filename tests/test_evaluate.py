@@ -1,7 +1,8 @@
 """evaluate.py on a real Stable-Baselines3 SAC and on a run of ours: paired, deterministic,
 agreeing with the training run's own evaluation and with SB3's own action distribution, and
 clear about bad input. Most calls run evaluate.main in this process (an import of torch, gym
-and rliable per call would cost seconds); one of each kind runs the real command line."""
+and rliable per call would cost seconds) with --workers 0; one of each kind runs the real
+command line, and some the worker processes."""
 
 import csv
 import json
@@ -16,6 +17,7 @@ import pytest
 import torch
 
 import evaluate
+from eval_runner import Q_BEST_CANDIDATES, Round, eval_seeds, run_round
 from mode_search import tanh_normal_log_prob
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -30,7 +32,10 @@ def cli(*args: str, code: str = "") -> subprocess.CompletedProcess:
 
 
 def run(capsys, *args: str) -> tuple[int, str, str]:
-    """evaluate.main in this process: exit code, stdout, stderr."""
+    """evaluate.main in this process, and its episodes too unless --workers is given: exit code,
+    stdout, stderr."""
+    if "--workers" not in args:
+        args = (*args, "--workers", "0")
     try:
         evaluate.main(list(args))
         code = 0
@@ -74,12 +79,13 @@ def sb3_models(tmp_path_factory) -> dict[str, Path]:
 @pytest.fixture(scope="module")
 def our_run(tmp_path_factory) -> Path:
     """A tiny run whose checkpoint (step 1600, an episode's end) and last evaluation (round 2)
-    both hold the final model."""
+    both hold the final model (the critic too: it evaluates q_best)."""
     out = tmp_path_factory.mktemp("runs")
     result = subprocess.run(
         [sys.executable, str(ROOT / "sac_corrected.py"), "--env-id", "Pendulum-v1",
          "--total-timesteps", "1600", "--learning-starts", "500", "--eval-interval", "800",
-         "--eval-episodes", "2", "--hidden-sizes", "32", "32", "--checkpoint-interval", "1600",
+         "--eval-episodes", "2", "--eval-selectors", "mean", "q_best", "--hidden-sizes", "32",
+         "32", "--checkpoint-interval", "1600",
          "--output-dir", str(out), "--run-name", "ours"], capture_output=True, text=True, cwd=ROOT)
     assert result.returncode == 0, result.stderr
     return out / "ours"
@@ -91,7 +97,9 @@ def test_sb3_sac_paired_and_deterministic(sb3_models, tmp_path, capsys):
     first = cli(*args, "--out", str(tmp_path / "a"))
     assert first.returncode == 0, first.stderr
     assert "mode - tanh_mu, paired:" in first.stdout and "distribution shift" in first.stdout
-    assert "mode [########################] 3/3 episodes" in first.stderr  # the progress bar
+    # The progress bar, and a job of 3 episodes run by one worker process (the default: one
+    # per core, no more than there are jobs).
+    assert "mode tanh_mu sample [########################] 3/3 episodes" in first.stderr
     rows = read_rows(tmp_path / "a" / "episodes.csv")
     assert [r["selector"] for r in rows] == ["mode"] * 3 + ["tanh_mu"] * 3 + ["sample"] * 3
     # Paired: episode k of every selector starts from the same reset seed.
@@ -144,19 +152,131 @@ def test_sb3_gsde_policy_evaluates(sb3_models, capsys, tmp_path):
 
 
 def test_our_run_agrees_with_its_own_last_evaluation(our_run, tmp_path, capsys):
+    """Every selector, q_best (with the critic read back from final_model.pt) and its choice
+    shares included, gives the numbers the run logged in its last evaluation."""
     last = read_rows(our_run / "eval.csv")[-1]
-    code, _, err = run(capsys, str(our_run), "--seed", "0", "--eval-round", last["eval_round"],
-                       "--episodes", "2", "--reps", "100", "--out", str(tmp_path / "out"))
+    code, out, err = run(capsys, str(our_run), "--seed", "0", "--eval-round",
+                         last["eval_round"], "--episodes", "2", "--reps", "100", "--selectors",
+                         "mode", "tanh_mu", "mean", "q_best", "--out", str(tmp_path / "out"))
     assert code == 0, err
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["source"].endswith("final_model.pt") and summary["env_id"] == "Pendulum-v1"
     selectors = summary["selectors"]
-    assert selectors["tanh_mu"]["return_mean"] == pytest.approx(
-        float(last["tanh_mu_return_mean"]), rel=1e-9)
-    assert selectors["mode"]["return_mean"] == pytest.approx(float(last["return_mean"]),
-                                                             rel=1e-9)
+    for selector, prefix in (("mode", ""), ("tanh_mu", "tanh_mu_"), ("mean", "mean_"),
+                             ("q_best", "q_best_")):
+        assert selectors[selector]["return_mean"] == pytest.approx(
+            float(last[f"{prefix}return_mean"]), rel=1e-9), selector
+    shares = selectors["q_best"]["choice_shares"]
+    assert list(shares) == list(Q_BEST_CANDIDATES) and sum(shares.values()) == pytest.approx(1)
+    assert sum(share > 0 for share in shares.values()) >= 2  # a real choice, so its critic matters
+    for name, share in shares.items():
+        assert share == pytest.approx(float(last[f"q_best_share_{name}"]), abs=1e-12)
+    assert "q_best chose, over its visited states: tanh_mu" in out
     shift = summary["shift_at_visited_states"]
     assert shift["mode_shift_abs_mean"] > 0  # the mode is not tanh(mu)
+    assert shift["mode_shift_abs_mean"] == pytest.approx(float(last["mode_shift_abs_mean"]),
+                                                         rel=1e-6)
+    # Every selector's paired difference against tanh_mu, the mode's also under its old key.
+    paired = summary["paired_difference_minus_tanh_mu"]
+    assert set(paired) == {"mode", "mean", "q_best"}
+    for selector in paired:
+        assert f"{selector} - tanh_mu, paired:" in out
+        assert paired[selector]["mean"] == pytest.approx(
+            selectors[selector]["return_mean"] - selectors["tanh_mu"]["return_mean"])
+    old = summary["paired_difference_mode_minus_tanh_mu"]
+    assert old["share_mode_better"] == paired["mode"]["share_better"]
+    assert old["mean"] == paired["mode"]["mean"]
+
+
+def test_results_do_not_depend_on_workers_and_stay_paired(our_run, tmp_path, capsys):
+    """12 episodes (a job of 10 and one of 2) of every selector: the same files in-process and
+    with 1 or 2 worker processes, the episodes in order, each starting state shared."""
+    args = [str(our_run), "--episodes", "12", "--reps", "50", "--selectors", *evaluate.SELECTORS]
+    for workers in ("0", "1", "2"):
+        code, _, err = run(capsys, *args, "--workers", workers, "--out", str(tmp_path / workers))
+        assert code == 0, err
+    for name in ("episodes.csv", "summary.json"):
+        assert (tmp_path / "1" / name).read_text() == (tmp_path / "0" / name).read_text()
+        assert (tmp_path / "2" / name).read_text() == (tmp_path / "0" / name).read_text()
+    rows = read_rows(tmp_path / "0" / "episodes.csv")
+    seeds = eval_seeds(0, 0, 12)
+    for selector in evaluate.SELECTORS:
+        mine = [r for r in rows if r["selector"] == selector]
+        assert [int(r["reset_seed"]) for r in mine] == seeds
+        assert [int(r["episode"]) for r in mine] == list(range(12))
+    # The second job's episodes are episodes 10 and 11, in that order.
+    actor, _, env_id, _ = evaluate.load_policy(evaluate.parse_args([str(our_run)]))
+    second = run_round(Round(env_id, seeds[10:], {"tanh_mu": "tanh_mu"}, actor))
+    assert [float(r["return"]) for r in rows if r["selector"] == "tanh_mu"][10:] == \
+        second["tanh_mu"]["returns"]
+    summary = json.loads((tmp_path / "0" / "summary.json").read_text())
+    shares = summary["selectors"]["q_best"]["choice_shares"]
+    assert sum(shares.values()) == pytest.approx(1.0)
+    returns = {s: [float(r["return"]) for r in rows if r["selector"] == s]
+               for s in evaluate.SELECTORS}
+    assert returns["mean"] != returns["tanh_mu"] != returns["mode"]
+
+
+def test_sb3_critic_is_sb3s_own(sb3_models, tmp_path, capsys):
+    """q_best on an SB3 SAC scores with SB3's critic, fed actions as SB3 scales them; the
+    evaluation runs and reports its choice shares."""
+    actor, critic, _, _ = evaluate.load_policy(evaluate.parse_args(
+        [str(sb3_models["sac"]), "--env-id", "Pendulum-v1", "--selectors", "q_best"]))
+    policy = actor.policy
+    obs = torch.as_tensor(np.stack([gym.make("Pendulum-v1").reset(seed=s)[0] for s in range(8)]))
+    env_actions = torch.linspace(-2.0, 2.0, 8)[:, None]
+    with torch.no_grad():
+        ours = critic(obs, env_actions)
+        sb3 = policy.critic(obs, torch.as_tensor(policy.scale_action(env_actions.numpy())))
+    assert ours.shape == (2, 8)
+    assert ours.numpy() == pytest.approx(torch.cat(sb3, 1).T.numpy(), abs=1e-5)
+    assert not torch.equal(ours[:, 0], ours[:, -1])  # the action matters to a trained critic
+    code, out, err = run(capsys, str(sb3_models["sac"]), "--env-id", "Pendulum-v1",
+                         "--episodes", "3", "--reps", "50", "--selectors", "tanh_mu", "mean",
+                         "q_best", "--out", str(tmp_path))
+    assert code == 0, err
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert sum(summary["selectors"]["q_best"]["choice_shares"].values()) == pytest.approx(1.0)
+    assert set(summary["paired_difference_minus_tanh_mu"]) == {"mean", "q_best"}
+    assert "paired_difference_mode_minus_tanh_mu" not in summary
+    assert "q_best - tanh_mu, paired:" in out and "mean - tanh_mu, paired:" in out
+
+
+def test_q_best_needs_a_critic(our_run, tmp_path, capsys):
+    state = torch.load(our_run / "final_model.pt", weights_only=True)
+    del state["qf"]
+    torch.save(state, tmp_path / "actor_only.pt")
+    refused(capsys, "holds no critic weights ('qf'), which q_best needs",
+            str(tmp_path / "actor_only.pt"), "--selectors", "mode", "q_best")
+    code, _, err = run(capsys, str(tmp_path / "actor_only.pt"), "--episodes", "1", "--reps",
+                       "10", "--selectors", "mode", "mean")  # no q_best: no critic needed
+    assert code == 0, err
+    state = torch.load(our_run / "final_model.pt", weights_only=True)
+    state["qf"] = {k: v for k, v in state["qf"].items() if k.startswith("qf1.")}
+    torch.save(state, tmp_path / "half.pt")
+    refused(capsys, "its critic does not fit our TwinQ", str(tmp_path / "half.pt"),
+            "--selectors", "q_best")
+    state = torch.load(our_run / "final_model.pt", weights_only=True)
+    state["qf"]["qf2.0.bias"][0] = float("inf")
+    torch.save(state, tmp_path / "inf.pt")
+    refused(capsys, "the critic's qf2.0.bias holds NaN/inf", str(tmp_path / "inf.pt"),
+            "--selectors", "q_best")
+
+
+def test_a_nan_action_stops_with_one_line(our_run, capsys, monkeypatch):
+    build = evaluate.build_actor
+
+    def damaged(*args, **kwargs):
+        actor = build(*args, **kwargs)
+        with torch.no_grad():
+            actor.fc_mean.bias.fill_(float("nan"))
+        return actor
+
+    monkeypatch.setattr(evaluate, "build_actor", damaged)
+    refused(capsys, "episodes 0-1: the evaluation action 'tanh_mu' is NaN/inf in episode 0",
+            str(our_run), "--episodes", "2", "--selectors", "tanh_mu")
+    code, _, err = run(capsys, str(our_run), "--episodes", "2", "--selectors", "tanh_mu")
+    assert err.strip().endswith("the model is damaged or does not belong to this env"), err
 
 
 def test_weights_files_alone(our_run, tmp_path, capsys):
@@ -216,7 +336,7 @@ def test_bad_sources_fail_clearly(sb3_models, our_run, tmp_path, capsys):
             "Pendulum-v1")
 
 
-def test_bad_flags_fail_clearly_before_running(our_run, tmp_path, capsys, monkeypatch):
+def test_bad_flags_fail_clearly_before_running(our_run, tmp_path, capsys):
     run_dir = str(our_run)
     refused(capsys, "--episodes 0: must be at least 1", run_dir, "--episodes", "0")
     refused(capsys, "--reps 0: must be at least 1", run_dir, "--reps", "0")
@@ -228,8 +348,10 @@ def test_bad_flags_fail_clearly_before_running(our_run, tmp_path, capsys, monkey
             "bogus")
     refused(capsys, "Error parsing --episodes: invalid literal for int()", run_dir,
             "--episodes", "ten")
-    refused(capsys, "invalid choice 'mean' for argument '--selectors'", run_dir, "--selectors",
-            "mean")
+    refused(capsys, "invalid choice 'median' for argument '--selectors'", run_dir, "--selectors",
+            "median")
+    refused(capsys, "--workers -1: must be 0 (in-process) or more", run_dir, "--workers", "-1")
+    refused(capsys, "Unrecognized options: --cuda", run_dir, "--cuda")  # the runner uses CPU
     refused(capsys, "Unrecognized options: --episode", run_dir, "--episode", "3")
     refused(capsys, "Missing from evaluate.py: PATH")
     # Output folders that are files, refused before a single episode runs.
@@ -239,8 +361,6 @@ def test_bad_flags_fail_clearly_before_running(our_run, tmp_path, capsys, monkey
     refused(capsys, f"--video {taken}: a file of that name exists", run_dir, "--video",
             str(taken))
     assert taken.read_text() == "mine"
-    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    refused(capsys, "--cuda: no CUDA GPU found", run_dir, "--cuda")
     # A seed above 2**32 (NumPy's legacy generator's limit) still evaluates.
     code, _, err = run(capsys, run_dir, "--seed", str(2**40), "--episodes", "1", "--reps", "10")
     assert code == 0, err

@@ -2,6 +2,7 @@
 Slurm cluster (tests/slurm/start.sh), preemption and cancellation, status, and bad input."""
 
 import csv
+import fcntl
 import json
 import os
 import signal
@@ -68,6 +69,8 @@ def reference(tmp_path_factory) -> Path:
 # ----------------------------------------------------------------------------- local launcher
 def test_local_grid_runs_every_cell_to_the_end(reference):
     runs = run_dirs(reference)
+    # --workers 2: the cores the two training processes leave, shared (at least one each).
+    eval_workers = max(1, (len(os.sched_getaffinity(0)) - 2) // 2)
     assert sorted(runs) == [(a, s) for a in sorted(SCRIPTS) for s in (0, 1)]
     for (algorithm, seed), run_dir in runs.items():
         assert (run_dir / "done.json").exists()
@@ -79,6 +82,7 @@ def test_local_grid_runs_every_cell_to_the_end(reference):
         assert run_dir.name.startswith(f"Pendulum-v1__{algorithm}__seed{seed}__")
         log = (run_dir / "sweep.log").read_text()
         assert "finished 800 steps" in log  # the script's own output went to its log
+        assert log.count("--eval-workers") == 1 and f"--eval-workers {eval_workers}" in log
 
 
 def test_rerun_skips_finished_runs_and_chains_analysis(reference, tmp_path):
@@ -113,6 +117,48 @@ def test_local_sweep_stopped_by_sigterm_resumes_to_the_same_result(reference, tm
     assert eval_rows(run_dir) == eval_rows(run_dirs(reference)["standard", 0])
 
 
+def test_eval_workers_is_no_part_of_a_runs_identity(reference):
+    """The runs got --eval-workers from the sweep; the same grid with another --workers, or with
+    the user's own --eval-workers, finds them done."""
+    for extra in ([], ["--eval-workers", "0"]):
+        out = sweep(*GRID, "--workers", "1", "--output-dir", str(reference), "--", *RUN_ARGS,
+                    *extra).stdout
+        assert "4 done or under way, 0 to launch" in out
+
+
+def test_a_folder_in_use_is_skipped_and_started_once_free(reference, tmp_path):
+    """A run folder whose flock another process holds (a sweep started twice, a requeued job
+    racing one not dead yet) is running: not started, shown as running; the others run. Once
+    the lock is released, the same command starts it."""
+    import sweep as sweep_module
+
+    grid = [*CELLS, "--seeds", "0", "--output-dir", str(tmp_path), "--", *RUN_ARGS]
+    args = sweep_module.Args(env_ids=["Pendulum-v1"], seeds=[0], scripts=["sac_standard.py"],
+                             output_dir=str(tmp_path))
+    (busy,) = sweep_module.build_grid(args, tuple(RUN_ARGS))
+    sweep_module.prepare_run_dir(busy)
+    fd = os.open(busy.run_dir / "lock", os.O_RDWR | os.O_CREAT)
+    try:
+        os.write(fd, f"{os.getpid()}\n".encode())
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        result = sweep(*grid, check=False)
+        assert result.returncode == 3, result.stdout  # not all done
+        assert "1 done or under way, 1 to launch" in result.stdout
+        assert f"{busy.name}: in use by process {os.getpid()}" in result.stdout
+        assert list(run_dirs(tmp_path)) == [("corrected", 0)]
+        assert (run_dirs(tmp_path)["corrected", 0] / "done.json").exists()
+        assert not (busy.run_dir / "sweep.log").exists()  # never started
+        (row,) = [line for line in sweep("status", str(tmp_path)).stdout.splitlines()
+                  if line.startswith(busy.name)]
+        assert row.split()[1] == "running"
+    finally:
+        os.close(fd)
+    assert (busy.run_dir / "lock").exists()  # a lock file nobody holds is no lock
+    result = sweep(*grid)
+    assert "1 done or under way, 1 to launch" in result.stdout and "in use" not in result.stdout
+    assert eval_rows(busy.run_dir) == eval_rows(run_dirs(reference)["standard", 0])
+
+
 def test_status_shows_state_progress_and_the_log_of_a_failed_run(reference, tmp_path):
     table = sweep("status", str(reference)).stdout
     assert table.count("done") >= 4 and "800/800" in table
@@ -121,6 +167,24 @@ def test_status_shows_state_progress_and_the_log_of_a_failed_run(reference, tmp_
     assert result.returncode == 1
     table = sweep("status", str(tmp_path)).stdout
     assert "failed" in table and "--no-such-flag" in table  # tyro's complaint, from the log
+
+
+def test_dimensions_preset_runs_and_analyzes_with_the_default_normalisation(tmp_path):
+    """--preset dimensions mixes tasks with and without a HumanoidBench success bar: --analyze
+    with analyze.py's defaults (no --normalize) gives a report once every run is done. Two of
+    the preset's env ids (3 and 61 action dimensions), one seed, 300 steps each (17 s here)."""
+    report = tmp_path / "report"
+    result = sweep("--preset", "dimensions", "--env-ids", "Hopper-v5", "h1hand-powerlift-v0",
+                   "--seeds", "0", "--workers", "2", "--output-dir", str(tmp_path / "runs"),
+                   "--analyze", str(report), "--analyze-args=--reps 200 --curve-reps 20", "--",
+                   "--total-timesteps", "300", "--learning-starts", "200", "--eval-interval",
+                   "100", "--eval-episodes", "1", "--batch-size", "32")
+    assert "2 done" in result.stdout
+    summary = (report / "summary.md").read_text()
+    assert "`auto` chose `min-max`: no HumanoidBench success bar for Hopper-v5" in summary
+    assert "| Hopper-v5 | 3 | Corrected SAC | mode | 1 | 1 (300) |" in summary
+    assert "| h1hand-powerlift-v0 | 61 | Corrected SAC | mode | 1 | 1 (300) |" in summary
+    assert (report / "dimension_study.png").stat().st_size > 0
 
 
 def test_dry_run_prints_the_plan_and_starts_nothing(reference, tmp_path):
@@ -206,6 +270,10 @@ def test_a_preset_with_per_env_budgets_accepts_its_own_runs(tmp_path):
     (["--env-ids", "Pendulum-v1", "--seeds"], "no seeds: pass --seeds"),
     (["--env-ids", "Pendulum-v1", "--seeds", "0", "--", "--seed", "3"],
      "--seed after `--` is set by sweep.py"),
+    (["--env-ids", "Pendulum-v1", "--seeds", "0", "--", "--eval-workers", "-1"],
+     "--eval-workers -1 after `--`: must be 0 (in-process) or a number"),
+    (["--env-ids", "Pendulum-v1", "--seeds", "0", "--launcher", "slurm", "--dry-run",
+      "--sbatch", "cpus-per-task=two"], "--sbatch cpus-per-task=two: must be a whole number"),
 ])
 def test_bad_input_is_a_clear_error_and_starts_nothing(tmp_path, args, message):
     result = sweep("--output-dir", str(tmp_path / "runs"), *args, check=False)
@@ -261,6 +329,9 @@ def test_slurm_sweep_survives_preemption_and_cancellation(slurm, reference, tmp_
     assert sweeper.returncode == 3, output  # not all done: one run is interrupted
     preempted_log = (preempted / "sweep.log").read_text()
     assert "resume on" in preempted_log and "exit code 3" in preempted_log  # requeued, resumed
+    # One CPU per task: one evaluation worker, on start and on resume.
+    assert preempted_log.count("--eval-workers 1") == preempted_log.count("=== sweep.py start") \
+        + preempted_log.count("=== sweep.py resume") >= 2
     assert "interrupted" in sweep("status", str(tmp_path)).stdout
 
     result = sweep(*grid)
