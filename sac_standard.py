@@ -447,14 +447,15 @@ def load_seed_states(module: nn.Module, states: list[dict]) -> None:
 def optimizer_seed_state(optimizer: torch.optim.Optimizer, k: int) -> dict:
     """Seed k's part of an optimizer over stacked parameters (its step counts are shared)."""
     state = optimizer.state_dict()
-    return {"state": {i: {n: v if v.dim() == 0 else v[k:k + 1].clone() for n, v in s.items()}
+    return {"state": {i: {n: (v if v.dim() == 0 else v[k:k + 1]).clone() for n, v in s.items()}
                       for i, s in state["state"].items()},
             "param_groups": state["param_groups"]}
 
 
 def load_optimizer_seed_states(optimizer: torch.optim.Optimizer, states: list[dict]) -> None:
     optimizer.load_state_dict({
-        "state": {i: {n: v if v.dim() == 0 else torch.cat([s["state"][i][n] for s in states])
+        "state": {i: {n: v.clone() if v.dim() == 0
+                      else torch.cat([s["state"][i][n] for s in states])
                       for n, v in state.items()} for i, state in states[0]["state"].items()},
         "param_groups": states[0]["param_groups"]})
 
