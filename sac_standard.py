@@ -8,29 +8,23 @@ replaced by the mode of the tanh-squashed policy: `diff` the two to see the corr
 
 import atexit
 import copy
-import csv
 import dataclasses
 import difflib
-import fcntl
 import functools
 import importlib
 import json
 import math
 import multiprocessing
-import os
-import platform
 import random
 import signal
-import subprocess
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, NoReturn
+from typing import Literal
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 import torch
 import torch.nn as nn
@@ -39,6 +33,24 @@ from torch.utils.tensorboard import SummaryWriter
 
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
 from eval_runner import EvalPool, Round, default_workers, eval_columns, eval_seeds, round_statistics
+from run_folder import (
+    INTERRUPTED_EXIT_CODE,
+    StopRequest,
+    atomic_write,
+    check_csv,
+    fail,
+    lock_run_folder,
+    open_csv,
+    read_batch_checkpoints,
+    read_run_config,
+    record_holder,
+    rng_states,
+    run_metadata,
+    save_batch_checkpoint,
+    set_rng_states,
+    start_tracking,
+    write_row,
+)
 
 ALGORITHM = "standard"
 SHIFT_OF = None  # no shift columns in eval.csv (sac_corrected.py logs them)
@@ -141,12 +153,8 @@ RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "pr
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
                  "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
                  "episode_return_mean", "episode_length_mean")
-INTERRUPTED_EXIT_CODE = 3
 # What final_model.pt keeps of the arguments, so that it alone rebuilds the actor (evaluate.py).
 MODEL_FIELDS = ("env_id", "hidden_sizes", "log_std_min", "log_std_max")
-CHECKPOINT_KEYS = ("args", "global_step", "elapsed", "progress", "actor", "qf", "qf_target",
-                   "log_alpha", "q_optimizer", "actor_optimizer", "alpha_optimizer", "buffer",
-                   "rng")
 
 
 def eval_actions(args: Args) -> dict[str, str]:
@@ -163,7 +171,7 @@ def parse_args() -> Args:
         check_args(args)
         return args
     path = Path(args.resume) / "config.json"
-    config = read_run_config(Path(args.resume))
+    config = read_run_config(Path(args.resume), ALGORITHM)
     stored = {f.name: config[f.name] for f in dataclasses.fields(Args)
               if f.name in config and f.name not in RUNTIME_FIELDS}
     for key in ("hidden_sizes", "eval_selectors"):  # JSON lists back to the flags' tuples
@@ -246,29 +254,6 @@ def check_args(args: Args) -> None:
             value = getattr(args, name)
             shown = " ".join(map(str, value)) if isinstance(value, tuple) else repr(value)
             fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
-
-
-def fail(message: str) -> NoReturn:
-    """Bad input: one line naming the problem and the fix on stderr, exit code 2."""
-    print(f"{Path(sys.argv[0]).name}: error: {message}", file=sys.stderr, flush=True)
-    sys.exit(2)
-
-
-def read_run_config(run_dir: Path) -> dict:
-    """The config.json of a run folder made by this script, or a clear error."""
-    path = run_dir / "config.json"
-    if not path.is_file():
-        fail(f"{run_dir} is not a run folder (no config.json); give --resume a folder made by "
-             "sac_standard.py or sac_corrected.py")
-    try:
-        config = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        fail(f"{path} is not valid JSON ({error}); restore it from a copy, or start a new run")
-    if not isinstance(config, dict):
-        fail(f"{path} does not hold a JSON object; restore it from a copy, or start a new run")
-    if config.get("algorithm") != ALGORITHM:
-        fail(f"{run_dir} is a run of {config.get('script')}; resume it with that script")
-    return config
 
 
 def make_env(env_id: str, render: bool = False) -> gym.Env:
@@ -695,173 +680,6 @@ def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None, k:
     return row
 
 
-def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
-    """An append-mode CSV writer. Resuming keeps the whole rows up to the checkpoint's step, so
-    the file ends up with no duplicate or missing rows."""
-    kept = []
-    if keep_until_step is not None and path.exists():
-        lines = path.read_text().splitlines(keepends=True)[1:]
-        kept = [r for r in lines if r.endswith("\n") and int(r.split(",")[0]) <= keep_until_step]
-    atomic_write(path, lambda tmp: tmp.write_text(",".join(columns) + "\n" + "".join(kept)))
-    f = open(path, "a", newline="")  # noqa: SIM115  (kept open for the whole run)
-    return f, csv.DictWriter(f, columns)
-
-
-def check_csv(path: Path, columns: list[str]) -> None:
-    """Before a resume writes anything: the CSV must be this run's (its header, whole steps)."""
-    if not path.exists():
-        return
-    lines = path.read_text(errors="replace").splitlines(keepends=True)
-    if not lines or lines[0].rstrip("\r\n").split(",") != columns:
-        fail(f"{path} does not have the header this run writes ({len(columns)} columns: "
-             f"{', '.join(columns[:3])}, ...); it was edited or belongs to another run: restore "
-             "it, or move it away to drop its rows")
-    for number, line in enumerate(lines[1:], start=2):
-        if line.endswith("\n") and not line.split(",")[0].isdigit():
-            fail(f"{path}, line {number}: global_step {line.split(',')[0]!r} is not a step "
-                 "number; restore the file, or delete that line")
-
-
-def read_checkpoint(path: Path) -> dict:
-    """checkpoint.pt on the CPU (RNG states must stay there; load_state_dict moves the rest to
-    the run's device), or one line saying it is damaged."""
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False, mmap=True)
-        missing = [k for k in CHECKPOINT_KEYS if k not in ckpt]
-    except Exception as error:  # a truncated or foreign file fails in pickle, zip or torch
-        fail(f"{path} cannot be read ({type(error).__name__}: {str(error).splitlines()[0]}); "
-             "it is damaged: restore a copy, or delete it to restart the run from step 0")
-    if missing:
-        fail(f"{path} lacks {missing}: not a checkpoint of this script; restore a copy, or "
-             "delete it to restart the run from step 0")
-    if "episode" not in ckpt["rng"]:
-        fail(f"{path} was written by an older version of this script (before --num-seeds); "
-             "finish the run with that version (its commit is in config.json), or delete the "
-             "checkpoint to restart it from step 0")
-    return ckpt
-
-
-def write_row(f, writer: csv.DictWriter, tb: SummaryWriter, tracker, group: str, row: dict,
-              video: Path | None = None) -> None:
-    """One row to its CSV (flushed), to TensorBoard and, with --track, to W&B."""
-    writer.writerow(row)
-    f.flush()
-    scalars = {f"{group}/{k}": v for k, v in row.items()
-               if v is not None and k not in ("global_step", "wall_time")}
-    for k, v in scalars.items():
-        tb.add_scalar(k, v, row["global_step"])
-    if tracker is not None:
-        import wandb  # only with --track
-
-        media = {f"{group}/video": wandb.Video(str(video), format="mp4")} if video else {}
-        tracker.log({"global_step": row["global_step"], **scalars, **media})
-
-
-def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
-    """Writes via a temporary file and os.replace: a kill leaves the old file or the new one."""
-    tmp = path.with_name(path.name + ".tmp")
-    write(tmp)
-    os.replace(tmp, path)
-
-
-def start_tracking(args: Args, run_dir: Path):
-    """With --track, the W&B run, as CleanRL logs it: the config, every scalar that goes to
-    TensorBoard (against global_step) and the evaluation videos. wandb is imported only here.
-    Its id is kept in the run folder, so a resumed run continues the same W&B run; with
-    WANDB_MODE=offline it writes to run_dir/wandb, for `wandb sync` later."""
-    if not args.track:
-        return None
-    import wandb
-    from wandb.sdk.lib.runid import generate_id
-
-    id_file = run_dir / "wandb_run_id.txt"
-    if not id_file.exists():
-        atomic_write(id_file, lambda tmp: tmp.write_text(generate_id() + "\n"))
-    # create_new: the seeds of a batch are W&B runs side by side in one process.
-    tracker = wandb.init(reinit="create_new", project=args.wandb_project_name,
-                         entity=args.wandb_entity,
-                         group=args.wandb_group, name=run_dir.name, dir=run_dir,
-                         id=id_file.read_text().strip(), resume="allow",
-                         config=dataclasses.asdict(args) | {"algorithm": ALGORITHM})
-    tracker.define_metric("*", step_metric="global_step")
-    return tracker
-
-
-def run_metadata(args: Args, obs_dim: int, action_dim: int) -> dict:
-    """config.json: every argument, the algorithm, the library versions and the git commit."""
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
-                                capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        commit = None
-    return {**dataclasses.asdict(args), "algorithm": ALGORITHM, "script": Path(__file__).name,
-            "obs_dim": obs_dim, "action_dim": action_dim, "git_commit": commit,
-            "versions": {"python": platform.python_version(), "torch": torch.__version__,
-                         "numpy": np.__version__, "gymnasium": gym.__version__,
-                         "mujoco": mujoco.__version__},
-            "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
-
-
-def lock_run_folder(run_dir: Path) -> int:
-    """An exclusive OS lock on run_dir/lock, held while this process lives: one writer per run
-    folder (a Slurm requeue racing a job that has not died yet, a sweep started twice). The kernel
-    drops it when the process dies, SIGKILL included, so it is never stale. Returns its fd, for
-    record_holder once the folder has been checked (a refused start changes nothing)."""
-    run_dir.mkdir(parents=True, exist_ok=True)
-    fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-        fail(f"{run_dir} is in use by process {holder} (it holds {run_dir / 'lock'}); let it "
-             "finish or stop it, then --resume")
-    return fd
-
-
-def record_holder(lock_fd: int) -> None:
-    """Writes this process's pid into the lock file it holds, for a refused second process."""
-    os.ftruncate(lock_fd, 0)
-    os.pwrite(lock_fd, f"{os.getpid()}\n".encode(), 0)
-
-
-class StopRequest:
-    """SIGTERM/SIGUSR1/SIGUSR2 ask for a graceful stop after the current step (checkpoint, then
-    exit); a second signal exits at once (the last checkpoint stays valid)."""
-
-    def __init__(self):
-        self.requested = False
-        for s in (signal.SIGTERM, signal.SIGUSR1, signal.SIGUSR2):
-            signal.signal(s, self.handle)
-
-    def handle(self, signum, frame) -> None:
-        if self.requested:
-            print("second signal: exiting now; resume with --resume from the last checkpoint",
-                  flush=True)
-            os._exit(INTERRUPTED_EXIT_CODE)
-        self.requested = True
-        print(f"{signal.Signals(signum).name}: checkpointing after this step, then exiting",
-              flush=True)
-
-
-def rng_states() -> dict:
-    """The process's random streams (the batch's): torch draws the actions and batches of every
-    seed. Nothing of ours uses the global numpy and python generators; libraries might."""
-    name, keys, pos, has_gauss, gauss = np.random.get_state()  # noqa: NPY002
-    # Plain lists, not arrays: a checkpoint then loads with torch.load(weights_only=True).
-    return {"python": random.getstate(), "numpy": (name, keys.tolist(), pos, has_gauss, gauss),
-            "torch": torch.get_rng_state(),
-            "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None}
-
-
-def set_rng_states(states: dict) -> None:
-    random.setstate(states["python"])
-    name, keys, pos, has_gauss, gauss = states["numpy"]
-    np.random.set_state((name, np.array(keys, np.uint32), pos, has_gauss, gauss))  # noqa: NPY002
-    torch.set_rng_state(states["torch"])
-    if states["cuda"] is not None and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(states["cuda"])
-
-
 def episode_state(record: dict, action_dim: int) -> dict:
     """An EpisodeRecord's record for a checkpoint (the actions as one tensor: weights_only)."""
     actions = np.array(record["actions"], np.float32).reshape(len(record["actions"]), action_dim)
@@ -887,46 +705,14 @@ def batch_run_dirs(args: Args) -> list[Path]:
                      "choose another --run-name")
         return dirs
     given = Path(args.resume)
-    batch = read_run_config(given).get("batch", {"run_dirs": [given.name]})
+    batch = read_run_config(given, ALGORITHM).get("batch", {"run_dirs": [given.name]})
     dirs = [given.parent / name for name in batch["run_dirs"]]
     for run_dir in dirs:
-        config = read_run_config(run_dir)
+        config = read_run_config(run_dir, ALGORITHM)
         if config.get("batch", {"run_dirs": [run_dir.name]}) != batch:
             fail(f"{run_dir} is not a run of the batch {given} belongs to (its config.json "
                  "names another batch); restore the folder, or move it back where it was")
     return dirs
-
-
-def read_batch_checkpoints(dirs: list[Path]) -> list[dict] | None:
-    """Every seed's checkpoint.pt, all at one step; None where the batch has none yet.
-
-    A batch checkpoint is written in two phases (see save_batch_checkpoint): every seed's
-    checkpoint.pt.tmp first, then each is moved into place. A kill in the second phase leaves
-    some seeds at the new step and the others' complete .tmp files: those are moved in now."""
-    paths = [d / "checkpoint.pt" for d in dirs]
-    if not any(p.exists() for p in paths):
-        return None
-    steps = {p: read_checkpoint(p)["global_step"] if p.exists() else None for p in paths}
-    newest = max(s for s in steps.values() if s is not None)
-    for path, step in steps.items():
-        tmp = path.with_name(path.name + ".tmp")
-        if step != newest and tmp.exists() and read_checkpoint(tmp)["global_step"] == newest:
-            os.replace(tmp, path)
-        elif step != newest:
-            fail(f"{path} is {'missing' if step is None else f'at step {step}'} while the batch "
-                 f"it belongs to checkpointed at step {newest}; restore it, or delete the batch's "
-                 "checkpoint.pt files to restart it from step 0")
-    return [read_checkpoint(p) for p in paths]
-
-
-def save_batch_checkpoint(dirs: list[Path], states: list[dict]) -> None:
-    """Every seed's checkpoint.pt, in two phases so that a kill leaves the batch resumable: all
-    the .tmp files first, then the moves (read_batch_checkpoints finishes an interrupted one)."""
-    tmps = [d / "checkpoint.pt.tmp" for d in dirs]
-    for tmp, state in zip(tmps, states, strict=True):
-        torch.save(state, tmp)
-    for tmp in tmps:
-        os.replace(tmp, tmp.with_name("checkpoint.pt"))
 
 
 if __name__ == "__main__":
@@ -1021,7 +807,8 @@ if __name__ == "__main__":
         for run_dir, seed in zip(dirs, seeds, strict=True):
             for old in run_dir.glob("events.out.tfevents.*"):  # a restart from step 0
                 old.unlink()
-            config = run_metadata(dataclasses.replace(args, seed=seed), obs_dim, action_dim)
+            config = run_metadata(dataclasses.replace(args, seed=seed), obs_dim, action_dim,
+                                  ALGORITHM, Path(__file__).name)
             atomic_write(run_dir / "config.json", lambda tmp, c=config: tmp.write_text(
                 json.dumps(c | {"batch": batch}, indent=2)))
         obs, _ = envs.reset(seed=seeds)
@@ -1044,7 +831,7 @@ if __name__ == "__main__":
         logs.append({"eval": open_csv(run_dir / "eval.csv", eval_header, keep),
                      "train": open_csv(run_dir / "train.csv", list(TRAIN_COLUMNS), keep),
                      "tb": tb, "tracker": start_tracking(dataclasses.replace(args, seed=seed),
-                                                         run_dir)})
+                                                         run_dir, ALGORITHM)})
     del ckpts
 
     def log_evaluation(round_: Round, result: dict) -> None:
