@@ -150,7 +150,7 @@ def test_sigterm_checkpoints_exits_3_and_resumes(corrected_run, tmp_path):
     assert process.returncode == 3, output
     assert "resume with --resume" in output
     stopped_at = torch.load(run_dir / "checkpoint.pt", weights_only=False)["global_step"]
-    assert stopped_at % 200 == 0 and 600 <= stopped_at < 1500  # at an episode end
+    assert 600 <= stopped_at < 1500  # after the step the signal came in, mid-episode or not
     assert not (run_dir / "done.json").exists()
     run("sac_corrected.py", "--resume", str(run_dir), "--print-interval", "100")
     for name in ("eval.csv", "train.csv"):
