@@ -844,7 +844,9 @@ if __name__ == "__main__":
                   row | result.get("shift", {}), round_.videos.get(""))
         progress[k]["last_eval"] = (row["global_step"], row["return_mean"])
 
-    eval_pool = EvalPool(default_workers() if args.eval_workers is None else args.eval_workers,
+    # Training takes a core, and with K > 1 so does each env's worker process.
+    busy = 1 + (args.num_seeds if args.num_seeds > 1 else 0)
+    eval_pool = EvalPool(default_workers(busy) if args.eval_workers is None else args.eval_workers,
                          log_evaluation)
     session_start, row_start, row_step = time.time(), time.time(), global_step
     losses = None
