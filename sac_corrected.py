@@ -8,29 +8,25 @@ acts with tanh(mu) from the same start states (a paired comparison on the same a
 far the mode is from tanh(mu): the paper's distribution shift, measured during training.
 """
 
+import atexit
 import copy
-import csv
 import dataclasses
 import difflib
-import fcntl
 import functools
 import importlib
 import json
 import math
-import os
-import platform
+import multiprocessing
 import random
 import signal
-import subprocess
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, NoReturn
+from typing import Literal
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 import torch
 import torch.nn as nn
@@ -39,6 +35,24 @@ from torch.utils.tensorboard import SummaryWriter
 
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
 from eval_runner import EvalPool, Round, default_workers, eval_columns, eval_seeds, round_statistics
+from run_folder import (
+    INTERRUPTED_EXIT_CODE,
+    StopRequest,
+    atomic_write,
+    check_csv,
+    fail,
+    lock_run_folder,
+    open_csv,
+    read_batch_checkpoints,
+    read_run_config,
+    record_holder,
+    rng_states,
+    run_metadata,
+    save_batch_checkpoint,
+    set_rng_states,
+    start_tracking,
+    write_row,
+)
 
 ALGORITHM = "corrected"
 # eval.csv's shift columns: how far the mode is from tanh(mu) at the states the mode visits.
@@ -50,7 +64,11 @@ class Args:
     env_id: str = "h1hand-stand-v0"
     """the environment id of the task (any gymnasium env with a Box action space)"""
     seed: int = 0
-    """seed of the experiment (the paper uses seeds 0-4)"""
+    """seed of the experiment (the paper uses seeds 0-4); with --num-seeds, the first"""
+    num_seeds: int = 1
+    """train seeds --seed .. --seed + num_seeds - 1 side by side in this process: batched
+    networks, one replay buffer and env (in a worker process) per seed, each seed in its own run
+    folder; a seed's run depends on the batch it was trained in (recorded in config.json)"""
     total_timesteps: int = 10_000_000
     """total environment steps of the run"""
     buffer_size: int = 1_000_000
@@ -100,11 +118,13 @@ class Args:
     output_dir: str = "runs"
     """the folder that holds run folders"""
     run_name: str | None = None
-    """the run folder's name (default: {env_id}__{algorithm}__seed{seed}__{date-time})"""
+    """the run folder's name, {seed} in it replaced by the seed (default:
+    {env_id}__{algorithm}__seed{seed}__{date-time}); with --num-seeds above 1 it needs {seed}"""
     resume: str | None = None
-    """continue the run in this run folder from its checkpoint, with its stored arguments"""
+    """continue the batch of runs this run folder belongs to from its checkpoints, with its
+    stored arguments"""
     checkpoint_interval: int = 100_000
-    """checkpoint at the first episode end after every this many steps (0: off)"""
+    """checkpoint every this many steps (0: off)"""
     cuda: bool = True
     """use a CUDA GPU if there is one"""
     cudagraphs: bool = True
@@ -136,12 +156,8 @@ RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "pr
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
                  "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
                  "episode_return_mean", "episode_length_mean")
-INTERRUPTED_EXIT_CODE = 3
 # What final_model.pt keeps of the arguments, so that it alone rebuilds the actor (evaluate.py).
 MODEL_FIELDS = ("env_id", "hidden_sizes", "log_std_min", "log_std_max")
-CHECKPOINT_KEYS = ("args", "global_step", "elapsed", "progress", "actor", "qf", "qf_target",
-                   "log_alpha", "q_optimizer", "actor_optimizer", "alpha_optimizer", "buffer",
-                   "rng")
 
 
 def eval_actions(args: Args) -> dict[str, str]:
@@ -158,11 +174,13 @@ def parse_args() -> Args:
         check_args(args)
         return args
     path = Path(args.resume) / "config.json"
-    config = read_run_config(Path(args.resume))
+    config = read_run_config(Path(args.resume), ALGORITHM)
     stored = {f.name: config[f.name] for f in dataclasses.fields(Args)
               if f.name in config and f.name not in RUNTIME_FIELDS}
     for key in ("hidden_sizes", "eval_selectors"):  # JSON lists back to the flags' tuples
         stored[key] = tuple(stored.get(key, getattr(args, key)))
+    # A folder's config.json holds its own seed; the batch's arguments start at its first.
+    stored["seed"] = config.get("batch", {}).get("first_seed", stored.get("seed", args.seed))
     # A tracked run goes on being tracked, to the same W&B run, unless told otherwise.
     tracking = {k: config[k] for k in TRACKING_FIELDS if k in config}
     wrong = [k for k, v in (stored | tracking).items() if not same_type(v, getattr(args, k))]
@@ -196,6 +214,7 @@ def check_args(args: Args) -> None:
     own_actions = eval_actions(dataclasses.replace(args, eval_selectors=())).values()
     rules = (
         ("seed", args.seed >= 0, "a non-negative integer"),
+        ("num_seeds", args.num_seeds >= 1, "at least 1"),
         ("total_timesteps", args.total_timesteps >= 1, "at least 1"),
         ("buffer_size", args.buffer_size >= 2, "at least 2 (a transition takes two slots)"),
         ("batch_size", 1 <= args.batch_size <= args.buffer_size,
@@ -227,8 +246,10 @@ def check_args(args: Args) -> None:
         ("checkpoint_interval", args.checkpoint_interval >= 0, "0 (off) or more"),
         ("torch_threads", args.torch_threads >= 1, "at least 1"),
         ("run_name", args.run_name is None or (args.run_name not in ("", ".", "..")
-                                               and "/" not in args.run_name),
-         "a folder name without '/'"),
+                                               and "/" not in args.run_name
+                                               and (args.num_seeds == 1
+                                                    or "{seed}" in args.run_name)),
+         "a folder name without '/' (with --num-seeds above 1, containing {seed})"),
         ("wandb_project_name", bool(args.wandb_project_name), "a non-empty name"),
     )
     for name, ok, allowed in rules:
@@ -236,29 +257,6 @@ def check_args(args: Args) -> None:
             value = getattr(args, name)
             shown = " ".join(map(str, value)) if isinstance(value, tuple) else repr(value)
             fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
-
-
-def fail(message: str) -> NoReturn:
-    """Bad input: one line naming the problem and the fix on stderr, exit code 2."""
-    print(f"{Path(sys.argv[0]).name}: error: {message}", file=sys.stderr, flush=True)
-    sys.exit(2)
-
-
-def read_run_config(run_dir: Path) -> dict:
-    """The config.json of a run folder made by this script, or a clear error."""
-    path = run_dir / "config.json"
-    if not path.is_file():
-        fail(f"{run_dir} is not a run folder (no config.json); give --resume a folder made by "
-             "sac_standard.py or sac_corrected.py")
-    try:
-        config = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        fail(f"{path} is not valid JSON ({error}); restore it from a copy, or start a new run")
-    if not isinstance(config, dict):
-        fail(f"{path} does not hold a JSON object; restore it from a copy, or start a new run")
-    if config.get("algorithm") != ALGORITHM:
-        fail(f"{run_dir} is a run of {config.get('script')}; resume it with that script")
-    return config
 
 
 def make_env(env_id: str, render: bool = False) -> gym.Env:
@@ -287,34 +285,102 @@ def make_env(env_id: str, render: bool = False) -> gym.Env:
     return env
 
 
-def init_glorot(module: nn.Module) -> None:
+class EpisodeRecord(gym.Wrapper):
+    """Remembers how the current episode began (its reset seed, or the env's random state before
+    an unseeded reset) and every action since, so that a checkpoint taken mid-episode rebuilds
+    the episode exactly: `replay` resets the same way and steps the same actions (MuJoCo is
+    deterministic). Any gymnasium env, whatever state it keeps."""
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        rng = None if seed is not None else self.env.unwrapped.np_random.bit_generator.state
+        self.record = {"seed": seed, "rng": copy.deepcopy(rng), "actions": []}
+        return self.env.reset(seed=seed, options=options)
+
+    def step(self, action):
+        self.record["actions"].append(np.array(action, copy=True))
+        return self.env.step(action)
+
+    def replay(self) -> np.ndarray:
+        """Rebuilds the episode of `self.record` (a checkpoint's, put there by the vector env's
+        set_attr) and returns its current observation."""
+        seed, rng = self.record["seed"], self.record["rng"]
+        actions = [np.asarray(a) for a in self.record["actions"]]
+        if rng is not None:
+            self.env.unwrapped.np_random.bit_generator.state = rng
+        obs, _ = self.env.reset(seed=seed)
+        for action in actions:
+            obs = self.env.step(action)[0]
+        self.record = {"seed": seed, "rng": rng, "actions": actions}
+        return obs
+
+
+def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
+    """One env per seed, each in its own worker process when there are several (a single one
+    steps in-process: no pipe to cross). An episode's end resets that env in the same step, its
+    final observation in info["final_obs"] (gymnasium's SAME_STEP autoreset)."""
+    def make() -> gym.Env:
+        if multiprocessing.parent_process() is not None:  # in a worker: the trainer stops it
+            for s in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1, signal.SIGUSR2):
+                signal.signal(s, signal.SIG_IGN)
+        return EpisodeRecord(gym.make(env_id))
+
+    vector = gym.vector.AsyncVectorEnv if num_envs > 1 else gym.vector.SyncVectorEnv
+    return vector([make] * num_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+
+
+class SeedLinear(nn.Module):
+    """One linear layer per seed, K in all: weight (K, out, in), bias (K, 1, out). A batched
+    matmul runs the K layers as one; each seed's gradients stay its own. A (batch, in) input is
+    one seed's batch through a K = 1 layer (the evaluation's copies, see seed_slice)."""
+
+    def __init__(self, seeds: int, in_features: int, out_features: int):
+        super().__init__()
+        self.weight = nn.Parameter(torch.empty(seeds, out_features, in_features))
+        self.bias = nn.Parameter(torch.zeros(seeds, 1, out_features))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.dim() == 2:
+            return self(x[None])[0]
+        return torch.baddbmm(self.bias, x, self.weight.transpose(1, 2))
+
+
+def seed_mlp(seeds: int, sizes: tuple[int, ...]) -> nn.Sequential:
+    """K MLPs with ReLU between the layers, none after the last."""
+    layers = [m for i, o in zip(sizes, sizes[1:], strict=False)
+              for m in (SeedLinear(seeds, i, o), nn.ReLU())]
+    return nn.Sequential(*layers[:-1])
+
+
+def init_glorot(module: nn.Module, generators: list[torch.Generator] | None) -> None:
     """Glorot-uniform weights and zero biases on every layer, output heads included: HumanoidBench's
-    jaxrl_m networks (flax's variance_scaling(1, "fan_avg", "uniform")), not PyTorch's default."""
+    jaxrl_m networks (flax's variance_scaling(1, "fan_avg", "uniform")), not PyTorch's default.
+    Seed k's layers draw from generators[k] only: a seed's networks are its own."""
     for layer in module.modules():
-        if isinstance(layer, nn.Linear):
-            nn.init.xavier_uniform_(layer.weight)
-            nn.init.zeros_(layer.bias)
+        if isinstance(layer, SeedLinear):
+            with torch.no_grad():
+                for k, weight in enumerate(layer.weight):
+                    nn.init.xavier_uniform_(weight, generator=generators[k] if generators else None)
 
 
 class Actor(nn.Module):
     def __init__(self, obs_dim: int, hidden: tuple[int, ...], action_space: gym.spaces.Box,
-                 log_std_min: float, log_std_max: float):
+                 log_std_min: float, log_std_max: float, seeds: int = 1,
+                 generators: list[torch.Generator] | None = None):
         super().__init__()
-        sizes = (obs_dim, *hidden)
+        sizes, action_dim = (obs_dim, *hidden), int(np.prod(action_space.shape))
         self.trunk = nn.Sequential(*[m for i, o in zip(sizes, sizes[1:], strict=False)
-                                     for m in (nn.Linear(i, o), nn.ReLU())])
-        action_dim = int(np.prod(action_space.shape))
-        self.fc_mean = nn.Linear(sizes[-1], action_dim)
-        self.fc_logstd = nn.Linear(sizes[-1], action_dim)
+                                     for m in (SeedLinear(seeds, i, o), nn.ReLU())])
+        self.fc_mean = SeedLinear(seeds, sizes[-1], action_dim)
+        self.fc_logstd = SeedLinear(seeds, sizes[-1], action_dim)
         low, high = (torch.as_tensor(b, dtype=torch.float32) for b in (action_space.low,
                                                                       action_space.high))
         self.register_buffer("action_scale", (high - low) / 2)
         self.register_buffer("action_bias", (high + low) / 2)
         self.log_std_min, self.log_std_max = log_std_min, log_std_max
-        init_glorot(self)
+        init_glorot(self, generators)
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """mu and log sigma of the Gaussian before the tanh squashing."""
+        """mu and log sigma of the Gaussian before the tanh squashing, (K, batch, A)."""
         h = self.trunk(obs)
         return self.fc_mean(h), self.fc_logstd(h).clamp(self.log_std_min, self.log_std_max)
 
@@ -328,7 +394,7 @@ class Actor(nn.Module):
         log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * np.log(2 * np.pi)
                     - 2 * (np.log(2) - u - nn.functional.softplus(-2 * u))
                     - self.action_scale.log())
-        return self.scale(torch.tanh(u)), log_prob.sum(1)
+        return self.scale(torch.tanh(u)), log_prob.sum(-1)
 
     def scale(self, y: torch.Tensor) -> torch.Tensor:
         """Maps a squashed action in (-1, 1)^A to the env's bounds."""
@@ -336,26 +402,55 @@ class Actor(nn.Module):
 
 
 class TwinQ(nn.Module):
-    """The twin critics Q1 and Q2 (the target takes their minimum). Two plain MLPs: fusing them
-    into batched matmuls measured no faster on CPU (bench/bench_sac.py)."""
+    """The twin critics Q1 and Q2 (the target takes their minimum), K of each. Two plain MLPs:
+    fusing them into one batched matmul measured no faster on CPU (bench/bench_sac.py)."""
 
-    def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...]):
+    def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...], seeds: int = 1,
+                 generators: list[torch.Generator] | None = None):
         super().__init__()
-        sizes = (obs_dim + action_dim, *hidden, 1)
-        self.qf1, self.qf2 = (nn.Sequential(*[m for i, o in zip(sizes, sizes[1:], strict=False)
-                                              for m in (nn.Linear(i, o), nn.ReLU())][:-1])
+        self.qf1, self.qf2 = (seed_mlp(seeds, (obs_dim + action_dim, *hidden, 1))
                               for _ in range(2))
-        init_glorot(self)
+        init_glorot(self, generators)
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """Q1 and Q2 of each (obs, action), shape (2, batch)."""
-        x = torch.cat([obs, action], 1)
+        """Q1 and Q2 of each (obs, action), shape (2, K, batch)."""
+        x = torch.cat([obs, action], -1)
         return torch.stack([self.qf1(x), self.qf2(x)]).squeeze(-1)
 
 
+def seed_slice(module: nn.Module, k: int) -> nn.Module:
+    """Seed k's networks alone, as a K = 1 module that shares no tensor with the batch."""
+    memo = {id(p): nn.Parameter(p.detach()[k:k + 1].clone(), p.requires_grad)
+            for p in module.parameters()}
+    return copy.deepcopy(module, memo)
+
+
+def load_seed_states(module: nn.Module, states: list[dict]) -> None:
+    """The batch's parameters from each seed's K = 1 state dict (seed_slice's layout)."""
+    params = dict(module.named_parameters())
+    module.load_state_dict({n: torch.cat([s[n] for s in states]) if n in params else v
+                            for n, v in states[0].items()})
+
+
+def optimizer_seed_state(optimizer: torch.optim.Optimizer, k: int) -> dict:
+    """Seed k's part of an optimizer over stacked parameters (its step counts are shared)."""
+    state = optimizer.state_dict()
+    return {"state": {i: {n: (v if v.dim() == 0 else v[k:k + 1]).clone() for n, v in s.items()}
+                      for i, s in state["state"].items()},
+            "param_groups": state["param_groups"]}
+
+
+def load_optimizer_seed_states(optimizer: torch.optim.Optimizer, states: list[dict]) -> None:
+    optimizer.load_state_dict({
+        "state": {i: {n: v.clone() if v.dim() == 0
+                      else torch.cat([s["state"][i][n] for s in states])
+                      for n, v in state.items()} for i, state in states[0]["state"].items()},
+        "param_groups": states[0]["param_groups"]})
+
+
 class ReplayBuffer:
-    """Stores each observation once, in float32 tensors on `device`: slot i's next observation is
-    in slot i + 1.
+    """K replay buffers, one per seed, as (K, size, ...) float32 tensors on `device`. Each stores
+    every observation once: slot i's next observation is in slot i + 1.
 
     An episode's last transition is followed by a slot holding only its final observation (never
     sampled), so a truncated episode keeps its true final observation for bootstrapping and no
@@ -366,72 +461,90 @@ class ReplayBuffer:
     CANDIDATES = 16
     ARRAYS = ("obs", "actions", "rewards", "terminated", "valid")
 
-    def __init__(self, size: int, obs_dim: int, action_dim: int, device: torch.device):
-        self.size, self.ptr, self.filled = size, 0, 0
-        self.obs = torch.zeros((size, obs_dim), device=device)
-        self.actions = torch.zeros((size, action_dim), device=device)
-        self.rewards = torch.zeros(size, device=device)
-        self.terminated = torch.zeros(size, device=device)
-        self.valid = torch.zeros(size, dtype=torch.bool, device=device)  # slot i: a transition
-        self.filled_tensor = torch.zeros((), dtype=torch.int64, device=device)  # read in graphs
+    def __init__(self, seeds: int, size: int, obs_dim: int, action_dim: int,
+                 device: torch.device):
+        self.size, self.obs_dim, self.action_dim = size, obs_dim, action_dim
+        self.ptr, self.filled = np.zeros(seeds, np.int64), np.zeros(seeds, np.int64)
+        self.obs = torch.zeros((seeds, size, obs_dim), device=device)
+        self.actions = torch.zeros((seeds, size, action_dim), device=device)
+        self.rewards = torch.zeros((seeds, size), device=device)
+        self.terminated = torch.zeros((seeds, size), device=device)
+        self.valid = torch.zeros((seeds, size), dtype=torch.bool, device=device)  # a transition
+        self.filled_tensor = torch.zeros(seeds, dtype=torch.int64, device=device)  # for graphs
+        self.seed_index = torch.arange(seeds, device=device)[:, None]
 
-    def add(self, obs, action, reward, terminated, next_obs, episode_end: bool) -> None:
+    def add(self, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
+            terminated: np.ndarray, next_obs: np.ndarray, episode_end: np.ndarray) -> None:
+        """One transition per seed (rows); one copy to the buffer's device for all of them."""
         i, j = self.ptr, (self.ptr + 1) % self.size
-        self.obs[i], self.actions[i] = torch.as_tensor(obs), torch.as_tensor(action)
-        self.rewards[i], self.terminated[i], self.valid[i] = float(reward), float(terminated), True
-        self.obs[j], self.valid[j] = torch.as_tensor(next_obs), False
-        self.ptr = (j + 1) % self.size if episode_end else j
-        self.filled = self.size if j == 0 else max(self.filled, j + 1)
-        self.filled_tensor.fill_(self.filled)
+        packed = torch.as_tensor(np.concatenate(
+            [obs, actions, rewards[:, None], terminated[:, None], next_obs], 1, dtype=np.float32))
+        slots = torch.as_tensor(np.stack([i, j]))
+        packed, slots = packed.to(self.obs.device), slots.to(self.obs.device)
+        o, a, r, t, n = packed.split([self.obs_dim, self.action_dim, 1, 1, self.obs_dim], 1)
+        k = self.seed_index[:, 0]
+        self.obs[k, slots[0]], self.actions[k, slots[0]] = o, a
+        self.rewards[k, slots[0]], self.terminated[k, slots[0]] = r[:, 0], t[:, 0]
+        self.valid[k, slots[0]] = True
+        self.obs[k, slots[1]], self.valid[k, slots[1]] = n, False
+        self.ptr = np.where(episode_end, (j + 1) % self.size, j)
+        self.filled = np.where(j == 0, self.size, np.maximum(self.filled, j + 1))
+        self.filled_tensor.copy_(torch.as_tensor(self.filled))
 
     def sample(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
-        """Uniform over stored transitions: obs, actions, rewards, next_obs, 1 - terminated.
+        """Uniform over each seed's stored transitions: obs, actions, rewards, next_obs,
+        1 - terminated, each (K, batch, ...).
 
         Each row draws CANDIDATES slots from the torch generator of the buffer's device and keeps
         the first that holds a transition (rejection sampling with a fixed number of tries, so
         no data-dependent loop). If all of them are final-observation slots, which has
         probability (episodes / slots)^16 (below 1e-16 for episodes of 10 steps or more), the row
         takes the slot before: that episode's last transition."""
-        slots = torch.randint(2**62, (self.CANDIDATES, batch_size),
-                              device=self.obs.device) % self.filled_tensor
-        first = self.valid[slots].byte().argmax(0)  # argmax returns the first maximum
+        k = self.seed_index
+        slots = torch.randint(2**62, (self.CANDIDATES, *self.filled_tensor.shape, batch_size),
+                              device=self.obs.device) % self.filled_tensor[:, None]
+        first = self.valid[k, slots].byte().argmax(0)  # argmax returns the first maximum
         idx = slots.gather(0, first[None])[0]
-        idx = torch.where(self.valid[idx], idx, (idx - 1) % self.size)
-        batch = (self.obs[idx], self.actions[idx], self.rewards[idx],
-                 self.obs[(idx + 1) % self.size], 1 - self.terminated[idx])
+        idx = torch.where(self.valid[k, idx], idx, (idx - 1) % self.size)
+        batch = (self.obs[k, idx], self.actions[k, idx], self.rewards[k, idx],
+                 self.obs[k, (idx + 1) % self.size], 1 - self.terminated[k, idx])
         return tuple(t.to(device, non_blocking=True) for t in batch)
 
-    def state_dict(self) -> dict:
-        """The filled slots as CPU tensors: a checkpoint loads on any device."""
-        n = self.filled
+    def seed_state_dict(self, k: int) -> dict:
+        """Seed k's filled slots as CPU tensors: a checkpoint loads on any device."""
+        n = int(self.filled[k])
         # On the CPU, from_numpy of the slice makes torch.save write n rows, not the storage.
-        rows = (lambda t: torch.from_numpy(t[:n].numpy())) if self.obs.device.type == "cpu" \
-            else (lambda t: t[:n].cpu())
-        return {"ptr": self.ptr, "filled": n, **{k: rows(getattr(self, k)) for k in self.ARRAYS}}
+        rows = (lambda t: torch.from_numpy(t[k, :n].numpy().copy())) \
+            if self.obs.device.type == "cpu" else (lambda t: t[k, :n].cpu())
+        return {"ptr": int(self.ptr[k]), "filled": n, **{a: rows(getattr(self, a))
+                                                          for a in self.ARRAYS}}
 
-    def load_state_dict(self, state: dict) -> None:
-        self.ptr, self.filled = state["ptr"], state["filled"]
-        self.filled_tensor.fill_(self.filled)
-        for k in self.ARRAYS:
-            getattr(self, k)[: self.filled].copy_(state[k])
+    def load_seed_state_dict(self, k: int, state: dict) -> None:
+        self.ptr[k], self.filled[k] = state["ptr"], state["filled"]
+        self.filled_tensor[k] = state["filled"]
+        for a in self.ARRAYS:
+            getattr(self, a)[k, : state["filled"]].copy_(state[a])
 
 
 def sac_update(batch: tuple[torch.Tensor, ...], actor: Actor, qf: TwinQ, qf_target: TwinQ,
                log_alpha: torch.Tensor, optimizers: tuple[torch.optim.Optimizer, ...],
                gamma: float, tau: float, target_entropy: float) -> tuple[torch.Tensor, ...]:
-    """One gradient step of the twin critics, the actor and the temperature, and the critics'
-    Polyak-averaged targets. Returns the tensors that train.csv logs."""
+    """One gradient step of every seed's twin critics, actor and temperature (log_alpha: (K,)),
+    and the critics' Polyak-averaged targets. The losses are summed over seeds, so each seed's
+    gradients are its own, and Adam is elementwise: one Adam over the stacked parameters is K
+    independent Adams. Returns the tensors that train.csv logs, per seed."""
     b_obs, b_actions, b_rewards, b_next_obs, b_not_done = batch
     alpha = log_alpha.exp().detach()
     with torch.no_grad():
         next_actions, next_log_pi = actor.get_action(b_next_obs)
         min_qf_next = qf_target(b_next_obs, next_actions).min(0).values
-        next_q_value = b_rewards + b_not_done * gamma * (min_qf_next - alpha * next_log_pi)
+        next_q_value = b_rewards + b_not_done * gamma * (min_qf_next
+                                                         - alpha[:, None] * next_log_pi)
     qf_values = qf(b_obs, b_actions)
-    qf_losses = (qf_values - next_q_value).pow(2).mean(1)
+    qf_losses = (qf_values - next_q_value).pow(2).mean(-1)
     pi, log_pi = actor.get_action(b_obs)
-    actor_loss = (alpha * log_pi - qf(b_obs, pi).min(0).values).mean()
-    alpha_loss = -(log_alpha.exp() * (log_pi.detach() + target_entropy)).mean()
+    actor_losses = (alpha[:, None] * log_pi - qf(b_obs, pi).min(0).values).mean(-1)
+    alpha_losses = -(log_alpha.exp()[:, None] * (log_pi.detach() + target_entropy)).mean(-1)
 
     # As HumanoidBench's jaxrl_m: all three losses use the parameters from before this update
     # (the actor is scored by the pre-update critic), and the target moves towards that critic.
@@ -439,31 +552,31 @@ def sac_update(batch: tuple[torch.Tensor, ...], actor: Actor, qf: TwinQ, qf_targ
         optimizer.zero_grad()
     qf_losses.sum().backward()
     # Only the actor's gradients: autograd then skips the critics' weight gradients.
-    actor_loss.backward(inputs=list(actor.parameters()))
-    alpha_loss.backward()
+    actor_losses.sum().backward(inputs=list(actor.parameters()))
+    alpha_losses.sum().backward()
     with torch.no_grad():
         for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
             p_target.lerp_(p, tau)
     for optimizer in optimizers:
         optimizer.step()
-    return qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi
+    return qf_losses, qf_values, actor_losses, alpha, alpha_losses, log_pi
 
 
-def evaluation_round(args: Args, actor: Actor, qf: TwinQ, actions: dict[str, str],
+def evaluation_round(args: Args, actor: Actor, qf: TwinQ, actions: dict[str, str], k: int,
                      global_step: int, wall_time: float, run_dir: Path) -> Round:
-    """The evaluation round at this step, on CPU copies of the networks: training goes on while
-    a worker runs it (eval_runner.py)."""
-    eval_round = global_step // args.eval_interval
+    """Seed k's evaluation round at this step, on CPU copies of its networks: training goes on
+    while a worker runs it (eval_runner.py)."""
+    seed, eval_round = args.seed + k, global_step // args.eval_interval
     videos = {"": run_dir / "videos" / f"eval_step{global_step}.mp4"} if args.capture_video \
         else {}
     if videos:
         videos[""].parent.mkdir(exist_ok=True)
-    return Round(args.env_id, eval_seeds(args.seed, eval_round, args.eval_episodes), actions,
-                 copy.deepcopy(actor).cpu(),
-                 copy.deepcopy(qf).cpu() if "q_best" in actions.values() else None,
+    return Round(args.env_id, eval_seeds(seed, eval_round, args.eval_episodes), actions,
+                 seed_slice(actor, k).cpu(),
+                 seed_slice(qf, k).cpu() if "q_best" in actions.values() else None,
                  mode_solver=args.mode_solver, shift_of=SHIFT_OF, videos=videos,
-                 label=f"evaluation at step {global_step}",
-                 info={"global_step": global_step, "wall_time": wall_time,
+                 label=f"evaluation of seed {seed} at step {global_step}",
+                 info={"seed_index": k, "global_step": global_step, "wall_time": wall_time,
                        "eval_round": eval_round})
 
 
@@ -544,15 +657,15 @@ def check_finite(x: np.ndarray, what: str) -> None:
                          "rates or resume from an earlier checkpoint")
 
 
-def ends_without_bootstrap(terminated: bool, truncated: bool) -> bool:
+def ends_without_bootstrap(terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
     """Whether the target of a transition drops the next state's value. HumanoidBench bootstraps
     one that is both terminated and truncated (its mask is `not terminated or truncated`)."""
-    return terminated and not truncated
+    return terminated & ~truncated
 
 
-def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None) -> dict:
-    """train.csv's statistics: the last update's losses (none before learning starts) and the
-    training episodes that ended since the previous row (taken out of `progress`)."""
+def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None, k: int) -> dict:
+    """Seed k's train.csv statistics: the last update's losses (none before learning starts) and
+    the training episodes that ended since the previous row (taken out of its `progress`)."""
     returns, lengths = progress["episode_returns"], progress["episode_lengths"]
     row = {"episodes": len(returns),
            "episode_return_mean": np.mean(returns) if returns else None,
@@ -560,195 +673,59 @@ def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None) ->
     returns.clear()
     lengths.clear()
     if losses is not None:
-        qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi = losses
-        check_finite(qf_losses.detach().cpu().numpy(), "critic loss")
-        row |= {"qf1_loss": qf_losses[0].item(), "qf2_loss": qf_losses[1].item(),
-                "qf1_value": qf_values[0].mean().item(), "qf2_value": qf_values[1].mean().item(),
-                "actor_loss": actor_loss.item(), "alpha": alpha.item(),
-                "alpha_loss": alpha_loss.item(), "entropy": -log_pi.mean().item()}
+        qf_losses, qf_values, actor_losses, alpha, alpha_losses, log_pi = losses
+        check_finite(qf_losses[:, k].detach().cpu().numpy(), "critic loss")
+        row |= {"qf1_loss": qf_losses[0, k].item(), "qf2_loss": qf_losses[1, k].item(),
+                "qf1_value": qf_values[0, k].mean().item(),
+                "qf2_value": qf_values[1, k].mean().item(), "actor_loss": actor_losses[k].item(),
+                "alpha": alpha[k].item(), "alpha_loss": alpha_losses[k].item(),
+                "entropy": -log_pi[k].mean().item()}
     return row
 
 
-def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
-    """An append-mode CSV writer. Resuming keeps the whole rows up to the checkpoint's step, so
-    the file ends up with no duplicate or missing rows."""
-    kept = []
-    if keep_until_step is not None and path.exists():
-        lines = path.read_text().splitlines(keepends=True)[1:]
-        kept = [r for r in lines if r.endswith("\n") and int(r.split(",")[0]) <= keep_until_step]
-    atomic_write(path, lambda tmp: tmp.write_text(",".join(columns) + "\n" + "".join(kept)))
-    f = open(path, "a", newline="")  # noqa: SIM115  (kept open for the whole run)
-    return f, csv.DictWriter(f, columns)
+def episode_state(record: dict, action_dim: int) -> dict:
+    """An EpisodeRecord's record for a checkpoint (the actions as one tensor: weights_only)."""
+    actions = np.array(record["actions"], np.float32).reshape(len(record["actions"]), action_dim)
+    return {"seed": record["seed"], "rng": record["rng"], "actions": torch.from_numpy(actions)}
 
 
-def check_csv(path: Path, columns: list[str]) -> None:
-    """Before a resume writes anything: the CSV must be this run's (its header, whole steps)."""
-    if not path.exists():
-        return
-    lines = path.read_text(errors="replace").splitlines(keepends=True)
-    if not lines or lines[0].rstrip("\r\n").split(",") != columns:
-        fail(f"{path} does not have the header this run writes ({len(columns)} columns: "
-             f"{', '.join(columns[:3])}, ...); it was edited or belongs to another run: restore "
-             "it, or move it away to drop its rows")
-    for number, line in enumerate(lines[1:], start=2):
-        if line.endswith("\n") and not line.split(",")[0].isdigit():
-            fail(f"{path}, line {number}: global_step {line.split(',')[0]!r} is not a step "
-                 "number; restore the file, or delete that line")
+def run_dirs(args: Args) -> list[Path]:
+    """Each seed's run folder: --run-name with {seed} filled in, or the default name."""
+    name = args.run_name or (f"{args.env_id}__{ALGORITHM}__seed{{seed}}__"
+                             f"{time.strftime('%Y%m%d-%H%M%S')}")
+    return [Path(args.output_dir) / name.replace("{seed}", str(args.seed + k))
+            for k in range(args.num_seeds)]
 
 
-def read_checkpoint(path: Path) -> dict:
-    """checkpoint.pt on the CPU (RNG states must stay there; load_state_dict moves the rest to
-    the run's device), or one line saying it is damaged."""
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False, mmap=True)
-        missing = [k for k in CHECKPOINT_KEYS if k not in ckpt]
-    except Exception as error:  # a truncated or foreign file fails in pickle, zip or torch
-        fail(f"{path} cannot be read ({type(error).__name__}: {str(error).splitlines()[0]}); "
-             "it is damaged: restore a copy, or delete it to restart the run from step 0")
-    if missing:
-        fail(f"{path} lacks {missing}: not a checkpoint of this script; restore a copy, or "
-             "delete it to restart the run from step 0")
-    return ckpt
-
-
-def write_row(f, writer: csv.DictWriter, tb: SummaryWriter, tracker, group: str, row: dict,
-              video: Path | None = None) -> None:
-    """One row to its CSV (flushed), to TensorBoard and, with --track, to W&B."""
-    writer.writerow(row)
-    f.flush()
-    scalars = {f"{group}/{k}": v for k, v in row.items()
-               if v is not None and k not in ("global_step", "wall_time")}
-    for k, v in scalars.items():
-        tb.add_scalar(k, v, row["global_step"])
-    if tracker is not None:
-        import wandb  # only with --track
-
-        media = {f"{group}/video": wandb.Video(str(video), format="mp4")} if video else {}
-        tracker.log({"global_step": row["global_step"], **scalars, **media})
-
-
-def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
-    """Writes via a temporary file and os.replace: a kill leaves the old file or the new one."""
-    tmp = path.with_name(path.name + ".tmp")
-    write(tmp)
-    os.replace(tmp, path)
-
-
-def start_tracking(args: Args, run_dir: Path):
-    """With --track, the W&B run, as CleanRL logs it: the config, every scalar that goes to
-    TensorBoard (against global_step) and the evaluation videos. wandb is imported only here.
-    Its id is kept in the run folder, so a resumed run continues the same W&B run; with
-    WANDB_MODE=offline it writes to run_dir/wandb, for `wandb sync` later."""
-    if not args.track:
-        return None
-    import wandb
-    from wandb.sdk.lib.runid import generate_id
-
-    id_file = run_dir / "wandb_run_id.txt"
-    if not id_file.exists():
-        atomic_write(id_file, lambda tmp: tmp.write_text(generate_id() + "\n"))
-    tracker = wandb.init(project=args.wandb_project_name, entity=args.wandb_entity,
-                         group=args.wandb_group, name=run_dir.name, dir=run_dir,
-                         id=id_file.read_text().strip(), resume="allow",
-                         config=dataclasses.asdict(args) | {"algorithm": ALGORITHM})
-    tracker.define_metric("*", step_metric="global_step")
-    return tracker
-
-
-def run_metadata(args: Args, obs_dim: int, action_dim: int) -> dict:
-    """config.json: every argument, the algorithm, the library versions and the git commit."""
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
-                                capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        commit = None
-    return {**dataclasses.asdict(args), "algorithm": ALGORITHM, "script": Path(__file__).name,
-            "obs_dim": obs_dim, "action_dim": action_dim, "git_commit": commit,
-            "versions": {"python": platform.python_version(), "torch": torch.__version__,
-                         "numpy": np.__version__, "gymnasium": gym.__version__,
-                         "mujoco": mujoco.__version__},
-            "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
-
-
-def lock_run_folder(run_dir: Path) -> int:
-    """An exclusive OS lock on run_dir/lock, held while this process lives: one writer per run
-    folder (a Slurm requeue racing a job that has not died yet, a sweep started twice). The kernel
-    drops it when the process dies, SIGKILL included, so it is never stale. Returns its fd, for
-    record_holder once the folder has been checked (a refused start changes nothing)."""
-    run_dir.mkdir(parents=True, exist_ok=True)
-    fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-        fail(f"{run_dir} is in use by process {holder} (it holds {run_dir / 'lock'}); let it "
-             "finish or stop it, then --resume")
-    return fd
-
-
-def record_holder(lock_fd: int) -> None:
-    """Writes this process's pid into the lock file it holds, for a refused second process."""
-    os.ftruncate(lock_fd, 0)
-    os.pwrite(lock_fd, f"{os.getpid()}\n".encode(), 0)
-
-
-class StopRequest:
-    """SIGTERM/SIGUSR1/SIGUSR2 ask for a graceful stop at the next episode end; a second signal
-    exits at once (the last checkpoint stays valid)."""
-
-    def __init__(self):
-        self.requested = False
-        for s in (signal.SIGTERM, signal.SIGUSR1, signal.SIGUSR2):
-            signal.signal(s, self.handle)
-
-    def handle(self, signum, frame) -> None:
-        if self.requested:
-            print("second signal: exiting now; resume with --resume from the last checkpoint",
-                  flush=True)
-            os._exit(INTERRUPTED_EXIT_CODE)
-        self.requested = True
-        print(f"{signal.Signals(signum).name}: checkpointing at the end of this episode, then "
-              "exiting", flush=True)
-
-
-def rng_states(env: gym.Env) -> dict:
-    """Every random stream training draws from. Nothing of ours uses the global numpy and python
-    generators; libraries might."""
-    name, keys, pos, has_gauss, gauss = np.random.get_state()  # noqa: NPY002
-    # Plain lists, not arrays: a checkpoint then loads with torch.load(weights_only=True).
-    return {"python": random.getstate(), "numpy": (name, keys.tolist(), pos, has_gauss, gauss),
-            "torch": torch.get_rng_state(),
-            "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
-            "env": env.unwrapped.np_random.bit_generator.state,
-            "action_space": env.action_space.np_random.bit_generator.state}
-
-
-def set_rng_states(states: dict, env: gym.Env) -> None:
-    random.setstate(states["python"])
-    name, keys, pos, has_gauss, gauss = states["numpy"]
-    np.random.set_state((name, np.array(keys, np.uint32), pos, has_gauss, gauss))  # noqa: NPY002
-    torch.set_rng_state(states["torch"])
-    if states["cuda"] is not None and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(states["cuda"])
-    env.unwrapped.np_random.bit_generator.state = states["env"]
-    env.action_space.np_random.bit_generator.state = states["action_space"]
+def batch_run_dirs(args: Args) -> list[Path]:
+    """With --resume, the folders of the batch the given one belongs to, each checked before
+    anything is written; else fresh folders, none of which may hold a run."""
+    if args.resume is None:
+        dirs = run_dirs(args)
+        for run_dir in dirs:
+            if (run_dir / "config.json").exists():
+                fail(f"{run_dir} already holds a run; continue it with --resume {run_dir} or "
+                     "choose another --run-name")
+        return dirs
+    given = Path(args.resume)
+    batch = read_run_config(given, ALGORITHM).get("batch", {"run_dirs": [given.name]})
+    dirs = [given.parent / name for name in batch["run_dirs"]]
+    for run_dir in dirs:
+        config = read_run_config(run_dir, ALGORITHM)
+        if config.get("batch", {"run_dirs": [run_dir.name]}) != batch:
+            fail(f"{run_dir} is not a run of the batch {given} belongs to (its config.json "
+                 "names another batch); restore the folder, or move it back where it was")
+    return dirs
 
 
 if __name__ == "__main__":
     args = parse_args()
     stop = StopRequest()  # from the start, so a signal during setup also ends in exit code 3
     torch.set_num_threads(args.torch_threads)
-    if args.resume is not None:
-        run_dir = Path(args.resume)
-    else:
-        run_name = args.run_name or (f"{args.env_id}__{ALGORITHM}__seed{args.seed}__"
-                                     f"{time.strftime('%Y%m%d-%H%M%S')}")
-        run_dir = Path(args.output_dir) / run_name
-        if (run_dir / "config.json").exists():
-            fail(f"{run_dir} already holds a run; continue it with --resume {run_dir} or choose "
-                 "another --run-name")
-    if (run_dir / "done.json").exists():
-        print(f"{run_dir} has already finished (done.json); nothing to do")
+    dirs = batch_run_dirs(args)
+    seeds = [args.seed + k for k in range(args.num_seeds)]
+    if all((d / "done.json").exists() for d in dirs):
+        print(f"{', '.join(map(str, dirs))}: already finished (done.json); nothing to do")
         sys.exit(0)
 
     random.seed(args.seed)
@@ -759,176 +736,214 @@ if __name__ == "__main__":
     print(f"device: {device}" + (" (no CUDA GPU found)" if args.cuda and device.type == "cpu"
                                  else ""), flush=True)
 
-    env = make_env(args.env_id)
-    env.action_space.seed(args.seed)
-    obs_dim, action_dim = env.observation_space.shape[0], int(np.prod(env.action_space.shape))
+    space = make_env(args.env_id).action_space  # checks the id and the spaces
+    spaces = [copy.deepcopy(space) for _ in seeds]  # the random start actions: one per seed
+    for space, seed in zip(spaces, seeds, strict=True):
+        space.seed(seed)
+    envs = make_vector_env(args.env_id, args.num_seeds)
+    # However this process exits: its env workers ignore SIGTERM, so multiprocessing's own exit
+    # handler (terminate, then join) would wait for them forever.
+    atexit.register(envs.close)
+    obs_dim, action_dim = envs.single_observation_space.shape[0], spaces[0].shape[0]
 
-    actor = Actor(obs_dim, args.hidden_sizes, env.action_space, args.log_std_min,
-                  args.log_std_max).to(device)
-    qf = TwinQ(obs_dim, action_dim, args.hidden_sizes).to(device)
-    qf_target = TwinQ(obs_dim, action_dim, args.hidden_sizes).to(device)
-    qf_target.load_state_dict(qf.state_dict())
+    # Each seed's networks are initialised from its own generator, whatever the batch.
+    generators = [torch.Generator().manual_seed(seed) for seed in seeds]
+    actor = Actor(obs_dim, args.hidden_sizes, spaces[0], args.log_std_min, args.log_std_max,
+                  args.num_seeds, generators).to(device)
+    qf = TwinQ(obs_dim, action_dim, args.hidden_sizes, args.num_seeds, generators).to(device)
+    qf_target = copy.deepcopy(qf)
     # capturable: Adam's step counts stay on the GPU, as a CUDA graph needs (eager runs too, so
     # that a graph run and an eager run compute the same update).
     adam = functools.partial(torch.optim.Adam, fused=True, capturable=device.type == "cuda")
     q_optimizer = adam(qf.parameters(), lr=args.q_lr)
     actor_optimizer = adam(actor.parameters(), lr=args.policy_lr)
     target_entropy = -args.target_entropy_scale * action_dim
-    log_alpha = torch.tensor(float(np.log(args.alpha_init)), device=device, requires_grad=True)
+    log_alpha = torch.full((args.num_seeds,), float(np.log(args.alpha_init)), device=device,
+                           requires_grad=True)
     alpha_optimizer = adam([log_alpha], lr=args.alpha_lr)
     optimizers = (q_optimizer, actor_optimizer, alpha_optimizer)
-    rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim,
+    rb = ReplayBuffer(args.num_seeds, args.buffer_size, obs_dim, action_dim,
                       device if args.gpu_buffer else torch.device("cpu"))
 
     actions = eval_actions(args)
     eval_header = ["global_step", "wall_time", "eval_round",
                    *eval_columns(actions, shift=SHIFT_OF is not None)]
 
-    lock = lock_run_folder(run_dir)  # before anything in it is read or written
-    # A run folder: fresh, or resumed from its checkpoint, or restarted if it has none yet.
-    checkpoint_path = run_dir / "checkpoint.pt"
-    ckpt = read_checkpoint(checkpoint_path) \
-        if args.resume is not None and checkpoint_path.exists() else None
-    if ckpt is not None:
-        config_args = {k: v for k, v in ckpt["args"].items() if k not in RUNTIME_FIELDS}
+    # The batch's folders: fresh, or resumed from their checkpoints, or restarted if they have
+    # none yet. Every folder is locked and checked before anything in any of them is written.
+    locks = [lock_run_folder(run_dir) for run_dir in dirs]
+    ckpts = read_batch_checkpoints(dirs) if args.resume is not None else None
+    if ckpts is not None:
         wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}
-        if config_args != wanted:
-            fail(f"{checkpoint_path} was made with other arguments than "
-                 f"{run_dir / 'config.json'}; the run folder is inconsistent")
-        check_csv(run_dir / "eval.csv", eval_header)  # before anything is written
-        check_csv(run_dir / "train.csv", list(TRAIN_COLUMNS))
-        for module, key in ((actor, "actor"), (qf, "qf"), (qf_target, "qf_target"),
-                            (q_optimizer, "q_optimizer"), (actor_optimizer, "actor_optimizer"),
-                            (alpha_optimizer, "alpha_optimizer"), (rb, "buffer")):
-            module.load_state_dict(ckpt[key])
+        for run_dir, ckpt in zip(dirs, ckpts, strict=True):
+            if {k: v for k, v in ckpt["args"].items() if k not in RUNTIME_FIELDS} != wanted:
+                fail(f"{run_dir / 'checkpoint.pt'} was made with other arguments than "
+                     f"{run_dir / 'config.json'}; the run folder is inconsistent")
+            check_csv(run_dir / "eval.csv", eval_header)
+            check_csv(run_dir / "train.csv", list(TRAIN_COLUMNS))
+        for module, key in ((actor, "actor"), (qf, "qf"), (qf_target, "qf_target")):
+            load_seed_states(module, [c[key] for c in ckpts])
+        for optimizer, key in ((q_optimizer, "q_optimizer"), (actor_optimizer, "actor_optimizer"),
+                               (alpha_optimizer, "alpha_optimizer")):
+            load_optimizer_seed_states(optimizer, [c[key] for c in ckpts])
         for group in (g for optimizer in optimizers for g in optimizer.param_groups):
             group["capturable"] = device.type == "cuda"  # the checkpoint's is its device's
         with torch.no_grad():
-            log_alpha.copy_(ckpt["log_alpha"])
-        set_rng_states(ckpt["rng"], env)
-        global_step, elapsed, progress = ckpt["global_step"], ckpt["elapsed"], ckpt["progress"]
-        obs, _ = env.reset()  # the checkpoint was taken at an episode end, before this reset
-        print(f"resuming {run_dir} at step {global_step}", flush=True)
+            log_alpha.copy_(torch.cat([c["log_alpha"] for c in ckpts]))
+        for k, ckpt in enumerate(ckpts):
+            rb.load_seed_state_dict(k, ckpt["buffer"])
+            spaces[k].np_random.bit_generator.state = ckpt["rng"]["action_space"]
+        set_rng_states(ckpts[0]["rng"])
+        global_step, elapsed = ckpts[0]["global_step"], ckpts[0]["elapsed"]
+        progress = [c["progress"] for c in ckpts]
+        # Every env's episode so far, replayed: the checkpoint may fall mid-episode.
+        envs.reset(seed=seeds)
+        envs.set_attr("record", [c["rng"]["episode"] for c in ckpts])
+        obs = np.stack(envs.call("replay"))
+        print(f"resuming {', '.join(map(str, dirs))} at step {global_step}", flush=True)
     else:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        for old in run_dir.glob("events.out.tfevents.*"):  # a restart from step 0
-            old.unlink()
         global_step, elapsed = 0, 0.0
-        progress = {"episode_returns": [], "episode_lengths": [], "last_eval": None}
-        atomic_write(run_dir / "config.json", lambda tmp: tmp.write_text(json.dumps(
-            run_metadata(args, obs_dim, action_dim), indent=2)))
-        obs, _ = env.reset(seed=args.seed)
-    record_holder(lock)
+        progress = [{"episode_returns": [], "episode_lengths": [], "last_eval": None,
+                     "episode_return": 0.0, "episode_length": 0} for _ in seeds]
+        batch = {"first_seed": args.seed, "num_seeds": args.num_seeds,
+                 "run_dirs": [d.name for d in dirs]}
+        for run_dir, seed in zip(dirs, seeds, strict=True):
+            for old in run_dir.glob("events.out.tfevents.*"):  # a restart from step 0
+                old.unlink()
+            config = run_metadata(dataclasses.replace(args, seed=seed), obs_dim, action_dim,
+                                  ALGORITHM, Path(__file__).name)
+            atomic_write(run_dir / "config.json", lambda tmp, c=config: tmp.write_text(
+                json.dumps(c | {"batch": batch}, indent=2)))
+        obs, _ = envs.reset(seed=seeds)
+    for lock in locks:
+        record_holder(lock)
     keep = global_step if args.resume is not None else None
     graphs = device.type == "cuda" and args.cudagraphs
     graphed = cuda_graph if graphs else (lambda fn, restore=(): fn)
-    train_action = graphed(torch.no_grad()(lambda obs: actor.get_action(obs)[0]))
+    train_action = graphed(torch.no_grad()(lambda obs: actor.get_action(obs[:, None])[0][:, 0]))
     train_step = make_train_step(
         rb, lambda batch: sac_update(batch, actor, qf, qf_target, log_alpha, optimizers,
                                      args.gamma, args.tau, target_entropy),
         args.batch_size, device, graphs, (actor, qf, qf_target, log_alpha, *optimizers))
-    eval_file, eval_csv = open_csv(run_dir / "eval.csv", eval_header, keep)
-    train_file, train_csv = open_csv(run_dir / "train.csv", list(TRAIN_COLUMNS), keep)
-    tb = SummaryWriter(run_dir, purge_step=global_step + 1 if ckpt is not None else None)
-    if ckpt is None:
-        tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
-            f"|{k}|{v}|" for k, v in dataclasses.asdict(args).items()))
-    del ckpt
-    tracker = start_tracking(args, run_dir)
+    logs = []  # per seed: eval.csv and train.csv writers, TensorBoard, W&B
+    for run_dir, seed in zip(dirs, seeds, strict=True):
+        tb = SummaryWriter(run_dir, purge_step=global_step + 1 if ckpts is not None else None)
+        if ckpts is None:
+            tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
+                f"|{k}|{v}|" for k, v in dataclasses.asdict(args).items()))
+        logs.append({"eval": open_csv(run_dir / "eval.csv", eval_header, keep),
+                     "train": open_csv(run_dir / "train.csv", list(TRAIN_COLUMNS), keep),
+                     "tb": tb, "tracker": start_tracking(dataclasses.replace(args, seed=seed),
+                                                         run_dir, ALGORITHM)})
+    del ckpts
 
     def log_evaluation(round_: Round, result: dict) -> None:
         """An evaluation round's eval.csv row; EvalPool calls this in step order."""
-        row = dict(round_.info)
+        row, k = dict(round_.info), round_.info["seed_index"]
+        del row["seed_index"]
         for prefix in actions:
             row |= round_statistics(result, prefix)
-        write_row(eval_file, eval_csv, tb, tracker, "eval", row | result.get("shift", {}),
-                  round_.videos.get(""))
-        progress["last_eval"] = (row["global_step"], row["return_mean"])
+        write_row(*logs[k]["eval"], logs[k]["tb"], logs[k]["tracker"], "eval",
+                  row | result.get("shift", {}), round_.videos.get(""))
+        progress[k]["last_eval"] = (row["global_step"], row["return_mean"])
 
-    eval_pool = EvalPool(default_workers() if args.eval_workers is None else args.eval_workers,
+    # Training takes a core, and with K > 1 so does each env's worker process.
+    busy = 1 + (args.num_seeds if args.num_seeds > 1 else 0)
+    eval_pool = EvalPool(default_workers(busy) if args.eval_workers is None else args.eval_workers,
                          log_evaluation)
-
     session_start, row_start, row_step = time.time(), time.time(), global_step
-    episode_return, episode_length, losses = 0.0, 0, None
-    next_checkpoint = (global_step // args.checkpoint_interval + 1) * args.checkpoint_interval \
-        if args.checkpoint_interval > 0 else None
+    losses = None
     while global_step < args.total_timesteps:
         if global_step < args.learning_starts:
-            action = env.action_space.sample()
+            action = np.stack([space.sample() for space in spaces])
         else:
-            obs_tensor = torch.as_tensor(obs, dtype=torch.float32, device=device)[None]
-            action = train_action(obs_tensor)[0].cpu().numpy()
+            action = train_action(torch.as_tensor(obs, dtype=torch.float32, device=device))
+            action = action.cpu().numpy()
             check_finite(action, "action")
-        next_obs, reward, terminated, truncated, info = env.step(action)
+        next_obs, reward, terminated, truncated, info = envs.step(action)
         global_step += 1
-        episode_return, episode_length = episode_return + float(reward), episode_length + 1
-        episode_end = terminated or truncated
-        rb.add(obs, action, reward, ends_without_bootstrap(terminated, truncated), next_obs,
+        episode_end = terminated | truncated
+        final_obs = next_obs.copy()  # an ended episode's env has already reset: its final obs
+        for k in np.flatnonzero(episode_end):
+            final_obs[k] = info["final_obs"][k]
+        rb.add(obs, action, reward, ends_without_bootstrap(terminated, truncated), final_obs,
                episode_end)
         obs = next_obs
+        for k, seed_progress in enumerate(progress):
+            seed_progress["episode_return"] += float(reward[k])
+            seed_progress["episode_length"] += 1
+            if episode_end[k]:
+                seed_progress["episode_returns"].append(seed_progress["episode_return"])
+                seed_progress["episode_lengths"].append(seed_progress["episode_length"])
+                seed_progress["episode_return"], seed_progress["episode_length"] = 0.0, 0
 
         if global_step >= args.learning_starts:
             losses = train_step()
 
         if global_step % args.log_interval == 0:
             now = time.time()
-            row = {"global_step": global_step, "wall_time": elapsed + now - session_start,
-                   "sps": (global_step - row_step) / (now - row_start),
-                   **train_statistics(progress, losses)}
-            write_row(train_file, train_csv, tb, tracker, "train", row)
+            for k, log in enumerate(logs):
+                row = {"global_step": global_step, "wall_time": elapsed + now - session_start,
+                       "sps": (global_step - row_step) / (now - row_start),
+                       **train_statistics(progress[k], losses, k)}
+                write_row(*log["train"], log["tb"], log["tracker"], "train", row)
             row_start, row_step = now, global_step
 
         if global_step % args.eval_interval == 0:
-            eval_pool.submit(evaluation_round(args, actor, qf, actions, global_step,
-                                              elapsed + time.time() - session_start, run_dir))
+            wall_time = elapsed + time.time() - session_start
+            for k, run_dir in enumerate(dirs):
+                eval_pool.submit(evaluation_round(args, actor, qf, actions, k, global_step,
+                                                  wall_time, run_dir))
         eval_pool.poll()
 
         if global_step % args.print_interval == 0:
-            last = progress["last_eval"]
+            last = [p["last_eval"] for p in progress if p["last_eval"] is not None]
             print(f"step {global_step:,}/{args.total_timesteps:,} | "
-                  f"{global_step / (elapsed + time.time() - session_start):.0f} SPS overall | "
-                  + (f"last eval {last[1]:.1f} at step {last[0]:,}" if last else "no eval yet"),
+                  f"{global_step / (elapsed + time.time() - session_start):.0f} SPS per seed | "
+                  + (f"last eval {np.mean([r for _, r in last]):.1f} (mean over "
+                     f"{len(last)} seeds) at step {last[0][0]:,}" if last else "no eval yet"),
                   flush=True)
 
-        if episode_end:
-            progress["episode_returns"].append(episode_return)
-            progress["episode_lengths"].append(episode_length)
-            episode_return, episode_length = 0.0, 0
-            if stop.requested or (next_checkpoint is not None and global_step >= next_checkpoint):
-                eval_pool.drain()  # a checkpoint follows every round before it into eval.csv
-                state = {"args": dataclasses.asdict(args), "global_step": global_step,
-                         "elapsed": elapsed + time.time() - session_start, "progress": progress,
-                         "actor": actor.state_dict(), "qf": qf.state_dict(),
-                         "qf_target": qf_target.state_dict(), "log_alpha": log_alpha.detach(),
-                         "q_optimizer": q_optimizer.state_dict(),
-                         "actor_optimizer": actor_optimizer.state_dict(),
-                         "alpha_optimizer": alpha_optimizer.state_dict(),
-                         "buffer": rb.state_dict(), "rng": rng_states(env)}
-                atomic_write(checkpoint_path, lambda tmp, state=state: torch.save(state, tmp))
-                del state
-                if next_checkpoint is not None:
-                    next_checkpoint = (global_step // args.checkpoint_interval + 1) \
-                        * args.checkpoint_interval
-                if stop.requested:
-                    tb.close()
-                    if tracker is not None:
-                        tracker.finish()
-                    print(f"interrupted at step {global_step}; resume with --resume {run_dir}",
-                          flush=True)
-                    sys.exit(INTERRUPTED_EXIT_CODE)
-            obs, _ = env.reset()
+        if stop.requested or (args.checkpoint_interval > 0
+                              and global_step % args.checkpoint_interval == 0):
+            eval_pool.drain()  # a checkpoint follows every round before it into eval.csv
+            episodes = envs.get_attr("record")
+            rng = rng_states()
+            save_batch_checkpoint(dirs, [{
+                "args": dataclasses.asdict(args), "global_step": global_step,
+                "elapsed": elapsed + time.time() - session_start, "progress": progress[k],
+                "actor": seed_slice(actor, k).state_dict(), "qf": seed_slice(qf, k).state_dict(),
+                "qf_target": seed_slice(qf_target, k).state_dict(),
+                "log_alpha": log_alpha.detach()[k:k + 1].clone(),
+                "q_optimizer": optimizer_seed_state(q_optimizer, k),
+                "actor_optimizer": optimizer_seed_state(actor_optimizer, k),
+                "alpha_optimizer": optimizer_seed_state(alpha_optimizer, k),
+                "buffer": rb.seed_state_dict(k),
+                "rng": rng | {"action_space": spaces[k].np_random.bit_generator.state,
+                              "episode": episode_state(episodes[k], action_dim)}}
+                for k in range(args.num_seeds)])
+            if stop.requested:
+                for log in logs:
+                    log["tb"].close()
+                    if log["tracker"] is not None:
+                        log["tracker"].finish()
+                print(f"interrupted at step {global_step}; resume with --resume {dirs[0]}",
+                      flush=True)
+                sys.exit(INTERRUPTED_EXIT_CODE)
 
     eval_pool.drain()
     eval_pool.close()
-    atomic_write(run_dir / "final_model.pt", lambda tmp: torch.save(
-        {"actor": actor.state_dict(), "qf": qf.state_dict(),
-         "config": {k: getattr(args, k) for k in MODEL_FIELDS}}, tmp))
-    tb.close()
-    if tracker is not None:
-        tracker.finish()
-    eval_file.close()
-    train_file.close()
     wall_time = elapsed + time.time() - session_start
-    atomic_write(run_dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
-        {"global_step": global_step, "wall_time": wall_time})))
-    print(f"finished {global_step} steps in {wall_time:.0f} s: {run_dir}", flush=True)
+    for k, (run_dir, log) in enumerate(zip(dirs, logs, strict=True)):
+        atomic_write(run_dir / "final_model.pt", lambda tmp, k=k: torch.save(
+            {"actor": seed_slice(actor, k).state_dict(), "qf": seed_slice(qf, k).state_dict(),
+             "config": {f: getattr(args, f) for f in MODEL_FIELDS}}, tmp))
+        log["tb"].close()
+        if log["tracker"] is not None:
+            log["tracker"].finish()
+        for f, _ in (log["eval"], log["train"]):
+            f.close()
+        atomic_write(run_dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
+            {"global_step": global_step, "wall_time": wall_time})))
+    print(f"finished {global_step} steps in {wall_time:.0f} s: "
+          f"{', '.join(map(str, dirs))}", flush=True)

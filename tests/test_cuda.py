@@ -29,21 +29,24 @@ CUDA = torch.device("cuda")
 OBS_DIM, ACTION_DIM = 11, 3
 
 
-def learner(buffer_device: torch.device, seed: int = 0):
-    """A small SAC learner on the GPU and a replay buffer of random transitions (episodes of 20)."""
+def learner(buffer_device: torch.device, seed: int = 0, seeds: int = 2):
+    """A small batched SAC learner on the GPU (`seeds` seeds) and replay buffers of random
+    transitions (episodes of 20)."""
     torch.manual_seed(seed)
+    generators = [torch.Generator().manual_seed(seed + k) for k in range(seeds)]
     space = gym.spaces.Box(-2.0, 2.0, (ACTION_DIM,), np.float32)
-    actor = Actor(OBS_DIM, (32, 32), space, -10.0, 2.0).to(CUDA)
-    qf = TwinQ(OBS_DIM, ACTION_DIM, (32, 32)).to(CUDA)
+    actor = Actor(OBS_DIM, (32, 32), space, -10.0, 2.0, seeds, generators).to(CUDA)
+    qf = TwinQ(OBS_DIM, ACTION_DIM, (32, 32), seeds, generators).to(CUDA)
     qf_target = copy.deepcopy(qf)
-    log_alpha = torch.zeros((), device=CUDA, requires_grad=True)
+    log_alpha = torch.zeros(seeds, device=CUDA, requires_grad=True)
     adam = functools.partial(torch.optim.Adam, lr=3e-4, fused=True, capturable=True)
     optimizers = (adam(qf.parameters()), adam(actor.parameters()), adam([log_alpha]))
-    rb = ReplayBuffer(500, OBS_DIM, ACTION_DIM, buffer_device)
+    rb = ReplayBuffer(seeds, 500, OBS_DIM, ACTION_DIM, buffer_device)
     rng = np.random.default_rng(seed)
     for step in range(400):
-        rb.add(rng.normal(size=OBS_DIM), rng.uniform(-2, 2, ACTION_DIM), rng.normal(),
-               step % 40 == 39, rng.normal(size=OBS_DIM), step % 20 == 19)
+        rb.add(rng.normal(size=(seeds, OBS_DIM)), rng.uniform(-2, 2, (seeds, ACTION_DIM)),
+               rng.normal(size=seeds), np.full(seeds, step % 40 == 39),
+               rng.normal(size=(seeds, OBS_DIM)), np.full(seeds, step % 20 == 19))
     update = functools.partial(sac_update, actor=actor, qf=qf, qf_target=qf_target,
                                log_alpha=log_alpha, optimizers=optimizers, gamma=0.99, tau=0.005,
                                target_entropy=-ACTION_DIM / 2)
@@ -103,7 +106,7 @@ def test_scripts_on_gpu_train_identically_and_resume_exactly(tmp_path):
     for name in ("eval.csv", "train.csv"):
         assert read_csv(killed / name) == read_csv(std / name)
 
-    # SIGTERM: checkpoint at the episode end, exit 3, resume to the same run.
+    # SIGTERM: checkpoint after the current step, exit 3, resume to the same run.
     term = tmp_path / "term"
     process = subprocess.Popen(
         command("sac_corrected.py", *SHORT, "--output-dir", str(tmp_path), "--run-name", "term"),
@@ -140,3 +143,20 @@ def test_host_buffer_run_on_gpu(tmp_path):
     losses = [float(r["qf1_loss"]) for r in read_csv(tmp_path / "host" / "train.csv")
               if r["qf1_loss"]]
     assert len(losses) == 11 and len(set(losses)) == 11
+
+
+def test_a_batch_on_gpu_resumes_exactly_after_sigkill(tmp_path):
+    batch = [*SHORT[:-1], "500", "--num-seeds", "2", "--eval-workers", "0", "--output-dir",
+             str(tmp_path)]
+    run("sac_standard.py", *batch, "--run-name", "whole{seed}")
+    process = subprocess.Popen(command("sac_standard.py", *batch, "--run-name", "killed{seed}"),
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wait_for(lambda: (tmp_path / "killed1" / "train.csv").exists()
+             and "\n700," in (tmp_path / "killed1" / "train.csv").read_text())
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    run("sac_standard.py", "--resume", str(tmp_path / "killed0"))
+    for seed in (0, 1):
+        for name in ("eval.csv", "train.csv"):
+            assert read_csv(tmp_path / f"killed{seed}" / name) == read_csv(
+                tmp_path / f"whole{seed}" / name)

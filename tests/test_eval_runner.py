@@ -192,8 +192,8 @@ def test_a_nan_in_one_evaluation_episode_stops_the_run_in_one_line(tmp_path):
                  "--output-dir", str(tmp_path), "--run-name", "nan", check=False)
     assert result.returncode == 1 and "Traceback" not in result.stderr
     last = result.stderr.strip().splitlines()[-1]
-    assert last.startswith("evaluation at step 300: the evaluation action 'mode' is NaN/inf in "
-                           "episode 0 (reset seed ")
+    assert last.startswith("evaluation of seed 0 at step 300: the evaluation action 'mode' is "
+                           "NaN/inf in episode 0 (reset seed ")
     checkpoint = torch.load(tmp_path / "nan" / "checkpoint.pt", weights_only=False)
     assert checkpoint["global_step"] >= 200
     assert not (tmp_path / "nan" / "eval.csv").read_text().count("\n") > 1  # no row written

@@ -27,7 +27,7 @@ EVAL_STATS = ("return_mean", "return_std", "return_min", "return_max", "length_m
 TIMING = ("wall_time", "sps")
 # config.json keys that may differ between the two scripts' runs of one seed.
 OWN_KEYS = {"algorithm", "script", "mode_solver", "run_name", "start_time", "eval_selectors",
-            "eval_workers"}
+            "eval_workers", "batch"}  # batch: its folders' names
 
 
 def read_csv(path: Path) -> list[dict]:

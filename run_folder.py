@@ -1,0 +1,255 @@
+"""A run folder's files, for sac_standard.py and sac_corrected.py: config.json, the CSV logs
+(written row by row), TensorBoard and W&B, checkpoints (written atomically, a batch's in two
+phases), the folder's lock, the random states, and the graceful stop on a signal.
+
+None of it is the algorithm: the two scripts hold that, top to bottom. The layout of a run folder
+is described in README.md ("The run folder").
+"""
+
+import csv
+import dataclasses
+import fcntl
+import json
+import os
+import platform
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import NoReturn
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import torch
+from torch.utils.tensorboard import SummaryWriter
+
+INTERRUPTED_EXIT_CODE = 3
+CHECKPOINT_KEYS = ("args", "global_step", "elapsed", "progress", "actor", "qf", "qf_target",
+                   "log_alpha", "q_optimizer", "actor_optimizer", "alpha_optimizer", "buffer",
+                   "rng")
+
+
+def fail(message: str) -> NoReturn:
+    """Bad input: one line naming the problem and the fix on stderr, exit code 2."""
+    print(f"{Path(sys.argv[0]).name}: error: {message}", file=sys.stderr, flush=True)
+    sys.exit(2)
+
+
+def read_run_config(run_dir: Path, algorithm: str) -> dict:
+    """The config.json of a run folder made by this script, or a clear error."""
+    path = run_dir / "config.json"
+    if not path.is_file():
+        fail(f"{run_dir} is not a run folder (no config.json); give --resume a folder made by "
+             "sac_standard.py or sac_corrected.py")
+    try:
+        config = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        fail(f"{path} is not valid JSON ({error}); restore it from a copy, or start a new run")
+    if not isinstance(config, dict):
+        fail(f"{path} does not hold a JSON object; restore it from a copy, or start a new run")
+    if config.get("algorithm") != algorithm:
+        fail(f"{run_dir} is a run of {config.get('script')}; resume it with that script")
+    return config
+
+
+def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
+    """An append-mode CSV writer. Resuming keeps the whole rows up to the checkpoint's step, so
+    the file ends up with no duplicate or missing rows."""
+    kept = []
+    if keep_until_step is not None and path.exists():
+        lines = path.read_text().splitlines(keepends=True)[1:]
+        kept = [r for r in lines if r.endswith("\n") and int(r.split(",")[0]) <= keep_until_step]
+    atomic_write(path, lambda tmp: tmp.write_text(",".join(columns) + "\n" + "".join(kept)))
+    f = open(path, "a", newline="")  # noqa: SIM115  (kept open for the whole run)
+    return f, csv.DictWriter(f, columns)
+
+
+def check_csv(path: Path, columns: list[str]) -> None:
+    """Before a resume writes anything: the CSV must be this run's (its header, whole steps)."""
+    if not path.exists():
+        return
+    lines = path.read_text(errors="replace").splitlines(keepends=True)
+    if not lines or lines[0].rstrip("\r\n").split(",") != columns:
+        fail(f"{path} does not have the header this run writes ({len(columns)} columns: "
+             f"{', '.join(columns[:3])}, ...); it was edited or belongs to another run: restore "
+             "it, or move it away to drop its rows")
+    for number, line in enumerate(lines[1:], start=2):
+        if line.endswith("\n") and not line.split(",")[0].isdigit():
+            fail(f"{path}, line {number}: global_step {line.split(',')[0]!r} is not a step "
+                 "number; restore the file, or delete that line")
+
+
+def read_checkpoint(path: Path) -> dict:
+    """checkpoint.pt on the CPU (RNG states must stay there; load_state_dict moves the rest to
+    the run's device), or one line saying it is damaged."""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False, mmap=True)
+        missing = [k for k in CHECKPOINT_KEYS if k not in ckpt]
+    except Exception as error:  # a truncated or foreign file fails in pickle, zip or torch
+        fail(f"{path} cannot be read ({type(error).__name__}: {str(error).splitlines()[0]}); "
+             "it is damaged: restore a copy, or delete it to restart the run from step 0")
+    if missing:
+        fail(f"{path} lacks {missing}: not a checkpoint of this script; restore a copy, or "
+             "delete it to restart the run from step 0")
+    if "episode" not in ckpt["rng"]:
+        fail(f"{path} was written by an older version of this script (before --num-seeds); "
+             "finish the run with that version (its commit is in config.json), or delete the "
+             "checkpoint to restart it from step 0")
+    return ckpt
+
+
+def write_row(f, writer: csv.DictWriter, tb: SummaryWriter, tracker, group: str, row: dict,
+              video: Path | None = None) -> None:
+    """One row to its CSV (flushed), to TensorBoard and, with --track, to W&B."""
+    writer.writerow(row)
+    f.flush()
+    scalars = {f"{group}/{k}": v for k, v in row.items()
+               if v is not None and k not in ("global_step", "wall_time")}
+    for k, v in scalars.items():
+        tb.add_scalar(k, v, row["global_step"])
+    if tracker is not None:
+        import wandb  # only with --track
+
+        media = {f"{group}/video": wandb.Video(str(video), format="mp4")} if video else {}
+        tracker.log({"global_step": row["global_step"], **scalars, **media})
+
+
+def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
+    """Writes via a temporary file and os.replace: a kill leaves the old file or the new one."""
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def start_tracking(args, run_dir: Path, algorithm: str):
+    """With --track, the W&B run, as CleanRL logs it: the config, every scalar that goes to
+    TensorBoard (against global_step) and the evaluation videos. wandb is imported only here.
+    Its id is kept in the run folder, so a resumed run continues the same W&B run; with
+    WANDB_MODE=offline it writes to run_dir/wandb, for `wandb sync` later."""
+    if not args.track:
+        return None
+    import wandb
+    from wandb.sdk.lib.runid import generate_id
+
+    id_file = run_dir / "wandb_run_id.txt"
+    if not id_file.exists():
+        atomic_write(id_file, lambda tmp: tmp.write_text(generate_id() + "\n"))
+    # create_new: the seeds of a batch are W&B runs side by side in one process.
+    tracker = wandb.init(reinit="create_new", project=args.wandb_project_name,
+                         entity=args.wandb_entity,
+                         group=args.wandb_group, name=run_dir.name, dir=run_dir,
+                         id=id_file.read_text().strip(), resume="allow",
+                         config=dataclasses.asdict(args) | {"algorithm": algorithm})
+    tracker.define_metric("*", step_metric="global_step")
+    return tracker
+
+
+def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: str) -> dict:
+    """config.json: every argument, the algorithm, the library versions and the git commit."""
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
+                                capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = None
+    return {**dataclasses.asdict(args), "algorithm": algorithm, "script": script,
+            "obs_dim": obs_dim, "action_dim": action_dim, "git_commit": commit,
+            "versions": {"python": platform.python_version(), "torch": torch.__version__,
+                         "numpy": np.__version__, "gymnasium": gym.__version__,
+                         "mujoco": mujoco.__version__},
+            "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+
+
+def lock_run_folder(run_dir: Path) -> int:
+    """An exclusive OS lock on run_dir/lock, held while this process lives: one writer per run
+    folder (a Slurm requeue racing a job that has not died yet, a sweep started twice). The kernel
+    drops it when the process dies, SIGKILL included, so it is never stale. Returns its fd, for
+    record_holder once the folder has been checked (a refused start changes nothing)."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+        fail(f"{run_dir} is in use by process {holder} (it holds {run_dir / 'lock'}); let it "
+             "finish or stop it, then --resume")
+    return fd
+
+
+def record_holder(lock_fd: int) -> None:
+    """Writes this process's pid into the lock file it holds, for a refused second process."""
+    os.ftruncate(lock_fd, 0)
+    os.pwrite(lock_fd, f"{os.getpid()}\n".encode(), 0)
+
+
+class StopRequest:
+    """SIGTERM/SIGUSR1/SIGUSR2 ask for a graceful stop after the current step (checkpoint, then
+    exit); a second signal exits at once (the last checkpoint stays valid)."""
+
+    def __init__(self):
+        self.requested = False
+        for s in (signal.SIGTERM, signal.SIGUSR1, signal.SIGUSR2):
+            signal.signal(s, self.handle)
+
+    def handle(self, signum, frame) -> None:
+        if self.requested:
+            print("second signal: exiting now; resume with --resume from the last checkpoint",
+                  flush=True)
+            os._exit(INTERRUPTED_EXIT_CODE)
+        self.requested = True
+        print(f"{signal.Signals(signum).name}: checkpointing after this step, then exiting",
+              flush=True)
+
+
+def rng_states() -> dict:
+    """The process's random streams (the batch's): torch draws the actions and batches of every
+    seed. Nothing of ours uses the global numpy and python generators; libraries might."""
+    name, keys, pos, has_gauss, gauss = np.random.get_state()  # noqa: NPY002
+    # Plain lists, not arrays: a checkpoint then loads with torch.load(weights_only=True).
+    return {"python": random.getstate(), "numpy": (name, keys.tolist(), pos, has_gauss, gauss),
+            "torch": torch.get_rng_state(),
+            "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None}
+
+
+def set_rng_states(states: dict) -> None:
+    random.setstate(states["python"])
+    name, keys, pos, has_gauss, gauss = states["numpy"]
+    np.random.set_state((name, np.array(keys, np.uint32), pos, has_gauss, gauss))  # noqa: NPY002
+    torch.set_rng_state(states["torch"])
+    if states["cuda"] is not None and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(states["cuda"])
+
+
+def read_batch_checkpoints(dirs: list[Path]) -> list[dict] | None:
+    """Every seed's checkpoint.pt, all at one step; None where the batch has none yet.
+
+    A batch checkpoint is written in two phases (see save_batch_checkpoint): every seed's
+    checkpoint.pt.tmp first, then each is moved into place. A kill in the second phase leaves
+    some seeds at the new step and the others' complete .tmp files: those are moved in now."""
+    paths = [d / "checkpoint.pt" for d in dirs]
+    if not any(p.exists() for p in paths):
+        return None
+    steps = {p: read_checkpoint(p)["global_step"] if p.exists() else None for p in paths}
+    newest = max(s for s in steps.values() if s is not None)
+    for path, step in steps.items():
+        tmp = path.with_name(path.name + ".tmp")
+        if step != newest and tmp.exists() and read_checkpoint(tmp)["global_step"] == newest:
+            os.replace(tmp, path)
+        elif step != newest:
+            fail(f"{path} is {'missing' if step is None else f'at step {step}'} while the batch "
+                 f"it belongs to checkpointed at step {newest}; restore it, or delete the batch's "
+                 "checkpoint.pt files to restart it from step 0")
+    return [read_checkpoint(p) for p in paths]
+
+
+def save_batch_checkpoint(dirs: list[Path], states: list[dict]) -> None:
+    """Every seed's checkpoint.pt, in two phases so that a kill leaves the batch resumable: all
+    the .tmp files first, then the moves (read_batch_checkpoints finishes an interrupted one)."""
+    tmps = [d / "checkpoint.pt.tmp" for d in dirs]
+    for tmp, state in zip(tmps, states, strict=True):
+        torch.save(state, tmp)
+    for tmp in tmps:
+        os.replace(tmp, tmp.with_name("checkpoint.pt"))
