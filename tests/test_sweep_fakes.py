@@ -189,10 +189,10 @@ def test_run_command_passes_the_division_once_and_the_identity_ignores_it(tmp_pa
                                                                     "--eval-workers", "3")):
         (run,) = grid("--batch-size", "32", *extra)
         assert (run.name, run.identity(), run.eval_workers) == (plain.name, plain.identity(), 3)
-        _, command = sweep_module.run_command(run)
+        _, command = sweep_module.run_command(sweep_module.Batch((run,)))
         assert command.count("--eval-workers") == 1 and command[-2:] == ["--eval-workers", "3"]
         assert not any(arg.startswith("--eval_workers") for arg in command)
-    assert "--eval-workers" not in sweep_module.run_command(plain)[1]  # None: script's default
+    assert "--eval-workers" not in sweep_module.run_command(sweep_module.Batch((plain,)))[1]  # None: script's default
 
     divided = sweep_module.eval_division
     assert divided(sweep_module.Args(launcher="slurm", cpus_per_task=4), None, 9)[0] == 3
