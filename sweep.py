@@ -257,10 +257,13 @@ class Batch:
         return f"{first.env_id}__{first.algorithm}__seed{{seed}}__{args_hash(first.extra_args)}"
 
     @property
+    def seeds(self) -> str:
+        first, last = self.first.seed, self.runs[-1].seed
+        return str(first) if first == last else f"{first}-{last}"
+
+    @property
     def label(self) -> str:
-        seeds = [run.seed for run in self.runs]
-        shown = str(seeds[0]) if len(seeds) == 1 else f"{seeds[0]}-{seeds[-1]}"
-        return self.name.replace("{seed}", shown)
+        return self.name.replace("{seed}", self.seeds)
 
     def recorded(self) -> dict:
         """The batch record a training script writes in each folder's config.json."""
@@ -621,7 +624,7 @@ def packing_problem(batch: Batch, per_process: int) -> str | None:
             n, first = recorded.get("num_seeds"), recorded.get("first_seed")
             was = "alone" if n == 1 else f"in one process with seeds {first}-{first + n - 1}"
             return (f"{run.run_dir} was trained {was}, but --seeds-per-process {per_process} "
-                    f"packs it {'alone' if k == 1 else f'with seeds {batch.label}'}; a seed's "
+                    f"packs it {'alone' if k == 1 else f'with seeds {batch.seeds}'}; a seed's "
                     f"run depends on its batch: rerun with --seeds-per-process {n} (and the "
                     "seeds it was packed with), or use another --output-dir")
     if started and len(started) < k:
