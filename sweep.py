@@ -274,7 +274,9 @@ class Batch:
 def pack(runs: list[Run], per_process: int) -> list[Batch]:
     """Each cell's seeds, in order, cut into stretches of consecutive numbers (a process trains
     --seed .. --seed + K - 1) of at most per_process seeds; first processes of every cell first,
-    as build_grid orders the runs seed-major."""
+    as build_grid orders the runs seed-major. The sweep packs the runs not done: a batch
+    finishes all its folders together, so the same seeds are packed again as they were, and
+    seeds added to a finished grid get processes of their own."""
     cells: dict[tuple, list[Run]] = {}
     for run in runs:
         cells.setdefault((run.script, run.env_id, run.extra_args), []).append(run)
@@ -288,7 +290,7 @@ def pack(runs: list[Run], per_process: int) -> list[Batch]:
             else:
                 batches.append([run])
         per_cell.append([Batch(tuple(batch)) for batch in batches])
-    longest = max(len(batches) for batches in per_cell)
+    longest = max((len(batches) for batches in per_cell), default=0)
     return [batches[i] for i in range(longest) for batches in per_cell if i < len(batches)]
 
 
@@ -1008,21 +1010,24 @@ def print_plan(runs: list[Run], batches: list[Batch], states: dict[Run, str], ar
     packed = args.seeds_per_process > 1
     if packed:
         print(packing_summary(batches, args.seeds_per_process))
-    total = steps_left = 0
     left = {}
-    for batch in batches:
-        if packed:
+    for run in runs:
+        state = states[run]
+        left[run] = 0 if state == "done" else total_timesteps(run) - (
+            last_eval_step(run.run_dir) or 0)
+    total = sum(total_timesteps(run) for run in runs)
+    steps_left = sum(left.values())
+    if not packed:
+        for run in runs:
+            print(f"  {run.name:<60} {states[run]:<12} {action_for(states[run])}")
+    else:
+        for run in (run for run in runs if states[run] == "done"):
+            print(f"  {run.name:<60} {'done':<12} {action_for('done')}")
+        for batch in batches:
             state = batch_state(batch, states)
             print(f"  process {batch.label:<52} {state:<12} {action_for(state)}")
-        for run in batch.runs:
-            state = states[run]
-            budget = total_timesteps(run)
-            total += budget
-            left[run] = 0 if state == "done" else budget - (last_eval_step(run.run_dir) or 0)
-            steps_left += left[run]
-            indent = "    " if packed else "  "
-            print(f"{indent}{run.name:<60} {state:<12} {'' if packed else action_for(state)}"
-                  .rstrip())
+            for run in batch.runs:
+                print(f"    {run.name:<60} {states[run]}")
     hours, longest, speeds = cpu_estimate(left, args.steps_per_second)
     print(f"compute: {len(runs)} runs, {total:,} env steps in all, {steps_left:,} still to run; "
           f"at {speeds} that is {hours:,.1f} run-hours ({hours / len(runs):,.1f} h per run, "
@@ -1036,17 +1041,21 @@ def print_plan(runs: list[Run], batches: list[Batch], states: dict[Run, str], ar
 
 def packing_summary(batches: list[Batch], per_process: int) -> str:
     sizes = [len(batch.runs) for batch in batches]
+    if not sizes:
+        return f"packing: --seeds-per-process {per_process}: every run is done, no process"
     counts = ", ".join(f"{plural(sizes.count(k), 'process')} of {plural(k, 'seed')}"
                        for k in sorted(set(sizes), reverse=True))
     fewer = "" if set(sizes) == {per_process} else (
         f"; a process holds fewer than {per_process} where a cell's seeds run out or skip a "
         "number (a process trains consecutive seeds)")
     return (f"packing: --seeds-per-process {per_process}: {plural(len(batches), 'process')} "
-            f"for {sum(sizes)} runs ({counts}){fewer}")
+            f"for the {sum(sizes)} runs not done ({counts}){fewer}")
 
 
 def process_estimate(batches: list[Batch], left: dict[Run, int], given: float | None) -> str:
     """Hours of each process, its seeds side by side: the slowest seed's."""
+    if not batches:
+        return "processes: none to run"
     hours = [max(left[run] / cpu_steps_per_second(run.env_id, given) / 3600
                  for run in batch.runs) for batch in batches]
     return (f"processes: {len(batches)}, {sum(hours):,.1f} process-hours (the longest "
@@ -1119,7 +1128,7 @@ def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
     if args.launcher == "slurm" and not args.dry_run:
         check_slurm(args.partition)
     states = {run: run_state(run.run_dir) for run in runs}
-    batches = pack(runs, args.seeds_per_process)
+    batches = pack([run for run in runs if states[run] != "done"], args.seeds_per_process)
     check_packing(batches, states, args.seeds_per_process)
     todo = [batch for batch in batches
             if action_for(batch_state(batch, states)) in LAUNCH_ACTIONS]
