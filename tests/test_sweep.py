@@ -464,3 +464,30 @@ def test_progress_ignores_a_row_cut_off_mid_write(tmp_path):
     assert sweep.last_eval_step(tmp_path) == 2000
     (tmp_path / "eval.csv").write_text("global_step,return_mean\n")
     assert sweep.last_eval_step(tmp_path) is None
+
+
+def test_slurm_runs_a_task_per_process_and_requeues_its_batch(slurm, packed, tmp_path):
+    """Seeds 0-2, two per process: a job array of two tasks; the batch 0-1 is preempted (USR2:
+    checkpoint, requeue, --resume of its first folder) and ends as the local batch did."""
+    grid = [*PACKED, "--seeds", "0", "1", "2", *SLURM, "--output-dir", str(tmp_path), "--",
+            *RUN_ARGS]
+    sweeper = subprocess.Popen([*SWEEP, *grid], stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True)
+    first = None
+    wait_for(lambda: (first := run_dirs(tmp_path).get(("corrected", 0))) is not None
+             and (first / "checkpoint.pt").exists(), "the first batch's checkpoint")
+    first = run_dirs(tmp_path)["corrected", 0]
+    job_id = json.loads((first / "sweep_run.json").read_text())["slurm_job_id"]
+    subprocess.run(["scancel", "--signal=USR2", job_id], check=True)
+    output, _ = sweeper.communicate(timeout=TIMEOUT)
+    assert sweeper.returncode == 0, output
+    assert "(3 runs, 2 tasks)" in output
+    runs = run_dirs(tmp_path)
+    jobs = {seed: json.loads((runs["corrected", seed] / "sweep_run.json").read_text())[
+        "slurm_job_id"] for seed in (0, 1, 2)}
+    assert jobs[0] == jobs[1] != jobs[2] and jobs[0].split("_")[0] == jobs[2].split("_")[0]
+    for seed in (0, 1):
+        log = (runs["corrected", seed] / "sweep.log").read_text()
+        assert f"--resume {first}" in log and "exit code 3" in log, seed  # requeued, resumed
+    for key, run_dir in runs.items():
+        assert eval_rows(run_dir) == eval_rows(run_dirs(packed)[key]), key
