@@ -261,6 +261,101 @@ def test_a_preset_with_per_env_budgets_accepts_its_own_runs(tmp_path):
         sweep_module.check_output_dir(grid("dimensions", "--total-timesteps", "5000"))
 
 
+# ----------------------------------------------------------------------------- seeds per process
+PACKED = [*CELLS, "--scripts", "sac_corrected.py", "--seeds-per-process", "2"]
+
+
+@pytest.fixture(scope="module")
+def packed(tmp_path_factory) -> Path:
+    """Seeds 0-2 of sac_corrected.py, two per process, uninterrupted: processes 0-1 and 2."""
+    output_dir = tmp_path_factory.mktemp("packed")
+    sweep(*PACKED, "--seeds", "0", "1", "2", "--workers", "2", "--output-dir", str(output_dir),
+          "--", *RUN_ARGS)
+    return output_dir
+
+
+def test_packed_seeds_run_in_one_process_each_in_the_folder_it_has_alone(packed, reference):
+    runs = run_dirs(packed)
+    assert sorted(runs) == [("corrected", s) for s in (0, 1, 2)]
+    # The same names as without packing (the reference's seeds 0 and 1 share its arguments).
+    assert runs["corrected", 0].name == run_dirs(reference)["corrected", 0].name
+    assert runs["corrected", 1].name == run_dirs(reference)["corrected", 1].name
+    attempts = {seed: json.loads((runs["corrected", seed] / "sweep_attempt.json").read_text())
+                for seed in (0, 1, 2)}
+    assert attempts[0]["pid"] == attempts[1]["pid"] != attempts[2]["pid"]
+    batch = json.loads((runs["corrected", 1] / "config.json").read_text())["batch"]
+    assert batch == {"first_seed": 0, "num_seeds": 2,
+                     "run_dirs": [runs["corrected", 0].name, runs["corrected", 1].name]}
+    # --workers 2, two processes: the division counts processes.
+    eval_workers = max(1, (len(os.sched_getaffinity(0)) - 2) // 2)
+    for (_, seed), run_dir in runs.items():
+        assert (run_dir / "done.json").exists()
+        assert [row["global_step"] for row in eval_rows(run_dir)] == ["200", "400", "600", "800"]
+        log = (run_dir / "sweep.log").read_text()
+        assert log.count("=== sweep.py start") == 1 and "exit code 0" in log
+        assert f"--eval-workers {eval_workers}" in log and "finished 800 steps" in log
+        assert ("--num-seeds 2" in log) == (seed < 2)
+    table = sweep("status", str(packed)).stdout
+    assert table.count("800/800") == 3 and "3 done" in table
+
+    logs = {d: (d / "sweep.log").read_text() for d in runs.values()}
+    result = sweep(*PACKED, "--seeds", "0", "1", "2", "--output-dir", str(packed), "--",
+                   *RUN_ARGS)
+    assert "3 runs: 3 done or under way, 0 to launch in 0 processes" in result.stdout
+    assert {d: (d / "sweep.log").read_text() for d in logs} == logs
+
+
+def test_packed_sweep_stopped_resumes_only_as_packed_and_to_the_same_result(packed, tmp_path):
+    grid = [*PACKED, "--seeds", "0", "1", "--output-dir", str(tmp_path), "--", *RUN_ARGS]
+    sweeper = subprocess.Popen([*SWEEP, *grid], stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True)
+    wait_for(lambda: list(tmp_path.glob("*/checkpoint.pt")), "the first checkpoint")
+    sweeper.send_signal(signal.SIGTERM)
+    output, _ = sweeper.communicate(timeout=TIMEOUT)
+    assert sweeper.returncode == 3, output
+    runs = run_dirs(tmp_path)
+    assert not any((d / "done.json").exists() for d in runs.values())
+    assert sweep("status", str(tmp_path)).stdout.count("interrupted") == 3  # 2 rows, a total
+
+    before = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*")}
+    result = sweep(*[a if a != "2" else "1" for a in grid[:len(PACKED)]], *grid[len(PACKED):],
+                   check=False)
+    assert result.returncode == 2, result.stdout
+    (line,) = result.stderr.splitlines()
+    assert "seed0" in line and "rerun with --seeds-per-process 2" in line
+    assert {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*")} == before
+
+    sweep(*grid)
+    for key, run_dir in runs.items():
+        assert "resuming" in (run_dir / "sweep.log").read_text()
+        assert eval_rows(run_dir) == eval_rows(run_dirs(packed)[key]), key
+
+
+def test_dry_run_shows_the_packing_and_costs_processes(packed, tmp_path):
+    """Seeds 3 and 4 added to the finished seeds 0-2: the runs not done are packed, one process
+    of two; a fresh grid of five seeds is three processes, costed side by side."""
+    out = sweep(*PACKED, "--seeds", "0", "1", "2", "3", "4", "--output-dir", str(packed),
+                "--dry-run", "--", *RUN_ARGS).stdout
+    assert ("packing: --seeds-per-process 2: 1 process for the 2 runs not done (1 process of 2 "
+            "seeds)\n") in out
+    name = run_dirs(packed)["corrected", 0].name
+    assert f"process {name.replace('seed0', 'seed3-4')}" in out
+    rows = [line.split() for line in out.splitlines() if line.startswith("  Pendulum-v1")]
+    assert [row[1:] for row in rows] == [["done", "skip"]] * 3
+    assert out.count(" start\n") == 1  # the process of seeds 3-4
+    # 5 seeds of 3.6M steps at 100 steps/s: 10 h each, 50 run-hours; in processes of two
+    # seeds side by side at that speed each, 3 processes of 10 h.
+    out = sweep(*PACKED, "--seeds", "0", "1", "2", "3", "4", "--output-dir", str(tmp_path / "o"),
+                "--dry-run", "--steps-per-second", "100", "--", "--total-timesteps",
+                "3600000").stdout
+    assert ("packing: --seeds-per-process 2: 3 processes for the 5 runs not done (2 processes "
+            "of 2 seeds, 1 process of 1 seed); a process holds fewer than 2") in out
+    assert "50.0 run-hours" in out
+    assert ("processes: 3, 30.0 process-hours (the longest 10.0 h), assuming a process trains "
+            "each of its seeds at the speed of a single run") in out
+    assert not (tmp_path / "o").exists()
+
+
 # ----------------------------------------------------------------------------- bad input
 @pytest.mark.parametrize(("args", "message"), [
     (["--env-ids", "Pendulum-v1", "--seeds", "0", "--scripts", "sac_nope.py"],
@@ -369,3 +464,30 @@ def test_progress_ignores_a_row_cut_off_mid_write(tmp_path):
     assert sweep.last_eval_step(tmp_path) == 2000
     (tmp_path / "eval.csv").write_text("global_step,return_mean\n")
     assert sweep.last_eval_step(tmp_path) is None
+
+
+def test_slurm_runs_a_task_per_process_and_requeues_its_batch(slurm, packed, tmp_path):
+    """Seeds 0-2, two per process: a job array of two tasks; the batch 0-1 is preempted (USR2:
+    checkpoint, requeue, --resume of its first folder) and ends as the local batch did."""
+    grid = [*PACKED, "--seeds", "0", "1", "2", *SLURM, "--output-dir", str(tmp_path), "--",
+            *RUN_ARGS]
+    sweeper = subprocess.Popen([*SWEEP, *grid], stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True)
+    first = None
+    wait_for(lambda: (first := run_dirs(tmp_path).get(("corrected", 0))) is not None
+             and (first / "checkpoint.pt").exists(), "the first batch's checkpoint")
+    first = run_dirs(tmp_path)["corrected", 0]
+    job_id = json.loads((first / "sweep_run.json").read_text())["slurm_job_id"]
+    subprocess.run(["scancel", "--signal=USR2", job_id], check=True)
+    output, _ = sweeper.communicate(timeout=TIMEOUT)
+    assert sweeper.returncode == 0, output
+    assert "(3 runs, 2 tasks)" in output
+    runs = run_dirs(tmp_path)
+    jobs = {seed: json.loads((runs["corrected", seed] / "sweep_run.json").read_text())[
+        "slurm_job_id"] for seed in (0, 1, 2)}
+    assert jobs[0] == jobs[1] != jobs[2] and jobs[0].split("_")[0] == jobs[2].split("_")[0]
+    for seed in (0, 1):
+        log = (runs["corrected", seed] / "sweep.log").read_text()
+        assert f"--resume {first}" in log and "exit code 3" in log, seed  # requeued, resumed
+    for key, run_dir in runs.items():
+        assert eval_rows(run_dir) == eval_rows(run_dirs(packed)[key]), key
