@@ -1,25 +1,37 @@
-"""GPU speed of the SAC scripts: prints the figures of README.md's "Speed on a GPU" table.
+"""GPU speed of the SAC scripts: prints the figures of README.md's "Speed on a GPU" section.
 
-    python bench/bench_gpu.py --env-id h1hand-powerlift-v0 --concurrent 16
+    python bench/bench_gpu.py                 # everything (about 10 minutes: not measured yet)
+    python bench/bench_gpu.py --quick         # shorter runs and timings, a few minutes
+    python bench/bench_gpu.py --parts batches many   # some parts only
 
-Wall-clock times (the GPU is asynchronous: each timing ends with a synchronize), medians over
---repeats: one gradient update eager and as a CUDA graph (batch sampling from the GPU buffer
-included), acting on one observation (host to GPU and back included), the mode of one action,
-one env step on this CPU, an evaluation round; then whole runs of sac_standard.py as
-subprocesses (steps/s of the update phase, from their train.csv): one run on the CPU, eager on
-the GPU, with graphs, with graphs and the buffer in host memory; and --concurrent runs at once,
-CPU only, sharing the GPU, and sharing it under MPS.
+Parts (--parts), each printing steps/s of the update phase (median of a run's train.csv rows
+after the first, which holds the CUDA-graph captures) per seed and in all:
+- micro: in-process wall-clock timings on --micro-env-id (the GPU is asynchronous: each timing
+  ends with a synchronize), medians over --repeats, for K = 1 and K = --seeds seeds: one
+  gradient update eager and as a CUDA graph (batch sampling from the GPU buffer included), the
+  graph with the buffer in host memory, acting on one observation per seed (host to GPU and
+  back included), the mode of one action per seed; one env step on this CPU; an evaluation
+  round (CPU, as eval_runner.py runs it).
+- single: one run of --micro-env-id on the CPU, GPU eager, GPU graphs, graphs with the buffer in
+  host memory.
+- batches: for each of --env-ids, one single-seed run, --seeds single-seed processes sharing the
+  GPU under MPS, and one process of --num-seeds --seeds.
+- many: --many-seeds seeds of --many-env-id, as one process of --num-seeds --many-seeds and as
+  --many-seeds / --seeds processes of --num-seeds --seeds under MPS; says which is faster.
+- envs: for each of --env-ids, --seeds envs in worker processes (the scripts' vector env,
+  gymnasium's AsyncVectorEnv) stepped with random actions: the env-bound pace of a batch.
 """
 
-import copy
 import csv
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
@@ -28,26 +40,43 @@ import tyro
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench_sac import random_buffer  # noqa: E402  (bench/ is on the path: the script's folder)
+
 from eval_runner import Round, eval_seeds, run_round  # noqa: E402
 from mode_search import mode_action  # noqa: E402
 from sac_standard import (  # noqa: E402
     Actor,
-    ReplayBuffer,
     TwinQ,
     cuda_graph,
     make_env,
     make_train_step,
+    make_vector_env,
     sac_update,
+    seed_slice,
 )
 from sweep import mps_daemon  # noqa: E402
 
 CUDA = torch.device("cuda")
+Part = Literal["micro", "single", "batches", "many", "envs"]
 
 
 @dataclass
 class Args:
-    env_id: str = "h1hand-powerlift-v0"
-    """the task to time"""
+    parts: tuple[Part, ...] = ("micro", "single", "batches", "many", "envs")
+    """which parts to run (see the module's docstring)"""
+    quick: bool = False
+    """shorter: --repeats 2 --calls 50 --learning-starts 500 --loop-steps 600 --env-steps 500
+    (those not given as flags)"""
+    env_ids: tuple[str, ...] = ("Hopper-v5", "Humanoid-v5", "h1hand-powerlift-v0")
+    """the tasks of the batches and envs parts"""
+    micro_env_id: str = "h1hand-powerlift-v0"
+    """the task of the micro and single parts"""
+    seeds: int = 16
+    """K: seeds per batch, processes under MPS, envs stepped in parallel"""
+    many_env_id: str = "Hopper-v5"
+    """the task of the many part"""
+    many_seeds: int = 64
+    """seeds of the many part (a multiple of --seeds)"""
     batch_size: int = 64
     """batch size of the timed updates (the paper's)"""
     repeats: int = 5
@@ -56,15 +85,27 @@ class Args:
     """calls per in-process timing repeat"""
     learning_starts: int = 1000
     """random steps of each timed run before its updates start"""
-    loop_steps: int = 3000
+    loop_steps: int = 1500
     """update-phase steps of each timed run"""
+    env_steps: int = 2000
+    """steps of the envs part"""
     eval_episodes: int = 10
     """episodes of the timed evaluation round"""
-    concurrent: int = 16
-    """runs at once in the concurrency figures (0: skip them)"""
 
 
-def cuda_time(fn, repeats: int, calls: int) -> float:
+QUICK = {"repeats": 2, "calls": 50, "learning_starts": 500, "loop_steps": 600, "env_steps": 500}
+
+
+def shrink(args: Args) -> Args:
+    """--quick: sizes for a GPU session of a few minutes; a size given as a flag stays."""
+    if not args.quick:
+        return args
+    defaults = Args()
+    return Args(**{**vars(args), **{k: v for k, v in QUICK.items()
+                                    if getattr(args, k) == getattr(defaults, k)}})
+
+
+def cuda_time(fn: Callable, repeats: int, calls: int) -> float:
     """Median over repeats of the mean wall-clock seconds per call, GPU work included."""
     fn()
     torch.cuda.synchronize()
@@ -78,24 +119,51 @@ def cuda_time(fn, repeats: int, calls: int) -> float:
     return statistics.median(times)
 
 
-def build_train_step(env, graphs: bool, batch_size: int, buffer_device=CUDA):
-    """The scripts' learner at the paper's sizes on the GPU, a buffer of 20k random transitions."""
+def build_train_step(env, seeds: int, graphs: bool, batch_size: int,
+                     buffer_device: torch.device = CUDA) -> tuple[Callable, Actor]:
+    """The scripts' learner for K seeds at the paper's sizes on the GPU, a buffer of 20k random
+    transitions per seed."""
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    actor = Actor(obs_dim, (256, 256), env.action_space, -10.0, 2.0).to(CUDA)
-    qf, qf_target = (TwinQ(obs_dim, action_dim, (256, 256)).to(CUDA) for _ in range(2))
+    actor = Actor(obs_dim, (256, 256), env.action_space, -10.0, 2.0, seeds).to(CUDA)
+    qf, qf_target = (TwinQ(obs_dim, action_dim, (256, 256), seeds).to(CUDA) for _ in range(2))
     qf_target.load_state_dict(qf.state_dict())
-    log_alpha = torch.zeros((), device=CUDA, requires_grad=True)
+    log_alpha = torch.zeros(seeds, device=CUDA, requires_grad=True)
     optimizers = tuple(torch.optim.Adam(p, lr=3e-4, fused=True, capturable=True) for p in (
         qf.parameters(), actor.parameters(), [log_alpha]))
-    rb = ReplayBuffer(20_000, obs_dim, action_dim, buffer_device)
-    rng = np.random.default_rng(0)
-    for i in range(20_000):
-        rb.add(rng.normal(size=obs_dim), rng.uniform(-1, 1, action_dim), rng.normal(), False,
-               rng.normal(size=obs_dim), i % 500 == 499)
+    rb = random_buffer(seeds, 20_000, obs_dim, action_dim, buffer_device)
     return make_train_step(
         rb, lambda batch: sac_update(batch, actor, qf, qf_target, log_alpha, optimizers, 0.99,
                                      0.005, -action_dim / 2),
         batch_size, CUDA, graphs, (actor, qf, qf_target, log_alpha, *optimizers)), actor
+
+
+def time_updates(args: Args, env, seeds: int) -> Actor:
+    """Prints the update's times for K seeds; returns the actor (for the acting timings)."""
+    for graphs in (False, True):
+        step, actor = build_train_step(env, seeds, graphs, args.batch_size)
+        print(f"K = {seeds:2d}: update, {'CUDA graph' if graphs else 'eager':<10} (GPU buffer): "
+              f"{cuda_time(step, args.repeats, args.calls) * 1e3:7.3f} ms", flush=True)
+    step, _ = build_train_step(env, seeds, True, args.batch_size, torch.device("cpu"))
+    print(f"K = {seeds:2d}: update, CUDA graph (host buffer): "
+          f"{cuda_time(step, args.repeats, args.calls) * 1e3:7.3f} ms", flush=True)
+    return actor
+
+
+def time_acting(args: Args, env, actor: Actor, seeds: int) -> None:
+    """Acting as the scripts do (one observation per seed, copies in and out) and the mode."""
+    obs = np.stack([env.observation_space.sample() for _ in range(seeds)]).astype(np.float32)
+    sample = torch.no_grad()(lambda o: actor.get_action(o[:, None])[0][:, 0])
+    mu, log_std = (t.detach() for t in actor(torch.as_tensor(obs, device=CUDA)[:, None]))
+    for graphs in (False, True):
+        act = cuda_graph(sample) if graphs else sample
+        mode = cuda_graph(mode_action) if graphs else mode_action
+        acting = cuda_time(lambda act=act: act(torch.as_tensor(obs, device=CUDA)).cpu().numpy(),
+                           args.repeats, args.calls)
+        mode_time = cuda_time(lambda mode=mode: mode(mu, log_std), args.repeats, args.calls)
+        label = "CUDA graph" if graphs else "eager"
+        print(f"K = {seeds:2d}: act, one obs per seed, {label:<10} (copies in and out): "
+              f"{acting * 1e3:7.3f} ms; mode of one action per seed (exact): "
+              f"{mode_time * 1e3:7.3f} ms", flush=True)
 
 
 def time_env_step(env, repeats: int) -> float:
@@ -116,6 +184,24 @@ def time_env_step(env, repeats: int) -> float:
     return statistics.median(times)
 
 
+def micro(args: Args) -> None:
+    env = make_env(args.micro_env_id)
+    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
+    print(f"micro: {args.micro_env_id}: obs {obs_dim}, actions {action_dim}, batch "
+          f"{args.batch_size}", flush=True)
+    for seeds in sorted({1, args.seeds}):
+        actor = time_updates(args, env, seeds)
+        time_acting(args, env, actor, seeds)
+    print(f"env step on this CPU: {time_env_step(env, args.repeats) * 1e3:7.3f} ms", flush=True)
+    # Evaluation runs on CPU workers (eval_runner.py); one round, in-process, one thread.
+    start = time.perf_counter()
+    result = run_round(Round(args.micro_env_id, eval_seeds(0, 1, args.eval_episodes),
+                             {"": "mode", "tanh_mu_": "tanh_mu"}, seed_slice(actor, 0).cpu()))
+    steps = sum(sum(r["lengths"]) for r in result.values())
+    print(f"eval round, mode and tanh(mu), CPU: {args.eval_episodes} episodes each, {steps} "
+          f"steps in {time.perf_counter() - start:.2f} s", flush=True)
+
+
 def update_phase_sps(run_dir: Path, learning_starts: int) -> float:
     """Median steps/s of a run's train.csv rows after the first row of the update phase (which
     holds the captures)."""
@@ -124,75 +210,101 @@ def update_phase_sps(run_dir: Path, learning_starts: int) -> float:
     return statistics.median(float(r["sps"]) for r in rows[1:])
 
 
-def run_command(args: Args, out: str, name: str, flags: list[str]) -> list[str]:
+def run_command(args: Args, env_id: str, out: str, name: str, flags: list[str]) -> list[str]:
+    """A run with evaluation and checkpoints off: only the training loop is timed."""
     total = args.learning_starts + args.loop_steps
-    return [sys.executable, str(ROOT / "sac_standard.py"), "--env-id", args.env_id,
+    return [sys.executable, str(ROOT / "sac_standard.py"), "--env-id", env_id,
             "--total-timesteps", str(total), "--learning-starts", str(args.learning_starts),
-            "--eval-interval", str(10 * total), "--log-interval", str(args.loop_steps // 6),
+            "--eval-interval", str(10 * total), "--eval-workers", "0",
+            "--log-interval", str(max(1, args.loop_steps // 6)), "--print-interval", str(total),
             "--checkpoint-interval", "0", "--output-dir", out, "--run-name", name, *flags]
 
 
-def runs_sps(args: Args, flags: list[str], n: int) -> list[float]:
-    """Update-phase steps/s of each of n runs started together."""
+def runs_sps(args: Args, env_id: str, flags: list[str], processes: int,
+             seeds: int = 1) -> list[float]:
+    """Update-phase steps/s per seed of each of `processes` runs of `seeds` seeds, started
+    together (seeds numbered apart, so no two runs share a folder)."""
     with tempfile.TemporaryDirectory() as out:
-        children = [subprocess.Popen(run_command(args, out, f"r{i}", [*flags, "--seed", str(i)]),
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-                    for i in range(n)]
-        for child in children:
-            if child.wait() != 0:
-                raise SystemExit(child.stderr.read().decode())
-        return [update_phase_sps(Path(out) / f"r{i}", args.learning_starts) for i in range(n)]
+        children = []
+        for i in range(processes):
+            batch = ["--num-seeds", str(seeds)] if seeds > 1 else []
+            name = f"r{i}_s{{seed}}" if seeds > 1 else f"r{i}_s{i * seeds}"
+            children.append(subprocess.Popen(
+                run_command(args, env_id, out, name,
+                            [*flags, *batch, "--seed", str(i * seeds)]),
+                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE))
+        errors = [child.communicate()[1] for child in children]
+        for child, error in zip(children, errors, strict=True):
+            if child.returncode != 0:
+                raise SystemExit(error.decode())
+        return [update_phase_sps(Path(out) / f"r{i}_s{i * seeds}", args.learning_starts)
+                for i in range(processes)]
 
 
-def report_runs(label: str, sps: list[float]) -> None:
-    print(f"{label:<44} {statistics.median(sps):7.0f} steps/s per run "
-          f"(min {min(sps):.0f}, max {max(sps):.0f}), {sum(sps):7.0f} in all")
+def report_runs(label: str, sps: list[float], seeds: int = 1) -> float:
+    """Prints steps/s per seed (each process's seeds share its pace) and in all; returns the
+    latter."""
+    total = seeds * sum(sps)
+    print(f"  {label:<46} {statistics.median(sps):7.0f} steps/s per seed "
+          f"(min {min(sps):.0f}, max {max(sps):.0f}), {total:7.0f} in all", flush=True)
+    return total
+
+
+def single(args: Args) -> None:
+    print(f"single: one run of {args.micro_env_id}", flush=True)
+    env_id = args.micro_env_id
+    report_runs("CPU (--no-cuda)", runs_sps(args, env_id, ["--no-cuda"], 1))
+    report_runs("GPU eager (--no-cudagraphs)", runs_sps(args, env_id, ["--no-cudagraphs"], 1))
+    report_runs("GPU, CUDA graphs", runs_sps(args, env_id, [], 1))
+    report_runs("GPU, graphs, --no-gpu-buffer", runs_sps(args, env_id, ["--no-gpu-buffer"], 1))
+
+
+def batches(args: Args) -> None:
+    k = args.seeds
+    for env_id in args.env_ids:
+        print(f"batches: {env_id}", flush=True)
+        report_runs("one run, CUDA graphs", runs_sps(args, env_id, [], 1))
+        with mps_daemon():
+            report_runs(f"{k} processes under MPS", runs_sps(args, env_id, [], k))
+        report_runs(f"one process, --num-seeds {k}", runs_sps(args, env_id, [], 1, k), k)
+
+
+def many(args: Args) -> None:
+    n, k = args.many_seeds, args.seeds
+    if n % k:
+        raise SystemExit(f"--many-seeds {n} is not a multiple of --seeds {k}")
+    print(f"many: {n} seeds of {args.many_env_id}", flush=True)
+    one = report_runs(f"one process, --num-seeds {n}",
+                      runs_sps(args, args.many_env_id, [], 1, n), n)
+    with mps_daemon():
+        split = report_runs(f"{n // k} processes of --num-seeds {k} under MPS",
+                            runs_sps(args, args.many_env_id, [], n // k, k), k)
+    faster = "one process" if one > split else f"{n // k} processes"
+    print(f"  faster: {faster} ({max(one, split) / min(one, split):.2f}x in all)", flush=True)
+
+
+def envs_pace(args: Args) -> None:
+    """Random actions through the scripts' vector env: no learner, only the env and the pipes."""
+    k = args.seeds
+    for env_id in args.env_ids:
+        envs = make_vector_env(env_id, k)
+        envs.reset(seed=list(range(k)))
+        envs.action_space.seed(0)
+        start = time.perf_counter()
+        for _ in range(args.env_steps):
+            envs.step(envs.action_space.sample())
+        pace = args.env_steps / (time.perf_counter() - start)
+        envs.close()
+        print(f"envs: {env_id}, {k} envs in worker processes, random actions: "
+              f"{pace:7.0f} steps/s per env, {k * pace:7.0f} in all", flush=True)
 
 
 if __name__ == "__main__":
-    args = tyro.cli(Args)
+    args = shrink(tyro.cli(Args))
     assert torch.cuda.is_available(), "bench_gpu.py needs a CUDA GPU"
-    env = make_env(args.env_id)
-    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    print(f"{args.env_id}: obs {obs_dim}, actions {action_dim}, batch {args.batch_size}, "
-          f"{torch.cuda.get_device_name()}, torch {torch.__version__}")
-    for graphs in (False, True):
-        step, _ = build_train_step(env, graphs, args.batch_size)
-        print(f"update, {'CUDA graph' if graphs else 'eager':<10} (GPU buffer):   "
-              f"{cuda_time(step, args.repeats, args.calls) * 1e3:6.3f} ms")
-    step, actor = build_train_step(env, True, args.batch_size, torch.device("cpu"))
-    host = cuda_time(step, args.repeats, args.calls)
-    print(f"update, CUDA graph (host buffer):  {host * 1e3:6.3f} ms")
-
-    obs = env.observation_space.sample().astype(np.float32)
-    sample = torch.no_grad()(lambda o: actor.get_action(o)[0])
-    mu, log_std = (t.detach() for t in actor(torch.as_tensor(obs, device=CUDA)[None]))
-    for graphs in (False, True):
-        act = cuda_graph(sample) if graphs else sample
-        mode = cuda_graph(mode_action) if graphs else mode_action
-        acting = cuda_time(lambda act=act: act(torch.as_tensor(obs, device=CUDA)[None]).cpu()
-                           .numpy(), args.repeats, args.calls)
-        mode_time = cuda_time(lambda mode=mode: mode(mu, log_std), args.repeats, args.calls)
-        label = "CUDA graph" if graphs else "eager"
-        print(f"act on one obs, {label:<10} (copies in and out): {acting * 1e3:6.3f} ms; "
-              f"mode of one action (exact): {mode_time * 1e3:6.3f} ms")
-    env_step = time_env_step(env, args.repeats)
-    print(f"env step on this CPU:              {env_step * 1e3:6.3f} ms")
-    # Evaluation runs on CPU workers (eval_runner.py); one round, in-process, one thread.
-    start = time.perf_counter()
-    result = run_round(Round(args.env_id, eval_seeds(0, 1, args.eval_episodes),
-                             {"": "mode", "tanh_mu_": "tanh_mu"}, copy.deepcopy(actor).cpu()))
-    steps = sum(sum(r["lengths"]) for r in result.values())
-    print(f"eval round, mode and tanh(mu), CPU: {args.eval_episodes} episodes each, {steps} "
-          f"steps in {time.perf_counter() - start:.2f} s")
-
-    report_runs("one run, CPU (--no-cuda)", runs_sps(args, ["--no-cuda"], 1))
-    report_runs("one run, GPU eager (--no-cudagraphs)", runs_sps(args, ["--no-cudagraphs"], 1))
-    report_runs("one run, GPU, CUDA graphs", runs_sps(args, [], 1))
-    report_runs("one run, GPU, graphs, --no-gpu-buffer", runs_sps(args, ["--no-gpu-buffer"], 1))
-    if args.concurrent:
-        n = args.concurrent
-        report_runs(f"{n} runs, CPU only", runs_sps(args, ["--no-cuda"], n))
-        report_runs(f"{n} runs sharing the GPU, graphs", runs_sps(args, [], n))
-        with mps_daemon():
-            report_runs(f"{n} runs sharing the GPU under MPS, graphs", runs_sps(args, [], n))
+    print(f"{torch.cuda.get_device_name()}, torch {torch.__version__}, parts {args.parts}, "
+          f"{args.learning_starts} random + {args.loop_steps} update steps per run", flush=True)
+    parts = {"micro": micro, "single": single, "batches": batches, "many": many,
+             "envs": envs_pace}
+    for part in args.parts:
+        parts[part](args)

@@ -35,7 +35,9 @@ from sac_standard import (  # noqa: E402
     Actor,
     ReplayBuffer,
     TwinQ,
+    ends_without_bootstrap,
     make_env,
+    make_vector_env,
     sac_update,
 )
 
@@ -79,10 +81,11 @@ class BatchedTwinQ(nn.Module):
             nn.init.uniform_(b, -bound, bound)
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        x = torch.cat([obs, action], 1).expand(2, -1, -1)
+        """(1, batch, dim) inputs, one seed as the scripts' K = 1 layout; (2, 1, batch) out."""
+        x = torch.cat([obs, action], -1)[0].expand(2, -1, -1)
         for w, b in zip(self.weights[:-1], self.biases[:-1], strict=True):
             x = torch.relu(torch.baddbmm(b, x, w))
-        return torch.baddbmm(self.biases[-1], x, self.weights[-1]).squeeze(-1)
+        return torch.baddbmm(self.biases[-1], x, self.weights[-1]).squeeze(-1)[:, None]
 
 
 def median_time(fn, repeats: int, calls: int) -> float:
@@ -104,21 +107,30 @@ def build_learner(env, critic_class=TwinQ, fused_adam: bool = True) -> tuple:
     actor = Actor(obs_dim, hidden, env.action_space, -10.0, 2.0)
     qf, qf_target = (critic_class(obs_dim, action_dim, hidden) for _ in range(2))
     qf_target.load_state_dict(qf.state_dict())
-    log_alpha = torch.zeros((), requires_grad=True)
+    log_alpha = torch.zeros(1, requires_grad=True)  # one seed: the scripts' (K,) layout
     optimizers = tuple(torch.optim.Adam(params, lr=3e-4, fused=fused_adam) for params in (
         qf.parameters(), actor.parameters(), [log_alpha]))
     return actor, qf, qf_target, log_alpha, optimizers
+
+
+def random_buffer(seeds: int, size: int, obs_dim: int, action_dim: int,
+                  device: torch.device) -> ReplayBuffer:
+    """A full buffer of random transitions in episodes of 500 steps, one row per seed."""
+    rb = ReplayBuffer(seeds, size, obs_dim, action_dim, device)
+    rng = np.random.default_rng(0)
+    no = np.zeros(seeds, bool)
+    for i in range(size):
+        rb.add(rng.normal(size=(seeds, obs_dim)), rng.uniform(-1, 1, (seeds, action_dim)),
+               rng.normal(size=seeds), no, rng.normal(size=(seeds, obs_dim)),
+               np.full(seeds, i % 500 == 499))
+    return rb
 
 
 def time_update(args: Args, env, critic_class=TwinQ, fused_adam: bool = True,
                 compiled: bool = False) -> float:
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
     actor, qf, qf_target, log_alpha, optimizers = build_learner(env, critic_class, fused_adam)
-    rb = ReplayBuffer(20_000, obs_dim, action_dim, torch.device("cpu"))
-    rng = np.random.default_rng(0)
-    for i in range(20_000):
-        rb.add(rng.normal(size=obs_dim), rng.uniform(-1, 1, action_dim), rng.normal(), False,
-               rng.normal(size=obs_dim), i % 500 == 499)
+    rb = random_buffer(1, 20_000, obs_dim, action_dim, torch.device("cpu"))
     update = torch.compile(sac_update) if compiled else sac_update
     device = torch.device("cpu")
 
@@ -152,12 +164,12 @@ def time_env_step(env, steps: int, repeats: int) -> tuple[float, float]:
 
 def time_actor_forward(env, repeats: int) -> float:
     actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
-    obs = torch.as_tensor(env.observation_space.sample(), dtype=torch.float32)[None]
+    obs = torch.as_tensor(env.observation_space.sample(), dtype=torch.float32)[None, None]
 
     def forward():
         with torch.no_grad():
             mu, _ = actor(obs)
-            actor.scale(torch.tanh(mu))[0].numpy()
+            actor.scale(torch.tanh(mu))[0, 0].numpy()
 
     return median_time(forward, repeats, 500)
 
@@ -188,28 +200,33 @@ def loop_seconds_per_step(args: Args) -> float:
 
 def time_loop_parts(args: Args, steps: int = 3000, start: int = 1000) -> dict[str, float]:
     """Seconds per step of each part of the training loop, timed in place (interleaved as in
-    the scripts, so each part pays for the caches the others evict)."""
+    the scripts, so each part pays for the caches the others evict), one seed: the scripts'
+    K = 1 vector env (in-process) and (1, ...) tensors."""
     torch.manual_seed(0)
-    env = make_env(args.env_id)
-    env.action_space.seed(0)
-    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    actor, qf, qf_target, log_alpha, optimizers = build_learner(env)
-    rb = ReplayBuffer(1_000_000, obs_dim, action_dim, torch.device("cpu"))
+    space = make_env(args.env_id).action_space
+    space.seed(0)
+    envs = make_vector_env(args.env_id, 1)
+    obs_dim, action_dim = envs.single_observation_space.shape[0], space.shape[0]
+    actor, qf, qf_target, log_alpha, optimizers = build_learner(make_env(args.env_id))
+    rb = ReplayBuffer(1, 1_000_000, obs_dim, action_dim, torch.device("cpu"))
     parts = dict.fromkeys(("act", "env step", "buffer add", "batch sample", "update"), 0.0)
-    obs, _ = env.reset(seed=0)
+    obs, _ = envs.reset(seed=[0])
     for step in range(start + steps):
         t0 = clock()
         if step < start:
-            action = env.action_space.sample()
+            action = space.sample()[None]
         else:
             with torch.no_grad():
-                obs_tensor = torch.as_tensor(obs, dtype=torch.float32)[None]
-                action = actor.get_action(obs_tensor)[0][0].numpy()
+                obs_tensor = torch.as_tensor(obs, dtype=torch.float32)
+                action = actor.get_action(obs_tensor[:, None])[0][:, 0].numpy()
         t1 = clock()
-        next_obs, reward, terminated, truncated, _ = env.step(action)
+        next_obs, reward, terminated, truncated, info = envs.step(action)
         t2 = clock()
-        rb.add(obs, action, reward, terminated, next_obs, terminated or truncated)
-        obs = env.reset()[0] if terminated or truncated else next_obs
+        episode_end = terminated | truncated
+        final_obs = info["final_obs"][0][None] if episode_end[0] else next_obs
+        rb.add(obs, action, reward, ends_without_bootstrap(terminated, truncated), final_obs,
+               episode_end)
+        obs = next_obs
         t3 = clock()
         if step < start:
             continue
@@ -221,6 +238,7 @@ def time_loop_parts(args: Args, steps: int = 3000, start: int = 1000) -> dict[st
         for name, seconds in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4),
                                  strict=True):
             parts[name] += seconds
+    envs.close()
     return {name: total / steps for name, total in parts.items()}
 
 
@@ -236,7 +254,7 @@ def replay_buffer_memory_gb() -> float:
     """Resident memory added by a full 1M x 308-dim buffer (61-dim actions), in GB."""
     process = psutil.Process()
     before = process.memory_info().rss
-    rb = ReplayBuffer(1_000_000, 308, 61, torch.device("cpu"))
+    rb = ReplayBuffer(1, 1_000_000, 308, 61, torch.device("cpu"))
     for name in ReplayBuffer.ARRAYS:
         getattr(rb, name)[:] = 1  # touch every page
     return (process.memory_info().rss - before) / 1e9
