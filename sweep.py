@@ -488,11 +488,13 @@ def check_output_dir(runs: list[Run]) -> None:
 # Cores for evaluation: each run trains on one core and evaluates in --eval-workers processes
 
 
-def eval_workers_per_run(cores: int, runs_at_once: int) -> int:
-    """The cores the training processes leave free, shared among the runs. At least one worker:
-    with none, every evaluation round would stop the run's training while it plays its
-    episodes; one worker on an oversubscribed core costs less."""
-    return max(1, (cores - runs_at_once) // runs_at_once)
+def eval_workers_per_run(cores: int, runs_at_once: int, seeds_per_process: int = 1) -> int:
+    """The cores the training processes leave free, shared among the runs. A process takes one
+    core, and with several seeds one more per seed (its envs step in worker processes). At least
+    one worker: with none, every evaluation round would stop the run's training while it plays
+    its episodes; one worker on an oversubscribed core costs less."""
+    busy = 1 + (seeds_per_process if seeds_per_process > 1 else 0)
+    return max(1, (cores - runs_at_once * busy) // runs_at_once)
 
 
 def slurm_cpus_per_task(args: Args) -> int:
@@ -506,6 +508,12 @@ def slurm_cpus_per_task(args: Args) -> int:
 
 def plural(count: int, noun: str) -> str:
     return f"{count} {noun}{'' if count == 1 else 'es' if noun.endswith('s') else 's'}"
+
+
+def training_cores(args: Args) -> str:
+    """The cores one process trains on, in words."""
+    k = args.seeds_per_process
+    return "one" if k == 1 else f"{k + 1} (the loop and {k} env workers)"
 
 
 def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, str]:
@@ -522,14 +530,16 @@ def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, s
                        "(--eval-workers after `--`)")
     if args.launcher == "slurm":
         cpus = slurm_cpus_per_task(args)
-        count = eval_workers_per_run(cpus, 1)
-        why = f"{plural(cpus, 'CPU')} per Slurm task, one for training"
+        count = eval_workers_per_run(cpus, 1, args.seeds_per_process)
+        why = f"{plural(cpus, 'CPU')} per Slurm task, {training_cores(args)} for training"
     else:
         cores = len(os.sched_getaffinity(0))
         # Fewer to launch than --workers: only that many run at once.
         at_once = max(1, min(args.workers, to_launch))
-        count = eval_workers_per_run(cores, at_once)
+        count = eval_workers_per_run(cores, at_once, args.seeds_per_process)
         why = f"{plural(cores, 'core')}, {plural(at_once, unit)} at a time"
+        if args.seeds_per_process > 1:
+            why += f", each training on {training_cores(args)}"
     return count, f"evaluation: {plural(count, 'worker')} per {unit} ({why})"
 
 

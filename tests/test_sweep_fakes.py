@@ -204,6 +204,10 @@ def test_run_command_passes_the_division_once_and_the_identity_ignores_it(tmp_pa
     assert divided(sweep_module.Args(launcher="slurm"), 2, 9)[0] == 2
     assert [sweep_module.eval_workers_per_run(16, w) for w in (1, 2, 8, 16, 32)] == [
         15, 7, 1, 1, 1]  # at least one: in-process evaluation would stall training
+    # A process of K > 1 seeds trains on 1 + K cores (its loop and K env workers).
+    assert [sweep_module.eval_workers_per_run(16, w, 4) for w in (1, 2, 3, 4)] == [11, 3, 1, 1]
+    assert divided(sweep_module.Args(launcher="slurm", cpus_per_task=8, seeds_per_process=4),
+                   None, 9)[0] == 3
 
 
 # A stand-in for a script with --num-seeds: starting writes each seed's config.json with the
@@ -239,7 +243,8 @@ def test_seeds_per_process_packs_consecutive_seeds_and_divides_cores_by_process(
         tmp_path, monkeypatch, capsys):
     """Seeds 0-2 and 5, two per process: processes 0-1, 2 and 5 (a process trains consecutive
     seeds), started with --num-seeds and {seed} in the run name, the folders named as without
-    packing; 16 cores, --workers 2: 7 evaluation workers per process. The rerun resumes each
+    packing; 16 cores, --workers 2: 5 evaluation workers per process (each trains on 3 cores:
+    its loop and two env workers). The rerun resumes each
     batch through its first folder."""
     import sweep as sweep_module
 
@@ -254,7 +259,8 @@ def test_seeds_per_process_packs_consecutive_seeds_and_divides_cores_by_process(
     assert sweep_module.main([*grid, "--seeds-per-process", "2"]) == 3
     printed = capsys.readouterr().out
     assert "4 runs: 0 done or under way, 4 to launch in 3 processes" in printed
-    assert "evaluation: 7 workers per process (16 cores, 2 processes at a time)" in printed
+    assert ("evaluation: 5 workers per process (16 cores, 2 processes at a time, each training "
+            "on 3 (the loop and 2 env workers))") in printed
     configs = {run.seed: json.loads((run.run_dir / "config.json").read_text())
                for run in unpacked}  # a KeyError here: a folder named otherwise
     name = unpacked[0].name.replace("seed0", "seed{seed}")
@@ -267,7 +273,7 @@ def test_seeds_per_process_packs_consecutive_seeds_and_divides_cores_by_process(
         assert "--num-seeds" not in configs[seed]["argv"]
         assert configs[seed]["batch"]["num_seeds"] == 1
     for config in configs.values():
-        assert eval_workers_of(config["argv"]) == ["7"]
+        assert eval_workers_of(config["argv"]) == ["5"]
     attempts = {run.seed: json.loads((run.run_dir / "sweep_attempt.json").read_text())
                 for run in unpacked}
     assert attempts[0]["pid"] == attempts[1]["pid"] != attempts[2]["pid"]
