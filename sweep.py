@@ -1069,8 +1069,9 @@ def process_estimate(batches: list[Batch], left: dict[Run, int], given: float | 
     hours = [max(left[run] / cpu_steps_per_second(run.env_id, given) / 3600
                  for run in batch.runs) for batch in batches]
     return (f"processes: {len(batches)}, {sum(hours):,.1f} process-hours (the longest "
-            f"{max(hours):,.1f} h), assuming a process trains each of its seeds at the speed of "
-            "a single run (no speed of a --num-seeds batch is measured yet)")
+            f"{max(hours):,.1f} h), if a process trained each of its seeds at a single run's "
+            "speed; on CPUs it does not (2 seeds in one process: 0.61x two processes in all, "
+            "bench/bench_seeds.py), so pack seeds on a GPU node only")
 
 
 def cpu_steps_per_second(env_id: str, given: float | None) -> float:

@@ -3,10 +3,11 @@
     .venv/bin/python bench/bench_seeds.py --env-id h1hand-powerlift-v0 --seeds 2 --repeats 2
 
 Each side is a short sac_standard.py run (no evaluation, no checkpoint, one torch thread per
-process); the figure is the median steps/s of its train.csv rows in the update phase (the first
-such row left out: warm-up), per seed (each seed steps once per global step) and in all. The two
-sides run one after the other, alternating within each repeat, so drift on a shared machine
-falls on both; the load average before each is printed because other users' work counts here.
+single-seed process, --batch-threads for the one process); the figure is the median steps/s of
+its train.csv rows in the update phase (the first such row left out: warm-up), per seed (each
+seed steps once per global step) and in all. The two sides run one after the other, alternating
+within each repeat, so drift on a shared machine falls on both; the load average before each is
+printed because other users' work counts here.
 """
 
 import csv
@@ -39,16 +40,19 @@ class Args:
     """repeats of the pair of measurements; each is printed, then the medians"""
     script: str = "sac_standard.py"
     """the training script (sac_corrected.py trains the same way)"""
+    batch_threads: int = 1
+    """torch threads of the one process (its env workers idle while it updates, so it may use
+    their cores); each single-seed process has one"""
 
 
-def command(args: Args, out: str, name: str, flags: list[str]) -> list[str]:
+def command(args: Args, out: str, name: str, flags: list[str], threads: int = 1) -> list[str]:
     """A run with evaluation and checkpoints off: only the training loop is timed."""
     return [sys.executable, str(ROOT / args.script), "--env-id", args.env_id,
             "--total-timesteps", str(args.total_timesteps),
             "--learning-starts", str(args.learning_starts),
             "--eval-interval", str(10 * args.total_timesteps), "--eval-workers", "0",
             "--checkpoint-interval", "0", "--log-interval", str(args.log_interval),
-            "--print-interval", str(args.total_timesteps), "--torch-threads", "1",
+            "--print-interval", str(args.total_timesteps), "--torch-threads", str(threads),
             "--output-dir", out, "--run-name", name, *flags]
 
 
@@ -75,7 +79,8 @@ def run_together(commands: list[list[str]]) -> None:
 def one_process(args: Args) -> float:
     """Steps/s per seed of --num-seeds K in one process (its K folders share one pace)."""
     with tempfile.TemporaryDirectory() as out:
-        run_together([command(args, out, "k{seed}", ["--num-seeds", str(args.seeds)])])
+        run_together([command(args, out, "k{seed}", ["--num-seeds", str(args.seeds)],
+                              args.batch_threads)])
         return update_phase_sps(Path(out) / "k0", args.learning_starts)
 
 
@@ -104,8 +109,9 @@ if __name__ == "__main__":
             before = load()
             if side == "one":
                 batched.append(one_process(args))
-                print(f"  --num-seeds {k}, one process: {batched[-1]:6.1f} steps/s per seed, "
-                      f"{k * batched[-1]:6.1f} in all ({before})", flush=True)
+                print(f"  --num-seeds {k}, one process, {args.batch_threads} torch threads: "
+                      f"{batched[-1]:6.1f} steps/s per seed, {k * batched[-1]:6.1f} in all "
+                      f"({before})", flush=True)
             else:
                 separate.append(sum(side_by_side(args)))
                 print(f"  {k} single-seed processes:    {separate[-1] / k:6.1f} steps/s per seed, "

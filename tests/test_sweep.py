@@ -351,8 +351,8 @@ def test_dry_run_shows_the_packing_and_costs_processes(packed, tmp_path):
     assert ("packing: --seeds-per-process 2: 3 processes for the 5 runs not done (2 processes "
             "of 2 seeds, 1 process of 1 seed); a process holds fewer than 2") in out
     assert "50.0 run-hours" in out
-    assert ("processes: 3, 30.0 process-hours (the longest 10.0 h), assuming a process trains "
-            "each of its seeds at the speed of a single run") in out
+    assert ("processes: 3, 30.0 process-hours (the longest 10.0 h), if a process trained "
+            "each of its seeds at a single run's speed; on CPUs it does not") in out
     assert not (tmp_path / "o").exists()
 
 
