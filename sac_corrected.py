@@ -900,8 +900,9 @@ if __name__ == "__main__":
             last = [p["last_eval"] for p in progress if p["last_eval"] is not None]
             print(f"step {global_step:,}/{args.total_timesteps:,} | "
                   f"{global_step / (elapsed + time.time() - session_start):.0f} SPS per seed | "
-                  + (f"last eval {np.mean([r for _, r in last]):.1f} (mean over "
-                     f"{len(last)} seeds) at step {last[0][0]:,}" if last else "no eval yet"),
+                  + (f"last eval {np.mean([r for _, r in last]):.1f}"
+                     + (f" (mean over {len(last)} seeds)" if len(last) > 1 else "")
+                     + f" at step {last[0][0]:,}" if last else "no eval yet"),
                   flush=True)
 
         if stop.requested or (args.checkpoint_interval > 0
