@@ -226,11 +226,12 @@ def load_weights(path: Path) -> dict:
 
 
 def with_seed_axis(weights: dict) -> dict:
-    """Weights in the scripts' layout, a leading seed axis of 1 (sac_standard.SeedLinear): files
-    written before --num-seeds hold nn.Linear's (out, in) weights and (out,) biases."""
+    """Weights in the scripts' layout, (1, in, out) with a leading seed axis of 1
+    (sac_standard.SeedLinear): files written before --num-seeds hold nn.Linear's (out, in)
+    weights and (out,) biases."""
     def fit(key: str, value: torch.Tensor) -> torch.Tensor:
         if key.endswith(".weight") and value.dim() == 2:
-            return value[None]
+            return value.t()[None]
         return value[None, None] if key.endswith(".bias") and value.dim() == 1 else value
 
     return {k: fit(k, v) for k, v in weights.items()}
@@ -247,12 +248,12 @@ def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Act
     if not trunk or trunk[0].dim() != 3 or "fc_mean.weight" not in weights:
         sac.fail(f"{path} holds no actor of sac_standard.py or sac_corrected.py (no trunk or "
                  "fc_mean layers); give a final_model.pt or a run folder")
-    shapes = (trunk[0].shape[-1], weights["fc_mean.weight"].shape[-2])
+    shapes = (trunk[0].shape[-2], weights["fc_mean.weight"].shape[-1])
     if shapes != (obs_dim, action_dim):
         sac.fail(f"{path} was trained on {shapes[0]}-dim observations and {shapes[1]}-dim "
                  f"actions; {env_id} has {obs_dim} and {action_dim}: pass the --env-id it was "
                  "trained on")
-    actor = sac.Actor(obs_dim, tuple(w.shape[-2] for w in trunk), env.action_space,
+    actor = sac.Actor(obs_dim, tuple(w.shape[-1] for w in trunk), env.action_space,
                       config.get("log_std_min", sac.Args.log_std_min),
                       config.get("log_std_max", sac.Args.log_std_max))
     try:
@@ -275,13 +276,13 @@ def build_critic(state: dict, actor: sac.Actor, path: Path) -> sac.TwinQ:
     layers = [weights[k] for k in sorted((k for k in weights if k.startswith("qf1.")
                                           and k.endswith(".weight")),
                                          key=lambda k: int(k.split(".")[1]))]
-    obs_dim, action_dim = actor.trunk[0].weight.shape[-1], actor.fc_mean.weight.shape[-2]
-    if not layers or any(w.dim() != 3 for w in layers) or layers[-1].shape[-2] != 1 \
-            or layers[0].shape[-1] != obs_dim + action_dim:
+    obs_dim, action_dim = actor.trunk[0].weight.shape[-2], actor.fc_mean.weight.shape[-1]
+    if not layers or any(w.dim() != 3 for w in layers) or layers[-1].shape[-1] != 1 \
+            or layers[0].shape[-2] != obs_dim + action_dim:
         sac.fail(f"{path}: its 'qf' is not a critic of sac_standard.py or sac_corrected.py for "
                  f"{obs_dim}-dim observations and {action_dim}-dim actions; give the run's own "
                  "final_model.pt, or drop q_best from --selectors")
-    critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[-2] for w in layers[:-1]))
+    critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[-1] for w in layers[:-1]))
     try:
         critic.load_state_dict(weights)
     except RuntimeError as error:  # the second critic missing, or of other widths

@@ -296,6 +296,28 @@ def test_weights_files_alone(our_run, tmp_path, capsys):
     assert code == 0 and "checkpoint.pt on Pendulum-v1" in out, err
 
 
+def test_a_file_from_before_the_seed_axis_gives_the_same_numbers(our_run, tmp_path, capsys):
+    """final_model.pt as scripts before --num-seeds wrote it (nn.Linear's (out, in) weights and
+    (out,) biases, no seed axis) evaluates exactly as the same networks in today's layout."""
+    state = torch.load(our_run / "final_model.pt", weights_only=True)
+
+    def old(weights: dict) -> dict:  # the action scale and bias buffers stay as they are
+        layout = {".weight": lambda v: v[0].t().contiguous(), ".bias": lambda v: v[0, 0]}
+        return {k: next((f(v) for end, f in layout.items() if k.endswith(end)), v)
+                for k, v in weights.items()}
+
+    assert state["actor"]["trunk.0.weight"].shape == (1, 3, 32)  # (seeds, in, out)
+    torch.save({**state, "actor": old(state["actor"]), "qf": old(state["qf"])},
+               tmp_path / "old.pt")
+    outputs = []
+    for source in (our_run / "final_model.pt", tmp_path / "old.pt"):
+        code, _, err = run(capsys, str(source), "--episodes", "2", "--reps", "20", "--selectors",
+                           "mode", "tanh_mu", "q_best", "--out", str(tmp_path / source.stem))
+        assert code == 0, err
+        outputs.append(read_rows(tmp_path / source.stem / "episodes.csv"))
+    assert outputs[0] == outputs[1]
+
+
 def test_bad_sources_fail_clearly(sb3_models, our_run, tmp_path, capsys):
     refused(capsys, "is not a run folder (no config.json)", str(ROOT / "tests"))
     refused(capsys, "was trained on 3-dim observations and 1-dim actions; InvertedPendulum-v5 "

@@ -281,7 +281,7 @@ def test_glorot_uniform_init_and_zero_biases():
               for m in net.modules() if isinstance(m, SeedLinear)]
     assert len(layers) == 4 + 6  # actor: two hidden, mean and log-sigma heads; critics: 3 each
     for layer in layers:
-        _, fan_out, fan_in = layer.weight.shape
+        _, fan_in, fan_out = layer.weight.shape
         bound = (6 / (fan_in + fan_out)) ** 0.5
         assert torch.count_nonzero(layer.bias) == 0
         # Uniform on [-bound, bound]: within it, and reaching near it (PyTorch's default would
