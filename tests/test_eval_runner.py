@@ -79,18 +79,22 @@ def test_a_round_is_the_same_in_process_and_in_any_number_of_workers():
     assert first["shift"]["mode_shift_abs_mean"] > 0
 
 
-def test_rounds_are_handed_back_in_submission_order_when_a_later_one_finishes_first():
-    slow = "tests.toy_envs:SlowCountdown-v0"
-    long_round = Round(slow, [12, 25], {"": "tanh_mu"}, ToyActor(), label="long")  # 13 steps
-    short_round = Round(slow, [0, 13], {"": "tanh_mu"}, ToyActor(), label="short")  # 1 step
+def test_rounds_are_handed_back_in_submission_order_when_a_later_one_finishes_first(
+        tmp_path, monkeypatch):
+    gate = tmp_path / "gate"
+    monkeypatch.setenv("TOY_ENVS_GATE", str(gate))  # the workers inherit it
+    gated = "tests.toy_envs:GatedCountdown-v0"  # an episode's second step waits for the gate
+    long_round = Round(gated, [12, 25], {"": "tanh_mu"}, ToyActor(), label="long")  # 13 steps
+    short_round = Round(gated, [0, 13], {"": "tanh_mu"}, ToyActor(), label="short")  # 1 step
     finished = []
     pool = EvalPool(2, lambda round_, result: finished.append(round_.label))
     pool.submit(long_round)
     pool.submit(short_round)
     pool.pending[1][0].result()  # the short round is done...
-    assert not pool.pending[0][0].done()  # ...while the long one still runs
+    assert not pool.pending[0][0].done()  # ...while the long one waits at the gate
     pool.poll()
     assert finished == []  # not handed back before the round submitted earlier
+    gate.touch()
     pool.drain()
     pool.close()
     assert finished == ["long", "short"]

@@ -4,7 +4,9 @@ gym.make("tests.toy_envs:Countdown-v0") imports this module, in a worker process
 """
 
 import math
+import os
 import time
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -26,27 +28,34 @@ class Countdown(gym.Env):
     """Ends after a length fixed by the reset seed; every step pays the same reward. The
     observation is (steps left, the seed's reward, 1); actions are ignored. `step_seconds` slows
     each step down, so that a long round takes visibly longer than a short one; `eval_only`
-    applies it (and `nan_obs`, NaN observations) to evaluation episodes only."""
+    applies it (and `nan_obs`, NaN observations) to evaluation episodes only. With `gated`, an
+    episode's second step waits until the file named by $TOY_ENVS_GATE exists: a test holds a
+    long episode back for as long as it needs, whatever the machine's load."""
 
     observation_space = gym.spaces.Box(-np.inf, np.inf, (3,), np.float64)
     action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
 
-    def __init__(self, step_seconds: float = 0.0, nan_obs: bool = False, eval_only: bool = False):
+    def __init__(self, step_seconds: float = 0.0, nan_obs: bool = False, eval_only: bool = False,
+                 gated: bool = False):
         self.step_seconds, self.nan_obs, self.eval_only = step_seconds, nan_obs, eval_only
+        self.gated, self.steps = gated, 0
         self.left, self.reward, self.success, self.evaluating = 0, 0.0, False, False
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         self.evaluating = seed is not None and seed > EVAL_SEEDS_ABOVE
         length, self.reward, self.success = episode_of(seed if seed is not None else 0)
-        self.left = length
+        self.left, self.steps = length, 0
         return self._obs(), {}
 
     def step(self, action):
         assert self.left > 0, "stepped after the episode ended"
         if self.evaluating or not self.eval_only:
             time.sleep(self.step_seconds)
+        if self.gated and self.steps == 1:
+            wait_for_gate()
         self.left -= 1
+        self.steps += 1
         done = self.left == 0
         return self._obs(), self.reward, done, False, {"success": self.success} if done else {}
 
@@ -55,8 +64,16 @@ class Countdown(gym.Env):
         return np.array([self.left, self.reward, math.nan if nan else 1.0])
 
 
+def wait_for_gate(timeout: float = 120.0) -> None:
+    gate, deadline = Path(os.environ["TOY_ENVS_GATE"]), time.monotonic() + timeout
+    while not gate.exists():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{gate} never appeared")
+        time.sleep(0.01)
+
+
 gym.register("Countdown-v0", entry_point=Countdown)
-gym.register("SlowCountdown-v0", entry_point=Countdown, kwargs={"step_seconds": 0.004})
+gym.register("GatedCountdown-v0", entry_point=Countdown, kwargs={"gated": True})
 gym.register("SlowEval-v0", entry_point=Countdown, kwargs={"step_seconds": 0.02, "eval_only": True})
 gym.register("NanEval-v0", entry_point=Countdown, kwargs={"nan_obs": True, "eval_only": True})
 
