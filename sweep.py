@@ -1070,7 +1070,7 @@ def process_estimate(batches: list[Batch], left: dict[Run, int], given: float | 
                  for run in batch.runs) for batch in batches]
     return (f"processes: {len(batches)}, {sum(hours):,.1f} process-hours (the longest "
             f"{max(hours):,.1f} h), if a process trained each of its seeds at a single run's "
-            "speed; on CPUs it does not (2 seeds in one process: 0.61x two processes in all, "
+            "speed; on CPUs it does not (2 seeds in one process: 0.58x two processes in all, "
             "bench/bench_seeds.py), so pack seeds on a GPU node only")
 
 
