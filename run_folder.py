@@ -1,11 +1,14 @@
 """A run folder's files, for sac_standard.py and sac_corrected.py: config.json, the CSV logs
 (written row by row), TensorBoard and W&B, checkpoints (written atomically, a batch's in two
-phases), the folder's lock, the random states, and the graceful stop on a signal.
+phases), the folder's lock, the random states, the graceful stop on a signal, and what an
+exact resume needs: the episode under way (EpisodeRecord) and each seed's part of the batch's
+networks and optimisers.
 
 None of it is the algorithm: the two scripts hold that, top to bottom. The layout of a run folder
 is described in README.md ("The run folder").
 """
 
+import copy
 import csv
 import dataclasses
 import fcntl
@@ -25,6 +28,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import torch
+import torch.nn as nn
 from torch.utils.tensorboard import SummaryWriter
 
 INTERRUPTED_EXIT_CODE = 3
@@ -253,3 +257,65 @@ def save_batch_checkpoint(dirs: list[Path], states: list[dict]) -> None:
         torch.save(state, tmp)
     for tmp in tmps:
         os.replace(tmp, tmp.with_name("checkpoint.pt"))
+
+
+# Resuming exactly: the episode under way, and each seed's part of the batch's networks.
+
+
+class EpisodeRecord(gym.Wrapper):
+    """Remembers how the current episode began (its reset seed, or the env's random state before
+    an unseeded reset) and every action since, so that a checkpoint taken mid-episode rebuilds
+    the episode exactly: `replay` resets the same way and steps the same actions (MuJoCo is
+    deterministic). Any gymnasium env, whatever state it keeps."""
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        rng = None if seed is not None else self.env.unwrapped.np_random.bit_generator.state
+        self.record = {"seed": seed, "rng": copy.deepcopy(rng), "actions": []}
+        return self.env.reset(seed=seed, options=options)
+
+    def step(self, action):
+        self.record["actions"].append(np.array(action, copy=True))
+        return self.env.step(action)
+
+    def replay(self) -> np.ndarray:
+        """Rebuilds the episode of `self.record` (a checkpoint's, put there by the vector env's
+        set_attr) and returns its current observation."""
+        seed, rng = self.record["seed"], self.record["rng"]
+        actions = [np.asarray(a) for a in self.record["actions"]]
+        if rng is not None:
+            self.env.unwrapped.np_random.bit_generator.state = rng
+        obs, _ = self.env.reset(seed=seed)
+        for action in actions:
+            obs = self.env.step(action)[0]
+        self.record = {"seed": seed, "rng": rng, "actions": actions}
+        return obs
+
+
+def seed_slice(module: nn.Module, k: int) -> nn.Module:
+    """Seed k's networks alone, as a K = 1 module that shares no tensor with the batch."""
+    memo = {id(p): nn.Parameter(p.detach()[k:k + 1].clone(), p.requires_grad)
+            for p in module.parameters()}
+    return copy.deepcopy(module, memo)
+
+
+def load_seed_states(module: nn.Module, states: list[dict]) -> None:
+    """The batch's parameters from each seed's K = 1 state dict (seed_slice's layout)."""
+    params = dict(module.named_parameters())
+    module.load_state_dict({n: torch.cat([s[n] for s in states]) if n in params else v
+                            for n, v in states[0].items()})
+
+
+def optimizer_seed_state(optimizer: torch.optim.Optimizer, k: int) -> dict:
+    """Seed k's part of an optimizer over stacked parameters (its step counts are shared)."""
+    state = optimizer.state_dict()
+    return {"state": {i: {n: (v if v.dim() == 0 else v[k:k + 1]).clone() for n, v in s.items()}
+                      for i, s in state["state"].items()},
+            "param_groups": state["param_groups"]}
+
+
+def load_optimizer_seed_states(optimizer: torch.optim.Optimizer, states: list[dict]) -> None:
+    optimizer.load_state_dict({
+        "state": {i: {n: v.clone() if v.dim() == 0
+                      else torch.cat([s["state"][i][n] for s in states])
+                      for n, v in state.items()} for i, state in states[0]["state"].items()},
+        "param_groups": states[0]["param_groups"]})

@@ -35,18 +35,23 @@ import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
 from eval_runner import EvalPool, Round, default_workers, eval_columns, eval_seeds, round_statistics
 from run_folder import (
     INTERRUPTED_EXIT_CODE,
+    EpisodeRecord,
     StopRequest,
     atomic_write,
     check_csv,
     fail,
+    load_optimizer_seed_states,
+    load_seed_states,
     lock_run_folder,
     open_csv,
+    optimizer_seed_state,
     read_batch_checkpoints,
     read_run_config,
     record_holder,
     rng_states,
     run_metadata,
     save_batch_checkpoint,
+    seed_slice,
     set_rng_states,
     start_tracking,
     write_row,
@@ -282,35 +287,6 @@ def make_env(env_id: str, render: bool = False) -> gym.Env:
     return env
 
 
-class EpisodeRecord(gym.Wrapper):
-    """Remembers how the current episode began (its reset seed, or the env's random state before
-    an unseeded reset) and every action since, so that a checkpoint taken mid-episode rebuilds
-    the episode exactly: `replay` resets the same way and steps the same actions (MuJoCo is
-    deterministic). Any gymnasium env, whatever state it keeps."""
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        rng = None if seed is not None else self.env.unwrapped.np_random.bit_generator.state
-        self.record = {"seed": seed, "rng": copy.deepcopy(rng), "actions": []}
-        return self.env.reset(seed=seed, options=options)
-
-    def step(self, action):
-        self.record["actions"].append(np.array(action, copy=True))
-        return self.env.step(action)
-
-    def replay(self) -> np.ndarray:
-        """Rebuilds the episode of `self.record` (a checkpoint's, put there by the vector env's
-        set_attr) and returns its current observation."""
-        seed, rng = self.record["seed"], self.record["rng"]
-        actions = [np.asarray(a) for a in self.record["actions"]]
-        if rng is not None:
-            self.env.unwrapped.np_random.bit_generator.state = rng
-        obs, _ = self.env.reset(seed=seed)
-        for action in actions:
-            obs = self.env.step(action)[0]
-        self.record = {"seed": seed, "rng": rng, "actions": actions}
-        return obs
-
-
 def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
     """One env per seed, each in its own worker process when there are several (a single one
     steps in-process: no pipe to cross). An episode's end resets that env in the same step, its
@@ -415,36 +391,6 @@ class TwinQ(nn.Module):
         """Q1 and Q2 of each (obs, action), shape (2, K, batch)."""
         x = torch.cat([obs, action], -1)
         return torch.stack([self.qf1(x), self.qf2(x)]).squeeze(-1)
-
-
-def seed_slice(module: nn.Module, k: int) -> nn.Module:
-    """Seed k's networks alone, as a K = 1 module that shares no tensor with the batch."""
-    memo = {id(p): nn.Parameter(p.detach()[k:k + 1].clone(), p.requires_grad)
-            for p in module.parameters()}
-    return copy.deepcopy(module, memo)
-
-
-def load_seed_states(module: nn.Module, states: list[dict]) -> None:
-    """The batch's parameters from each seed's K = 1 state dict (seed_slice's layout)."""
-    params = dict(module.named_parameters())
-    module.load_state_dict({n: torch.cat([s[n] for s in states]) if n in params else v
-                            for n, v in states[0].items()})
-
-
-def optimizer_seed_state(optimizer: torch.optim.Optimizer, k: int) -> dict:
-    """Seed k's part of an optimizer over stacked parameters (its step counts are shared)."""
-    state = optimizer.state_dict()
-    return {"state": {i: {n: (v if v.dim() == 0 else v[k:k + 1]).clone() for n, v in s.items()}
-                      for i, s in state["state"].items()},
-            "param_groups": state["param_groups"]}
-
-
-def load_optimizer_seed_states(optimizer: torch.optim.Optimizer, states: list[dict]) -> None:
-    optimizer.load_state_dict({
-        "state": {i: {n: v.clone() if v.dim() == 0
-                      else torch.cat([s["state"][i][n] for s in states])
-                      for n, v in state.items()} for i, state in states[0]["state"].items()},
-        "param_groups": states[0]["param_groups"]})
 
 
 class ReplayBuffer:
