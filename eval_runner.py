@@ -7,7 +7,13 @@ actions by eval.csv column prefix. `run_round` steps every episode of every eval
 lockstep: one actor call per action per step over all of that action's episodes, finished ones
 kept in place (so every call has the same batch shape, and a row's numbers never depend on when
 other episodes ended) and masked. Episode k of every action resets with the same seed: the
-comparison between actions is paired.
+comparison between actions is paired. An episode whose start state repeats an earlier one's
+(identical physics and task state after reset, on an env whose steps draw no randomness) under a
+deterministic action is that episode again: it gets the first one's row without its env being
+stepped (the actor still sees every row, so the first episode's numbers are as before; BLAS may
+round equal rows of a batch differently by position, which made such copies differ in their last
+bits, then more as the physics amplified it). On a task that resets without noise
+(h1hand-bookshelf_simple-v0) a round runs one episode per action, not ten.
 
 `EvalPool` runs rounds in worker processes while training goes on, and hands the results back in
 submission order. With 0 workers it runs each round at once, in-process: one code path. A round
@@ -153,6 +159,25 @@ def run_round(round_: Round) -> dict:
         torch.set_num_threads(threads)
 
 
+def start_key(env: gym.Env) -> bytes | None:
+    """The env's state after reset, if the env can tell it and its steps draw no randomness
+    (H1HandEnv.start_state); None where either is unknown, which makes the episode distinct."""
+    start_state = getattr(env.unwrapped, "start_state", None)
+    return None if start_state is None else start_state()
+
+
+def first_with_same_start(envs: list[gym.Env]) -> np.ndarray:
+    """For each freshly reset env, the index of the first env with the same start state (its
+    own index when it is the first, or when its start state is unknown)."""
+    firsts: dict[bytes, int] = {}
+    same = np.arange(len(envs))
+    for k, env in enumerate(envs):
+        key = start_key(env)
+        if key is not None:
+            same[k] = firsts.setdefault(key, k)
+    return same
+
+
 def _run_round(round_: Round) -> dict:
     n, prefixes = len(round_.seeds), list(round_.actions)
     envs = cached_envs(round_.env_id, n * len(prefixes))
@@ -163,6 +188,11 @@ def _run_round(round_: Round) -> dict:
     obs = {p: np.stack([env.reset(seed=s)[0] for env, s in zip(episodes[p], round_.seeds,
                                                                 strict=True)])
            for p in prefixes}
+    # Each episode follows the first with its start state (every action resets its episodes
+    # with the same seeds); a "sample" action's noise differs per episode, so none of its
+    # episodes follows another.
+    starts = first_with_same_start(episodes[prefixes[0]])
+    same = {p: np.arange(n) if round_.actions[p] == "sample" else starts for p in prefixes}
     done = {p: np.zeros(n, bool) for p in prefixes}
     returns = {p: np.zeros(n) for p in prefixes}
     lengths = {p: np.zeros(n, np.int64) for p in prefixes}
@@ -192,7 +222,8 @@ def _run_round(round_: Round) -> dict:
                 chosen[p] += np.bincount(choice.numpy()[live], minlength=len(Q_BEST_CANDIDATES))
             if p == round_.shift_of:
                 visited.append((mu[live], log_std[live]))
-            for k in np.flatnonzero(live):
+            first = same[p] == np.arange(n)
+            for k in np.flatnonzero(live & first):
                 env = episodes[p][k]
                 if k == 0 and p in frames:
                     frames[p].append(env.render())
@@ -202,12 +233,20 @@ def _run_round(round_: Round) -> dict:
                 if terminated or truncated:
                     done[p][k] = True
                     successes[p][k] = info.get("success")
+            # A follower is its first episode again: same rows in the next actor call, same
+            # numbers, ending together.
+            for k in np.flatnonzero(live & ~first):
+                j = same[p][k]
+                obs[p][k], returns[p][k], lengths[p][k] = obs[p][j], returns[p][j], lengths[p][j]
+                done[p][k], successes[p][k] = done[p][j], successes[p][j]
     for p, path in round_.videos.items():
         import imageio  # only for videos
 
         imageio.mimsave(path, frames[p], fps=episodes[p][0].metadata.get("render_fps", 30))
     result: dict = {p: {"returns": returns[p].tolist(), "lengths": lengths[p].tolist(),
                         "successes": successes[p]} for p in prefixes}
+    # Distinct start states: how many episodes each deterministic action stepped.
+    result["distinct_episodes"] = len(set(starts.tolist()))
     for p in prefixes:
         if round_.actions[p] == "q_best":
             shares = chosen[p] / max(chosen[p].sum(), 1)
@@ -233,9 +272,18 @@ def round_statistics(result: dict, prefix: str) -> dict:
     return row
 
 
+def round_row(result: dict, actions: dict[str, str]) -> dict:
+    """eval.csv's statistics of a round (eval_columns): how many distinct episodes it ran, each
+    prefix's statistics, and the shift statistics where the round measured them."""
+    row = {"distinct_episodes": result["distinct_episodes"]}
+    for prefix in actions:
+        row |= round_statistics(result, prefix)
+    return row | result.get("shift", {})
+
+
 def eval_columns(actions: dict[str, str], shift: bool) -> list[str]:
-    """The statistics columns of eval.csv for these evaluation actions (see round_statistics)."""
-    columns = [p + s for p in actions for s in EVAL_STATS]
+    """The statistics columns of eval.csv for these evaluation actions (see round_row)."""
+    columns = ["distinct_episodes", *(p + s for p in actions for s in EVAL_STATS)]
     columns += [f"{p}share_{c}" for p, a in actions.items() if a == "q_best"
                 for c in Q_BEST_CANDIDATES]
     return columns + (list(SHIFT_COLUMNS) if shift else [])

@@ -32,7 +32,7 @@ import tyro
 from torch.utils.tensorboard import SummaryWriter
 
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
-from eval_runner import EvalPool, Round, default_workers, eval_columns, eval_seeds, round_statistics
+from eval_runner import EvalPool, Round, default_workers, eval_columns, eval_seeds, round_row
 from run_folder import (
     INTERRUPTED_EXIT_CODE,
     EpisodeRecord,
@@ -786,10 +786,9 @@ if __name__ == "__main__":
         """An evaluation round's eval.csv row; EvalPool calls this in step order."""
         row, k = dict(round_.info), round_.info["seed_index"]
         del row["seed_index"]
-        for prefix in actions:
-            row |= round_statistics(result, prefix)
-        write_row(*logs[k]["eval"], logs[k]["tb"], logs[k]["tracker"], "eval",
-                  row | result.get("shift", {}), round_.videos.get(""))
+        row |= round_row(result, actions)
+        write_row(*logs[k]["eval"], logs[k]["tb"], logs[k]["tracker"], "eval", row,
+                  round_.videos.get(""))
         progress[k]["last_eval"] = (row["global_step"], row["return_mean"])
 
     # Training takes a core, and with K > 1 so does each env's worker process.

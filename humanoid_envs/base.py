@@ -56,6 +56,11 @@ class Task:
     def initialize_episode(self, np_random: np.random.Generator) -> None:
         """Randomise the start state; `data` holds the keyframe when this is called."""
 
+    def episode_state(self) -> tuple[np.ndarray, ...]:
+        """What the episode's future depends on beyond MuJoCo's integration state: whatever
+        `initialize_episode` drew into the task or the model (a goal, an object order)."""
+        return ()
+
     def add_qpos_noise(self, np_random: np.random.Generator) -> None:
         """HumanoidBench's powerlift reset noise: uniform on every qpos entry (quaternions
         included; MuJoCo normalises them)."""
@@ -136,8 +141,9 @@ class H1HandEnv(gym.Env):
     """The H1Hand robot doing one `Task`: Box(-1, 1, (61,)) actions in ACTUATOR_NAMES order,
     float64 observations, 50 Hz control.
 
-    Beyond HumanoidBench: all randomness comes from `self.np_random`; a bad action raises
-    ValueError; a physics blow-up truncates the episode with `info["physics_unstable"]`.
+    Beyond HumanoidBench: all randomness comes from `self.np_random`, and only at reset (a step
+    is a function of the state and the action); a bad action raises ValueError; a physics
+    blow-up truncates the episode with `info["physics_unstable"]`.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
@@ -194,6 +200,15 @@ class H1HandEnv(gym.Env):
         mujoco.mj_forward(self.model, self.data)
         self._last_obs = self.task.get_observation()
         return self._last_obs, {}
+
+    def start_state(self) -> bytes:
+        """The state after `reset`, as bytes: MuJoCo's whole integration state plus the task's
+        episode state. Steps draw no randomness, so two episodes with equal start states given
+        equal actions are one episode (eval_runner.py steps it once)."""
+        what = mujoco.mjtState.mjSTATE_INTEGRATION
+        state = np.empty(mujoco.mj_stateSize(self.model, what))
+        mujoco.mj_getState(self.model, self.data, state, what)
+        return b"".join(np.asarray(part).tobytes() for part in (state, *self.task.episode_state()))
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         self.data.ctrl[:] = self.robot.action_to_ctrl(self._checked_action(action))

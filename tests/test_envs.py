@@ -494,3 +494,31 @@ def test_gymnasium_env_checker_passes(env_id: str) -> None:
         warnings.filterwarnings("ignore", message=".*is probably too (low|high)")
         check_env(env.unwrapped)
     env.close()
+
+
+def _start_state(env_id: str, seed: int) -> bytes:
+    env = gym.make(env_id)
+    env.reset(seed=seed)
+    return env.unwrapped.start_state()
+
+
+@pytest.mark.parametrize(
+    ("env_id", "same"),
+    [
+        ("h1hand-bookshelf_simple-v0", True),  # no reset noise
+        ("h1hand-bookshelf_hard-v0", False),  # same physics, another object order and goals
+        ("h1hand-cube-v0", False),
+        ("h1hand-powerlift-v0", False),
+    ],
+)
+def test_start_state_is_equal_exactly_where_resets_draw_nothing(env_id: str, same: bool) -> None:
+    assert (_start_state(env_id, 1) == _start_state(env_id, 2)) is same
+    assert _start_state(env_id, 3) == _start_state(env_id, 3)
+
+
+def test_start_state_sees_the_task_state_beyond_physics() -> None:
+    env = gym.make("h1hand-bookshelf_hard-v0")
+    env.reset(seed=1)
+    first = env.unwrapped.start_state()
+    env.unwrapped.task.subtask = 1  # physics untouched
+    assert env.unwrapped.start_state() != first

@@ -18,6 +18,7 @@ from eval_runner import (
     eval_columns,
     eval_seeds,
     q_best_choice,
+    round_row,
     round_statistics,
     run_round,
 )
@@ -140,7 +141,7 @@ def test_q_best_acts_with_the_chosen_candidate_and_logs_shares():
     assert set(shares) == set(Q_BEST_CANDIDATES)
     assert sum(shares.values()) == pytest.approx(1.0)
     assert shares["mean"] > 0
-    row = round_statistics(result, "")
+    row = round_row(result, {"": "q_best"})
     assert [k for k in row if "share" in k] == [f"share_{c}" for c in Q_BEST_CANDIDATES]
     assert list(row) == eval_columns({"": "q_best"}, shift=False)
     assert not torch.equal(mode_action(mu, log_std), mean_action(mu, log_std))
@@ -201,3 +202,100 @@ def test_a_nan_in_one_evaluation_episode_stops_the_run_in_one_line(tmp_path):
     checkpoint = torch.load(tmp_path / "nan" / "checkpoint.pt", weights_only=False)
     assert checkpoint["global_step"] >= 200
     assert not (tmp_path / "nan" / "eval.csv").read_text().count("\n") > 1  # no row written
+
+
+# --- one episode per distinct start -----------------------------------------------------------
+def _stepped_round(monkeypatch, round_: Round, dedupe: bool) -> tuple[dict, int]:
+    """run_round's result and how many env steps it took (with dedupe False: every episode of
+    every action stepped, as before episodes were deduplicated)."""
+    import eval_runner
+    from humanoid_envs.base import H1HandEnv
+
+    steps = [0]
+    step = H1HandEnv.step
+
+    def counted(self, action):
+        steps[0] += 1
+        return step(self, action)
+
+    monkeypatch.setattr(H1HandEnv, "step", counted)
+    if not dedupe:
+        monkeypatch.setattr(eval_runner, "start_key", lambda env: None)
+    result = run_round(copy.deepcopy(round_))
+    monkeypatch.undo()
+    return result, steps[0]
+
+
+class RowByRow(torch.nn.Module):
+    """A network called one row at a time. BLAS may round the rows of one batch differently by
+    their position (seen here for batches of 2 and 3 equal rows, not 10), which would make
+    episodes from equal starts differ in the last bits; row by row, equal starts are equal
+    episodes, so stepping them all is the exact reference for stepping one."""
+
+    def __init__(self, net: torch.nn.Module):
+        super().__init__()
+        self.net = net
+
+    def forward(self, *inputs: torch.Tensor):
+        rows = [self.net(*(x[i:i + 1] for x in inputs)) for i in range(len(inputs[0]))]
+        if isinstance(rows[0], tuple):
+            return tuple(torch.cat(parts) for parts in zip(*rows, strict=True))
+        return torch.cat(rows, dim=-1)  # the critic's (2, batch)
+
+    def scale(self, y: torch.Tensor) -> torch.Tensor:
+        return self.net.scale(y)
+
+
+def _h1hand_round(env_id: str, seeds: list[int]) -> Round:
+    from sac_standard import Actor, TwinQ
+
+    env = gym.make(env_id)
+    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
+    torch.manual_seed(0)
+    actor = Actor(obs_dim, (16,), env.action_space, -10.0, 2.0)
+    with torch.no_grad():  # a wide policy: the mode, tanh(mu) and the mean differ
+        actor.fc_logstd.bias.fill_(0.5)
+    actions = {"": "mode", "tanh_mu_": "tanh_mu", "q_best_": "q_best", "sample_": "sample"}
+    return Round(env_id, seeds, actions, RowByRow(actor),
+                 RowByRow(TwinQ(obs_dim, action_dim, (16,))), shift_of="")
+
+
+def test_a_start_without_reset_noise_is_stepped_once_and_gives_the_rows_of_stepping_all(
+        monkeypatch):
+    round_ = _h1hand_round("h1hand-bookshelf_simple-v0", eval_seeds(0, 1, 3))
+    deduped, steps = _stepped_round(monkeypatch, round_, dedupe=True)
+    everything, all_steps = _stepped_round(monkeypatch, round_, dedupe=False)
+    assert deduped == everything | {"distinct_episodes": 1}
+    assert everything["distinct_episodes"] == 3  # unknown starts count as distinct
+    lengths = {p: deduped[p]["lengths"] for p in round_.actions}
+    assert all(len(set(lengths[p])) == 1 for p in ("", "tanh_mu_", "q_best_"))
+    # Deterministic actions: one episode each; "sample" draws other noise per episode: all run.
+    assert steps == sum(lengths[p][0] for p in ("", "tanh_mu_", "q_best_")) + sum(
+        lengths["sample_"])
+    assert all_steps == sum(sum(v) for v in lengths.values())
+    assert round_row(deduped, round_.actions)["distinct_episodes"] == 1
+
+
+def test_starts_with_reset_noise_are_all_stepped(monkeypatch):
+    round_ = _h1hand_round("h1hand-stand-v0", eval_seeds(0, 1, 3))
+    deduped, steps = _stepped_round(monkeypatch, round_, dedupe=True)
+    everything, all_steps = _stepped_round(monkeypatch, round_, dedupe=False)
+    assert deduped == everything and deduped["distinct_episodes"] == 3
+    assert steps == all_steps == sum(sum(deduped[p]["lengths"]) for p in round_.actions)
+
+
+def test_repeated_reset_seeds_are_stepped_once_on_any_env_that_can_tell(monkeypatch):
+    # Hopper's starts draw noise, so equal seeds give equal starts; it cannot tell its start
+    # state (no start_state), so each episode runs.
+    result = run_round(Round("Hopper-v5", [5, 5], {"": "tanh_mu"}, _hopper_actor()))
+    assert result["distinct_episodes"] == 2
+    round_ = _h1hand_round("h1hand-stand-v0", [5, 7, 5])
+    deduped, _ = _stepped_round(monkeypatch, round_, dedupe=True)
+    assert deduped["distinct_episodes"] == 2
+    assert deduped["tanh_mu_"]["returns"][0] == deduped["tanh_mu_"]["returns"][2]
+
+
+def _hopper_actor():
+    from sac_standard import Actor
+
+    return Actor(11, (8,), gym.make("Hopper-v5").action_space, -10.0, 2.0)

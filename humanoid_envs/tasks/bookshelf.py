@@ -196,6 +196,9 @@ class Bookshelf(Task):
         self.subtask = 0
         self.model.site_pos[self._goal_site] = self._goals[0]
 
+    def episode_state(self) -> tuple[np.ndarray, ...]:
+        return (np.array(self.subtask), self._order, self._goals)
+
     def current_object(self) -> str:
         return _OBJECT_NAMES[self._order[min(self.subtask, len(_GOALS) - 1)]]
 

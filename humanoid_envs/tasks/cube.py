@@ -72,6 +72,9 @@ class Cube(Task):
             self.data.qpos[qposadr + 3 : qposadr + 7] = _random_orientation(np_random)
         self.model.body_quat[self._target] = _random_orientation(np_random)
 
+    def episode_state(self) -> tuple[np.ndarray, ...]:
+        return (self.model.body_quat[self._target],)
+
     def target_orientation(self) -> np.ndarray:
         return self.model.body_quat[self._target].copy()
 
