@@ -1,0 +1,118 @@
+"""The published results reproduce: each campaign's reports, regenerated from its committed runs
+with today's analyze.py, give the committed summary.csv.
+
+A campaign is a folder results/<campaign>/ with
+- runs/: the run folders (config.json, eval.csv, train.csv), in any sub-layout;
+- one or more report*/ folders: analyze.py's summary.md, summary.csv and figures;
+- reports.json: report folder -> {"runs": runs subpath, "args": [analyze.py flags]}, the
+  commands the README gives (`python analyze.py results/<campaign>/<runs> --out
+  results/<campaign>/<report> <args>`, run from the repository root);
+- README.md: what ran, where, and those commands.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "results"
+FLOAT_COLUMNS = ("estimate", "ci_low", "ci_high")
+RTOL = 1e-9
+
+
+def campaigns() -> list[Path]:
+    """Every results/<campaign>/ folder: one that holds runs/ or a report*/ folder."""
+    if not RESULTS.is_dir():
+        return []
+    return sorted(d for d in RESULTS.iterdir() if d.is_dir() and (
+        (d / "runs").is_dir() or any(r.is_dir() for r in d.glob("report*"))))
+
+
+def reports_of(campaign: Path) -> dict[str, dict]:
+    return json.loads((campaign / "reports.json").read_text())
+
+
+def command(campaign: Path, report: str, spec: dict) -> list[str]:
+    """analyze.py's arguments for a report, paths relative to the repository root."""
+    base = campaign.relative_to(ROOT)
+    return [f"{base / spec['runs']}", "--out", f"{base / report}", *spec["args"]]
+
+
+def report_cases() -> list:
+    return [pytest.param(campaign, report, id=f"{campaign.name}/{report}")
+            for campaign in campaigns() if (campaign / "reports.json").is_file()
+            for report in reports_of(campaign)]
+
+
+def read_summary(path: Path) -> tuple[list[str], list[dict[str, str]]]:
+    with path.open(newline="") as file:
+        reader = csv.DictReader(file)
+        return list(reader.fieldnames or []), list(reader)
+
+
+def test_there_is_a_campaign_and_each_is_complete() -> None:
+    found = campaigns()
+    assert found, f"no campaign under {RESULTS}"
+    for campaign in found:
+        for name in ("README.md", "reports.json"):
+            assert (campaign / name).is_file(), f"{campaign} has no {name}"
+        assert (campaign / "runs").is_dir(), f"{campaign} has no runs/"
+        reports = reports_of(campaign)
+        folders = {r.name for r in campaign.glob("report*") if r.is_dir()}
+        assert folders, f"{campaign} has no report*/ folder"
+        assert set(reports) == folders, (
+            f"{campaign}/reports.json lists {sorted(reports)}, the folders are {sorted(folders)}")
+        readme = (campaign / "README.md").read_text()
+        for report, spec in reports.items():
+            runs = campaign / spec["runs"]
+            assert runs.is_dir() and runs.is_relative_to(campaign / "runs"), (
+                f"{report}: runs {spec['runs']!r} is not a folder under {campaign / 'runs'}")
+            for name in ("summary.csv", "summary.md"):
+                assert (campaign / report / name).is_file(), f"{campaign / report} has no {name}"
+            line = "python analyze.py " + " ".join(command(campaign, report, spec))
+            assert line in readme, f"{campaign}/README.md does not give the command {line!r}"
+
+
+@pytest.mark.parametrize(("campaign", "report"), report_cases())
+def test_report_reproduces_from_the_committed_runs(campaign: Path, report: str,
+                                                   tmp_path: Path) -> None:
+    spec = reports_of(campaign)[report]
+    argv = command(campaign, report, spec)
+    argv[argv.index("--out") + 1] = str(tmp_path)
+    result = subprocess.run([sys.executable, str(ROOT / "analyze.py"), *argv], cwd=ROOT,
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-3000:]
+
+    header, committed = read_summary(campaign / report / "summary.csv")
+    fresh_header, fresh = read_summary(tmp_path / "summary.csv")
+    assert fresh_header == header
+    assert len(fresh) == len(committed), f"{len(fresh)} rows, committed {len(committed)}"
+    for i, (new, old) in enumerate(zip(fresh, committed, strict=True)):
+        where = f"{report}/summary.csv row {i + 2} ({', '.join(old[c] for c in header[:4])})"
+        for column in header:
+            message = f"{where}: {column} {new[column]!r}, committed {old[column]!r}"
+            if column in FLOAT_COLUMNS:
+                assert np.isclose(float(new[column]), float(old[column]), rtol=RTOL, atol=0.0,
+                                  equal_nan=True), message
+            else:
+                assert new[column] == old[column], message
+
+    # A row per task: every env id among the runs has its final returns, and, where its runs
+    # carry the paired tanh(mu) evaluation (sac_corrected.py), its paired difference.
+    configs = [json.loads(p.read_text()) for p in (campaign / spec["runs"]).rglob("config.json")]
+    assert configs, f"no run folder under {campaign / spec['runs']}"
+    tasks = {c["env_id"] for c in configs}
+    paired = {c["env_id"] for c in configs if c["algorithm"] == "corrected"}
+
+    def tasks_in(section: str, metric: str) -> set[str]:
+        return {r["task"] for r in committed if r["section"] == section and r["metric"] == metric}
+
+    assert tasks_in("task_final", "return") == tasks
+    assert tasks_in("paired_difference", "return") >= paired
