@@ -39,7 +39,7 @@ import tyro
 from rliable import library as rly
 from rliable import metrics, plot_utils
 
-# The run-folder format read here (CONTRACTS.md "Run folder"; the README documents it for users
+# The run-folder format read here (the README's "The run folder" documents it, also for users
 # who bring logs from elsewhere). Everything else in a run folder is ignored.
 CONFIG_FILE = "config.json"
 EVAL_FILE = "eval.csv"
@@ -66,7 +66,10 @@ SELECTOR_RETURN_COLUMNS = tuple(prefix + RETURN_COLUMN for prefix in SELECTOR_PR
 Q_BEST_SHARE_COLUMNS = ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_share_mean")
 # Optional (sac_corrected.py): the distribution shift at the states the mode policy visited.
 SHIFT_COLUMNS = ("mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
-OPTIONAL_COLUMNS = (*SELECTOR_RETURN_COLUMNS, *Q_BEST_SHARE_COLUMNS, *SHIFT_COLUMNS)
+# Over training: the shift per action dimension, which tasks of any dimension share an axis on.
+OVER_TRAINING_SHIFT_COLUMNS = ("mode_shift_abs_mean", "sigma_mean", "bimodal_fraction")
+OPTIONAL_COLUMNS = (*SELECTOR_RETURN_COLUMNS, *Q_BEST_SHARE_COLUMNS,
+                    *dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS))
 # The dimension study: paired differences at these fractions of each task's shared steps.
 TRAINING_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
 
@@ -260,7 +263,8 @@ def load_runs(root: Path) -> tuple[Runs, list[str]]:
             else None
         budget = config.get("total_timesteps")
         budget = budget if isinstance(budget, int) and budget > 0 else None
-        shift = {c: columns[c] for c in SHIFT_COLUMNS if c in columns}
+        shift = {c: columns[c] for c in dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS)
+                 if c in columns}
         _add_curve(runs, task, algorithm, Curve(run_dir, seed, steps, columns[RETURN_COLUMN],
                                                 action_dim, shift, budget=budget))
         for prefix, suffix in SELECTOR_PREFIXES.items():
@@ -1015,6 +1019,7 @@ def analyze(args: Args) -> Report:
     else:
         report.notes.append(f"no run carries the paired evaluation ({PAIRED_RETURN_COLUMN}): "
                             "paired differences skipped")
+    report_over_training(report, args, runs, tasks, pairing.derived, colors)
     report_q_best_shares(report, args, runs, tasks)
     report_tasks(report, args, tasks, norms, groups, colors)
     if aggregate is not None:
@@ -1206,6 +1211,125 @@ def paired_aggregate_lines(report: Report, args: Args, differences: dict, norms:
 
 
 # ----------------------------------------------------------------------------- dimensions
+# ----------------------------------------------------------------------------- over training
+OVER_TRAINING_TABLE_STEPS = 11  # rows of summary.md's over-training table; summary.csv has all
+
+
+def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
+                             ) -> dict[str, dict[str, np.ndarray]]:
+    """task -> group -> per-seed difference (group minus tanh(mu) of the same actors) at every
+    shared step, (seeds, steps): the headline's paired difference over the whole of training."""
+    curves: dict[str, dict[str, np.ndarray]] = {}
+    for task, data in tasks.items():
+        for group, baseline in paired_groups(data, task in derived):
+            own, paired = paired_values(data, group, baseline, data.steps)
+            curves.setdefault(task, {})[group] = own - paired
+    return curves
+
+
+def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.ndarray]]:
+    """task -> shift column -> (runs, steps) at the task's shared steps, from the corrected runs
+    that logged it with no empty cell there."""
+    shifts: dict[str, dict[str, np.ndarray]] = {}
+    for task, data in tasks.items():
+        curves = runs[task].get(CORRECTED, [])
+        for column in OVER_TRAINING_SHIFT_COLUMNS:
+            rows = [c.shift[column][np.searchsorted(c.steps, data.steps)] for c in curves
+                    if column in c.shift]
+            rows = [row for row in rows if np.isfinite(row).all()]
+            if rows:
+                shifts.setdefault(task, {})[column] = np.stack(rows)
+    return shifts
+
+
+def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dict,
+                       shifts: dict, colors: dict) -> plt.Figure:
+    """Per task, top: each evaluation action minus tanh(mu) over training (mean over seeds, 95%
+    CI, thin lines: seeds); bottom: the measured shift and sigma over training."""
+    fig, axes = plt.subplots(2, len(tasks), figsize=(6.0 * len(tasks), 7.0), squeeze=False,
+                             sharex="col")
+    for (top, bottom), (task, data) in zip(axes.T, tasks.items(), strict=True):
+        unit, xlabel = _steps_axis(data.steps[-1])
+        x = data.steps / unit
+        for group, diffs in differences.get(task, {}).items():
+            mean, (low, high) = estimates[task][group]
+            name = f"{selector_of(group)} ({label(algorithm_of(group))})"
+            top.plot(x, mean, color=colors[group], lw=1.8, label=name)
+            top.fill_between(x, low, high, color=colors[group], alpha=0.2, lw=0)
+            top.plot(x, diffs.T, color=colors[group], lw=0.5, alpha=0.35)
+        top.axhline(0, color="0.4", ls=":", lw=1)
+        top.set_title(task)
+        top.set_ylabel("Return minus tanh(mu)'s")
+        top.legend(fontsize="small", frameon=False)
+        top.grid(alpha=0.25)
+        names = ("|mode - tanh(mu)|, mean over dimensions", "sigma, mean over dimensions",
+                 "share of dimensions with 2 sigma^2 > 1")
+        for column, name, style in zip(OVER_TRAINING_SHIFT_COLUMNS, names, ("-", "--", ":"),
+                                       strict=True):
+            if column in shifts.get(task, {}):
+                values = shifts[task][column]
+                bottom.plot(x, values.mean(0), style, color="k", label=name)
+                bottom.fill_between(x, values.min(0), values.max(0), color="0.5", alpha=0.2,
+                                    lw=0)
+        bottom.set_xlabel(xlabel)
+        bottom.set_ylabel("Shift, sigma (mean over seeds; band: range)")
+        bottom.legend(fontsize="small", frameon=False)
+        bottom.grid(alpha=0.25)
+    fig.suptitle("Over training: each evaluation action minus tanh(mu) of the same actors "
+                 "(95% bootstrap CI), and the distribution shift")
+    fig.tight_layout()
+    return fig
+
+
+def report_over_training(report: Report, args: Args, runs: Runs, tasks: dict[str, Task],
+                         derived: Sequence[str], colors: dict) -> None:
+    """The paired differences and the measured shift at every shared step, not only the last:
+    how the mode's worth changes as the policy sharpens."""
+    differences = paired_difference_curves(tasks, derived)
+    if not differences:
+        return
+    print(f"paired differences over training ({args.curve_reps:,} reps) ...")
+    estimates = {}
+    for task, by_group in differences.items():
+        point, interval = interval_estimates({g: d[:, None, :] for g, d in by_group.items()},
+                                             metrics.aggregate_mean, args.curve_reps, args.seed)
+        estimates[task] = {g: (point[g], interval[g]) for g in by_group}
+    shifts = shift_curves(runs, tasks)
+    report.figure(plot_over_training(tasks, differences, estimates, shifts, colors),
+                  "over_training")
+    lines = ["Per seed, at every step all runs of a task share: each evaluation action's return "
+             "minus tanh(mu)'s, same actor, same start states; mean over seeds with a 95% "
+             f"bootstrap CI ({args.curve_reps:,} replications); then the measured shift over the "
+             "states the mode policy visited (mean over runs). Every step is in summary.csv "
+             "(sections `paired_over_training`, `shift_over_training`); the table shows "
+             f"{OVER_TRAINING_TABLE_STEPS} of them, evenly spaced.", ""]
+    for task, by_group in differences.items():
+        steps = tasks[task].steps
+        shown = np.unique(np.linspace(0, steps.size - 1, OVER_TRAINING_TABLE_STEPS).round()
+                          .astype(int))
+        task_shift = shifts.get(task, {})
+        table = []
+        for i, step in enumerate(steps):
+            cells = []
+            for group, diffs in by_group.items():
+                mean, (low, high) = estimates[task][group]
+                report.row("paired_over_training", task, group, "return", int(step),
+                           diffs.shape[0], mean[i], low[i], high[i])
+                cells.append(_ci(mean[i], low[i], high[i], 1))
+            for column, values in task_shift.items():
+                report.row("shift_over_training", task, CORRECTED, column, int(step),
+                           values.shape[0], values[:, i].mean(), values[:, i].min(),
+                           values[:, i].max())
+                cells.append(f"{values[:, i].mean():.3f}")
+            if i in shown:
+                table.append([_fmt(step), *cells])
+        header = ["step", *(f"{selector_of(g)} minus tanh(mu)" for g in by_group),
+                  *task_shift]
+        lines += [f"**{task}**", "", markdown_table(header, table), ""]
+    report.section("Over training: paired differences and the measured shift", *lines)
+
+
+
 @dataclasses.dataclass
 class Dimension:
     """One task of the dimension study: its action dimension, the per-seed paired difference of
@@ -1220,9 +1344,10 @@ class Dimension:
 
 
 def training_fraction_steps(steps: np.ndarray, scored_step: int) -> dict[float, int]:
-    """The shared step at each of TRAINING_FRACTIONS: the last one within that share of the
-    steps (the scored step at 1.0)."""
-    picks = {f: int(steps[max(0, math.ceil(f * steps.size) - 1)]) for f in TRAINING_FRACTIONS}
+    """The shared step at each of TRAINING_FRACTIONS: the last one at or before that share of
+    the scored step (the first shared step if none is), the scored step at 1.0."""
+    picks = {f: int(steps[max(0, np.searchsorted(steps, f * scored_step, side="right") - 1)])
+             for f in TRAINING_FRACTIONS}
     return {**picks, 1.0: scored_step}
 
 

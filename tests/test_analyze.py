@@ -1,4 +1,4 @@
-"""analyze.py on synthetic run folders written exactly as CONTRACTS.md's "Run folder" says."""
+"""analyze.py on synthetic run folders written as the README's "The run folder" says."""
 
 from __future__ import annotations
 
@@ -143,7 +143,8 @@ def test_offset_gives_certain_improvement_and_iqm_gap(tmp_path):
     names = {p.name for p in (tmp_path / "out").iterdir()}
     assert names == {"summary.csv", "summary.md", "reward_curves.png", "aggregate_metrics.png",
                      "performance_profiles.png", "sample_efficiency.png",
-                     "probability_of_improvement.png", "paired_difference.png"}
+                     "probability_of_improvement.png", "paired_difference.png",
+                     "over_training.png"}
     text = (tmp_path / "out" / "summary.md").read_text()
     assert "P(Corrected SAC > Standard SAC) = 1.000 [1.000, 1.000]" in text
     assert "| h1hand-cube-v0 | 5 seeds, to step 120k | 5 seeds, to step 120k |" in text
@@ -671,3 +672,43 @@ def test_every_selector_is_compared_with_tanh_mu(tmp_path):
     assert f"| {TASKS[1]} | 40k | Standard SAC | mode | 2 |" in text
     names = {p.name for p in (tmp_path / "out").iterdir()}
     assert {"paired_difference.png", "dimension_study.png"} <= names
+
+
+def test_over_training_recovers_known_paired_offsets_and_shift_at_every_step(tmp_path):
+    """A paired offset that grows over training, and a shift that shrinks, come back at every
+    shared step (summary.csv), not only the last; the figure is written."""
+    steps = 10_000 * np.arange(1, 7)
+    seeds = np.arange(4)
+    for seed in seeds:
+        paired = 50.0 * np.arange(6) + seed
+        offset = 10.0 * np.arange(6) + 2.0 * (seed - 1.5)  # mean over seeds: 10 x k
+        run_dir = write_run(tmp_path / "runs", TASKS[2], "corrected", int(seed), steps,
+                            paired + offset, paired)
+        with (run_dir / "eval.csv").open(newline="") as file:
+            rows = list(csv.DictReader(file))
+        for k, row in enumerate(rows):
+            row["mode_shift_abs_mean"] = 0.5 / (k + 1) + 0.01 * seed
+        with (run_dir / "eval.csv").open("w", newline="") as file:
+            writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out", *FAST) == 0
+    assert (tmp_path / "out" / "over_training.png").stat().st_size > 10_000
+    with (tmp_path / "out" / "summary.csv").open() as file:
+        rows = list(csv.DictReader(file))
+    paired = [r for r in rows if r["section"] == "paired_over_training"]
+    assert [int(r["step"]) for r in paired] == list(steps)
+    for k, row in enumerate(paired):
+        assert row["group"] == "corrected" and int(row["n_runs"]) == 4
+        assert np.isclose(float(row["estimate"]), 10.0 * k)
+        assert float(row["ci_low"]) < float(row["estimate"]) < float(row["ci_high"])
+    shift = [r for r in rows if r["section"] == "shift_over_training"
+             and r["metric"] == "mode_shift_abs_mean"]
+    assert [int(r["step"]) for r in shift] == list(steps)
+    for k, row in enumerate(shift):
+        assert np.isclose(float(row["estimate"]), 0.5 / (k + 1) + 0.015)
+        assert np.isclose(float(row["ci_low"]), 0.5 / (k + 1))  # the runs' range
+        assert np.isclose(float(row["ci_high"]), 0.5 / (k + 1) + 0.03)
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert "## Over training: paired differences and the measured shift" in text
+    assert "| 60k | 50.0 [" in text  # the last step's row of the table
