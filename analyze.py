@@ -39,7 +39,7 @@ import tyro
 from rliable import library as rly
 from rliable import metrics, plot_utils
 
-# The run-folder format read here (the README's "The run folder" documents it, also for users
+# The run-folder format read here (docs/scripts.md, "The run folder", documents it, also for users
 # who bring logs from elsewhere). Everything else in a run folder is ignored.
 CONFIG_FILE = "config.json"
 EVAL_FILE = "eval.csv"
@@ -196,7 +196,7 @@ def read_eval_csv(path: Path) -> tuple[dict[str, np.ndarray], bool]:
     if missing:
         raise AnalysisError(
             f"{path} lacks column(s) {missing}; eval.csv needs a header row with at least "
-            f"{list(REQUIRED_EVAL_COLUMNS)} (see the README, section analyze.py)"
+            f"{list(REQUIRED_EVAL_COLUMNS)} (see docs/analyze.md)"
         )
     wanted = [*REQUIRED_EVAL_COLUMNS, *(c for c in OPTIONAL_COLUMNS if c in header)]
     columns = {name: np.empty(len(body)) for name in wanted}
@@ -282,7 +282,7 @@ def load_runs(root: Path) -> tuple[Runs, list[str]]:
         raise AnalysisError(
             f"no runs found under {root}: a run is a folder holding {CONFIG_FILE} (keys "
             f"{list(REQUIRED_CONFIG_KEYS)}) and {EVAL_FILE} (columns "
-            f"{list(REQUIRED_EVAL_COLUMNS)}); see the README, section analyze.py"
+            f"{list(REQUIRED_EVAL_COLUMNS)}); see docs/analyze.md"
         )
     for groups in runs.values():
         for curves in groups.values():

@@ -5,7 +5,7 @@ exact resume needs: the episode under way (EpisodeRecord) and each seed's part o
 networks and optimisers.
 
 None of it is the algorithm: the two scripts hold that, top to bottom. The layout of a run folder
-is described in README.md ("The run folder").
+is described in docs/scripts.md ("The run folder").
 """
 
 import copy

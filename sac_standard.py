@@ -2,7 +2,7 @@
 
 Defaults are the paper's protocol (its Tables I and II) and HumanoidBench's SAC details. The run
 folder layout (config.json, eval.csv, train.csv, TensorBoard, checkpoint.pt, final_model.pt,
-done.json) is described in README.md. sac_corrected.py is this file with the evaluation action
+done.json) is described in docs/scripts.md. sac_corrected.py is this file with the evaluation action
 replaced by the mode of the tanh-squashed policy: `diff` the two to see the correction.
 """
 
@@ -135,7 +135,7 @@ class Args:
     """on CUDA: keep the replay buffer in GPU memory (1.2 GB per 1M observations of 308 floats);
     --no-gpu-buffer keeps it in host memory and copies each batch over"""
     torch_threads: int = 1
-    """torch CPU threads (1 is fastest for batch 64 on small CPUs; see README)"""
+    """torch CPU threads (1 is fastest for batch 64 on small CPUs; see docs/speed.md)"""
     torch_deterministic: bool = True
     """if toggled, `torch.backends.cudnn.deterministic=True`"""
     capture_video: bool = False

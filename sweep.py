@@ -95,12 +95,12 @@ SWEEP_FLAGS = (
 EXIT_INTERRUPTED = 3
 # Training speed of one run for the compute estimate: either script on h1hand-powerlift-v0, one
 # torch thread, one gradient update per step, an evaluation round every 10,000 steps: about
-# 9.5 ms of CPU per step on our 2-core machines (README, "Running the paper's experiment").
+# 9.5 ms of CPU per step on our 2-core machines (docs/sweep.md).
 DEFAULT_STEPS_PER_SECOND = 105.0
 # One run's training speed per env id, the same measurement on each preset's env ids
 # (bench/bench_presets.py: process CPU time per training-loop step after the start steps, one
 # torch thread, the faster of two runs on our shared 2-core machine; evaluation rounds not
-# counted; README, "Beyond the paper"). The estimate uses these unless --steps-per-second is
+# counted; docs/sweep.md, "Beyond the paper"). The estimate uses these unless --steps-per-second is
 # given; other env ids get the default above.
 CPU_STEPS_PER_SECOND = {
     "Hopper-v5": 217.0,
@@ -114,7 +114,7 @@ CPU_STEPS_PER_SECOND = {
 }
 # The same on one GPU node (one H100, 16 CPU cores): 16 runs at once with CUDA graphs under MPS
 # (--workers 16 --mps), h1hand-powerlift-v0, update phase, steps/s of all 16 together
-# (bench/bench_gpu.py; README, "Speed on a GPU").
+# (bench/bench_gpu.py; docs/speed.md, "Speed on a GPU").
 DEFAULT_GPU_NODE_STEPS_PER_SECOND = 3350.0
 IDENTITY_FILE = "sweep_run.json"
 ATTEMPT_FILE = "sweep_attempt.json"

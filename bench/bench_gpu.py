@@ -1,4 +1,4 @@
-"""GPU speed of the SAC scripts: prints the figures of README.md's "Speed on a GPU" section.
+"""GPU speed of the SAC scripts: prints the figures of docs/speed.md's "Speed on a GPU" section.
 
     python bench/bench_gpu.py                 # everything (about 10 minutes: not measured yet)
     python bench/bench_gpu.py --quick         # shorter runs and timings, a few minutes

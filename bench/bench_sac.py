@@ -1,4 +1,4 @@
-"""Speed and memory of the SAC scripts: prints the figures quoted in README.md (section sac).
+"""Speed and memory of the SAC scripts: prints the figures quoted in docs/speed.md.
 
     .venv/bin/python bench/bench_sac.py --env-id h1hand-powerlift-v0
 
