@@ -75,14 +75,25 @@ def test_graph_update_agrees_with_eager(buffer_device):
 
 
 def test_graph_replays_see_new_inputs_and_keep_mode_exact():
-    mu = torch.randn(4, ACTION_DIM, device=CUDA, dtype=torch.float32) * 2
-    log_std = torch.rand(4, ACTION_DIM, device=CUDA) * 3 - 2
+    # Seeded inputs; the graph against eager mode_action on the same CUDA tensors (a float32 grid
+    # mode and a float64 reference can round to neighbouring grid points).
+    generator = torch.Generator(device=CUDA).manual_seed(0)
+    mu = torch.randn(4, ACTION_DIM, device=CUDA, generator=generator) * 2
+    log_std = torch.rand(4, ACTION_DIM, device=CUDA, generator=generator) * 3 - 2
     for solver in ("exact", "grid"):
         select = cuda_graph(lambda m, s, solver=solver: mode_action(m, s, solver))
+        replays = []
         for scale in (1.0, -0.5, 3.0):
-            expected = mode_action(mu.cpu().double() * scale, log_std.cpu().double(), solver)
-            torch.testing.assert_close(select(mu * scale, log_std).cpu().double(), expected,
-                                       rtol=0, atol=1e-6 if solver == "exact" else 1e-7)
+            # clone: the graph's outputs are overwritten by its next replay.
+            graph = select(mu * scale, log_std).clone()
+            eager = mode_action(mu * scale, log_std, solver)
+            torch.testing.assert_close(graph, eager, rtol=0, atol=1e-6)
+            if solver == "exact":  # the float32 mode is the float64 one, to the solver's 1e-6
+                expected = mode_action(mu.cpu().double() * scale, log_std.cpu().double(), solver)
+                torch.testing.assert_close(graph.cpu().double(), expected, rtol=0, atol=1e-6)
+            replays.append(graph)
+        # Each replay computed from its own inputs, not the capture's.
+        assert not torch.equal(replays[0], replays[1]) and not torch.equal(replays[0], replays[2])
 
 
 def test_scripts_on_gpu_train_identically_and_resume_exactly(tmp_path):
@@ -102,7 +113,14 @@ def test_scripts_on_gpu_train_identically_and_resume_exactly(tmp_path):
              and "1000," in (killed / "eval.csv").read_text())
     process.send_signal(signal.SIGKILL)
     process.wait()
-    run("sac_standard.py", "--resume", str(killed))
+    # Killed before the end, or the resume would have nothing to do and the run would equal the
+    # uninterrupted one whatever --resume does.
+    assert not (killed / "done.json").exists()
+    step = torch.load(killed / "checkpoint.pt", map_location="cpu",
+                      weights_only=True)["global_step"]
+    assert step in (800, 1200)
+    result = run("sac_standard.py", "--resume", str(killed))
+    assert f"resuming {killed} at step {step}\n" in result.stdout
     for name in ("eval.csv", "train.csv"):
         assert read_csv(killed / name) == read_csv(std / name)
 
@@ -119,30 +137,101 @@ def test_scripts_on_gpu_train_identically_and_resume_exactly(tmp_path):
         assert read_csv(term / name) == read_csv(cor / name)
 
 
+def device_line(result: subprocess.CompletedProcess) -> str:
+    """The device a run of the scripts ran on, from the line it prints at the start."""
+    (line,) = [x for x in result.stdout.splitlines() if x.startswith("device: ")]
+    return line
+
+
+def lines_up_to(path, step: int) -> list[str]:
+    """A CSV's header and its rows up to `step`, as written (wall_time included)."""
+    lines = path.read_text().splitlines(keepends=True)
+    return lines[:1] + [x for x in lines[1:] if int(x.split(",")[0]) <= step]
+
+
 def test_checkpoints_move_between_gpu_and_cpu(tmp_path):
     half = [*SHORT[:-1], "400", "--total-timesteps", "900"]
+    device_of = {"--cuda": "cuda", "--no-cuda": "cpu"}
     for name, first, second in (("g2c", "--cuda", "--no-cuda"), ("c2g", "--no-cuda", "--cuda")):
-        run("sac_corrected.py", *half, first, "--output-dir", str(tmp_path), "--run-name", name)
+        result = run("sac_corrected.py", *half, first, "--output-dir", str(tmp_path),
+                     "--run-name", name)
+        assert device_line(result) == f"device: {device_of[first]}"
         run_dir = tmp_path / name
         (run_dir / "done.json").unlink()  # continue from the step-800 checkpoint to step 1500
         config = run_dir / "config.json"
         config.write_text(config.read_text().replace('"total_timesteps": 900',
                                                      '"total_timesteps": 1500'))
         checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=False)
+        assert checkpoint["global_step"] == 800
+        assert {t.device.type for t in checkpoint["actor"].values()} == {device_of[first]}
         checkpoint["args"]["total_timesteps"] = 1500
         torch.save(checkpoint, run_dir / "checkpoint.pt")
-        result = run("sac_corrected.py", "--resume", str(run_dir), second)
-        assert "resuming" in result.stdout
-        assert [r["global_step"] for r in read_csv(run_dir / "eval.csv")][-1] == "1500"
+        # The first part's rows up to the checkpoint (its step-900 train row is dropped).
+        kept = {f: lines_up_to(run_dir / f, 800) for f in ("train.csv", "eval.csv")}
+        assert len(kept["train.csv"]) == 1 + 8 and len(kept["eval.csv"]) == 1 + 1
+
+        # (--checkpoint-interval is no part of a run's identity: given again.)
+        result = run("sac_corrected.py", "--resume", str(run_dir), second,
+                     "--checkpoint-interval", "400")
+        assert f"resuming {run_dir} at step 800\n" in result.stdout
+        assert device_line(result) == f"device: {device_of[second]}"
+        # The resumed part's checkpoint (step 1200) holds the networks of the device it ran on.
+        resumed = torch.load(run_dir / "checkpoint.pt", map_location=None, weights_only=True)
+        assert resumed["global_step"] == 1200
+        assert {t.device.type for t in resumed["actor"].values()} == {device_of[second]}
+        # The rows before the checkpoint are kept byte for byte; the resumed part follows.
+        for f, lines in kept.items():
+            after = (run_dir / f).read_text().splitlines(keepends=True)
+            assert after[:len(lines)] == lines, f
+            assert [int(x.split(",")[0]) for x in after[len(lines):]] == (
+                list(range(900, 1501, 100)) if f == "train.csv" else [1000, 1500]), f
         assert torch.load(run_dir / "final_model.pt", weights_only=True)["actor"]
 
 
 def test_host_buffer_run_on_gpu(tmp_path):
-    run("sac_standard.py", *SHORT, "--no-gpu-buffer", "--output-dir", str(tmp_path),
-        "--run-name", "host")
+    """--no-gpu-buffer keeps the buffer in host memory: ReplayBuffer.sample draws its slots from
+    the random generator of the buffer's device, so the batches come from the CPU's generator,
+    not the GPU's, and both generators end elsewhere than in the same run with the GPU buffer."""
+    args = [*SHORT[:-1], "1000", "--output-dir", str(tmp_path)]
+    run("sac_standard.py", *args, "--no-gpu-buffer", "--run-name", "host")
+    run("sac_standard.py", *args, "--run-name", "device")
     losses = [float(r["qf1_loss"]) for r in read_csv(tmp_path / "host" / "train.csv")
               if r["qf1_loss"]]
     assert len(losses) == 11 and len(set(losses)) == 11
+    host, device = (torch.load(tmp_path / name / "checkpoint.pt", map_location="cpu",
+                               weights_only=True) for name in ("host", "device"))
+    assert host["global_step"] == device["global_step"] == 1000
+    # 500 updates: the host buffer drew 500 batches from the CPU generator, the GPU buffer none.
+    assert not torch.equal(host["rng"]["torch"], device["rng"]["torch"])
+    assert not torch.equal(host["rng"]["cuda"][0], device["rng"]["cuda"][0])
+    assert read_csv(tmp_path / "host" / "train.csv") != read_csv(tmp_path / "device" / "train.csv")
+
+
+def test_a_run_with_cuda_graphs_is_the_eager_run(tmp_path):
+    """A whole run, transitions added between updates, with the update and the action as CUDA
+    graphs and with --no-cudagraphs: the same losses and evaluations, up to float rounding."""
+    args = [*SHORT, "--total-timesteps", "1000", "--output-dir", str(tmp_path)]
+    run("sac_standard.py", *args, "--run-name", "graphs")
+    run("sac_standard.py", *args, "--no-cudagraphs", "--run-name", "eager")
+    graphs, eager = (read_csv(tmp_path / name / "train.csv") for name in ("graphs", "eager"))
+    assert [r["global_step"] for r in graphs] == [r["global_step"] for r in eager]
+    columns = ("qf1_loss", "qf2_loss", "qf1_value", "qf2_value", "actor_loss", "alpha",
+               "alpha_loss", "entropy", "episodes", "episode_return_mean")
+    for g, e in zip(graphs, eager, strict=True):
+        for column in columns:
+            assert (g[column] == "") == (e[column] == ""), (g["global_step"], column)
+            if g[column]:
+                assert float(g[column]) == pytest.approx(float(e[column]), rel=1e-3, abs=1e-4), (
+                    g["global_step"], column)
+    losses = [float(r["qf1_loss"]) for r in graphs if r["qf1_loss"]]
+    assert len(losses) == len(set(losses)) == 6  # steps 500 to 1000: the updates moved the critic
+    graph_eval, eager_eval = (read_csv(tmp_path / name / "eval.csv")
+                              for name in ("graphs", "eager"))
+    assert [r["global_step"] for r in graph_eval] == [r["global_step"] for r in eager_eval] == [
+        "500", "1000"]
+    for g, e in zip(graph_eval, eager_eval, strict=True):
+        for column in ("return_mean", "return_min", "return_max", "length_mean"):
+            assert float(g[column]) == pytest.approx(float(e[column]), rel=1e-3), column
 
 
 def test_a_batch_on_gpu_resumes_exactly_after_sigkill(tmp_path):
@@ -155,7 +244,16 @@ def test_a_batch_on_gpu_resumes_exactly_after_sigkill(tmp_path):
              and "\n700," in (tmp_path / "killed1" / "train.csv").read_text())
     process.send_signal(signal.SIGKILL)
     process.wait()
-    run("sac_standard.py", "--resume", str(tmp_path / "killed0"))
+    # Killed before the end (the last checkpoint, at step 1500, comes just before done.json).
+    steps = set()
+    for seed in (0, 1):
+        assert not (tmp_path / f"killed{seed}" / "done.json").exists()
+        steps.add(torch.load(tmp_path / f"killed{seed}" / "checkpoint.pt", map_location="cpu",
+                             weights_only=True)["global_step"])
+    assert len(steps) == 1 and steps <= {500, 1000}
+    result = run("sac_standard.py", "--resume", str(tmp_path / "killed0"))
+    assert (f"resuming {tmp_path / 'killed0'}, {tmp_path / 'killed1'} at step {steps.pop()}\n"
+            in result.stdout)
     for seed in (0, 1):
         for name in ("eval.csv", "train.csv"):
             assert read_csv(tmp_path / f"killed{seed}" / name) == read_csv(
