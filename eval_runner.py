@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
+import concurrent.futures.process  # BrokenProcessPool, also with 0 workers
 import ctypes
 import multiprocessing
 import os
@@ -310,14 +311,17 @@ def _init_worker() -> None:
 class EvalPool:
     """Rounds run by `workers` processes; `on_done(round, result)` is called in submission order.
 
-    At most `max_pending` rounds are in flight: submitting one more first waits for the oldest,
-    so evaluation cannot fall behind training without limit. With 0 workers, submit runs the
-    round at once. A round that fails ends the run with its one-line message (SystemExit)."""
+    At most `max_pending` rounds are in flight, by default two evaluation steps' worth per worker
+    (`rounds_per_step`: one round per seed of a --num-seeds batch): submitting one more first
+    waits for the oldest, so evaluation cannot fall behind training without limit, and K seeds'
+    rounds of one step never make training wait for each other. With 0 workers, submit runs the
+    round at once. A round that fails, for any reason, ends the run with one line naming the
+    round and the cause (SystemExit), the pool shut down."""
 
     def __init__(self, workers: int, on_done: Callable[[Round, dict], None],
-                 max_pending: int | None = None):
+                 max_pending: int | None = None, rounds_per_step: int = 1):
         self.workers, self.on_done = workers, on_done
-        self.max_pending = max_pending or 2 * max(workers, 1)
+        self.max_pending = max_pending or 2 * max(workers, 1) * rounds_per_step
         self.pending: collections.deque = collections.deque()
         self.executor = None if workers == 0 else concurrent.futures.ProcessPoolExecutor(
             workers, mp_context=multiprocessing.get_context("spawn"), initializer=_init_worker)
@@ -356,6 +360,10 @@ class EvalPool:
         except concurrent.futures.process.BrokenProcessPool as error:
             self._abort(f"{round_.label}: an evaluation worker died ({error}); the last "
                         "checkpoint is intact: resume from it")
+        except Exception as error:  # the env's, a video writer's: the round can't finish
+            cause = str(error).splitlines()[0] if str(error) else ""
+            self._abort(f"{round_.label} failed: {type(error).__name__}: {cause}; the last "
+                        "checkpoint is intact: fix the cause and resume from it")
 
     def _abort(self, message: str):
         if self.executor is not None:

@@ -87,6 +87,33 @@ def check_csv(path: Path, columns: list[str]) -> None:
                  "number; restore the file, or delete that line")
 
 
+def resume_batch_dirs(given: Path, algorithm: str) -> list[Path]:
+    """The folders of the batch that `given` belongs to, each checked before anything is written.
+
+    A run folder is found by where it is now, never by where it was made: a single-seed folder
+    is its own batch under any name and path (a copy resumes the copy); the K folders of a
+    --num-seeds batch resume together, found beside `given` by the names config.json records."""
+    config = read_run_config(given, algorithm)
+    batch = config.get("batch", {"first_seed": config.get("seed"), "run_dirs": [given.name]})
+    names = batch["run_dirs"]
+    if len(names) == 1:
+        return [given]
+    made_as = names[config["seed"] - batch["first_seed"]]
+    if given.name != made_as:
+        fail(f"{given} was made as {made_as}, one of a batch of {len(names)} seeds trained "
+             f"together ({', '.join(names)}); they resume together, side by side under their own "
+             "names: copy or move the whole batch, and resume any one of its folders")
+    dirs = [given.parent / name for name in names]
+    for run_dir in dirs:
+        if not (run_dir / "config.json").is_file():
+            fail(f"{run_dir} is missing: the batch of {given} ({len(names)} seeds) resumes only "
+                 "with all its folders side by side; put it back beside the others")
+        if read_run_config(run_dir, algorithm).get("batch") != batch:
+            fail(f"{run_dir} is not a run of the batch {given} belongs to (its config.json "
+                 "names another batch); restore the folder, or move it back where it was")
+    return dirs
+
+
 def read_checkpoint(path: Path) -> dict:
     """checkpoint.pt on the CPU (RNG states must stay there; load_state_dict moves the rest to
     the run's device), or one line saying it is damaged."""
@@ -208,23 +235,37 @@ class StopRequest:
               flush=True)
 
 
-def rng_states() -> dict:
+def rng_states(device: torch.device) -> dict:
     """The process's random streams (the batch's): torch draws the actions and batches of every
-    seed. Nothing of ours uses the global numpy and python generators; libraries might."""
+    seed. Nothing of ours uses the global numpy and python generators; libraries might. The CUDA
+    generators only for a run on CUDA: reading them elsewhere would create a CUDA context (and
+    fail on a GPU in exclusive-process mode that another process holds)."""
     name, keys, pos, has_gauss, gauss = np.random.get_state()  # noqa: NPY002
     # Plain lists, not arrays: a checkpoint then loads with torch.load(weights_only=True).
     return {"python": random.getstate(), "numpy": (name, keys.tolist(), pos, has_gauss, gauss),
             "torch": torch.get_rng_state(),
-            "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None}
+            "cuda": torch.cuda.get_rng_state_all() if device.type == "cuda" else None}
 
 
-def set_rng_states(states: dict) -> None:
+def set_rng_states(states: dict, device: torch.device) -> None:
     random.setstate(states["python"])
     name, keys, pos, has_gauss, gauss = states["numpy"]
     np.random.set_state((name, np.array(keys, np.uint32), pos, has_gauss, gauss))  # noqa: NPY002
     torch.set_rng_state(states["torch"])
-    if states["cuda"] is not None and torch.cuda.is_available():
+    if states["cuda"] is not None and device.type == "cuda":
         torch.cuda.set_rng_state_all(states["cuda"])
+
+
+def on_cpu(tree):
+    """A copy of nested dicts, lists and tuples with every tensor moved to the CPU: what the run
+    folder's .pt files hold, so that a plain torch.load reads them on a machine without a GPU."""
+    if torch.is_tensor(tree):
+        return tree.cpu()
+    if isinstance(tree, dict):
+        return {k: on_cpu(v) for k, v in tree.items()}
+    if isinstance(tree, list | tuple):
+        return type(tree)(on_cpu(v) for v in tree)
+    return tree
 
 
 def read_batch_checkpoints(dirs: list[Path]) -> list[dict] | None:
@@ -254,7 +295,7 @@ def save_batch_checkpoint(dirs: list[Path], states: list[dict]) -> None:
     the .tmp files first, then the moves (read_batch_checkpoints finishes an interrupted one)."""
     tmps = [d / "checkpoint.pt.tmp" for d in dirs]
     for tmp, state in zip(tmps, states, strict=True):
-        torch.save(state, tmp)
+        torch.save(on_cpu(state), tmp)
     for tmp in tmps:
         os.replace(tmp, tmp.with_name("checkpoint.pt"))
 
@@ -289,6 +330,14 @@ class EpisodeRecord(gym.Wrapper):
             obs = self.env.step(action)[0]
         self.record = {"seed": seed, "rng": rng, "actions": actions}
         return obs
+
+
+def episode_state(record: dict, action_dim: int) -> dict:
+    """An EpisodeRecord's record for a checkpoint: the actions as one tensor (weights_only), in
+    the dtype numpy promotes them to, which holds each exactly (a float32 policy action and a
+    float64 random one in one episode: float64), so the replay steps the very same actions."""
+    actions = np.array(record["actions"]).reshape(len(record["actions"]), action_dim)
+    return {"seed": record["seed"], "rng": record["rng"], "actions": torch.from_numpy(actions)}
 
 
 def seed_slice(module: nn.Module, k: int) -> nn.Module:

@@ -39,15 +39,18 @@ from run_folder import (
     StopRequest,
     atomic_write,
     check_csv,
+    episode_state,
     fail,
     load_optimizer_seed_states,
     load_seed_states,
     lock_run_folder,
+    on_cpu,
     open_csv,
     optimizer_seed_state,
     read_batch_checkpoints,
     read_run_config,
     record_holder,
+    resume_batch_dirs,
     rng_states,
     run_metadata,
     save_batch_checkpoint,
@@ -628,12 +631,6 @@ def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None, k:
     return row
 
 
-def episode_state(record: dict, action_dim: int) -> dict:
-    """An EpisodeRecord's record for a checkpoint (the actions as one tensor: weights_only)."""
-    actions = np.array(record["actions"], np.float32).reshape(len(record["actions"]), action_dim)
-    return {"seed": record["seed"], "rng": record["rng"], "actions": torch.from_numpy(actions)}
-
-
 def run_dirs(args: Args) -> list[Path]:
     """Each seed's run folder: --run-name with {seed} filled in, or the default name."""
     name = args.run_name or (f"{args.env_id}__{ALGORITHM}__seed{{seed}}__"
@@ -644,7 +641,7 @@ def run_dirs(args: Args) -> list[Path]:
 
 def batch_run_dirs(args: Args) -> list[Path]:
     """With --resume, the folders of the batch the given one belongs to, each checked before
-    anything is written; else fresh folders, none of which may hold a run."""
+    anything is written (run_folder.py); else fresh folders, none of which may hold a run."""
     if args.resume is None:
         dirs = run_dirs(args)
         for run_dir in dirs:
@@ -652,15 +649,7 @@ def batch_run_dirs(args: Args) -> list[Path]:
                 fail(f"{run_dir} already holds a run; continue it with --resume {run_dir} or "
                      "choose another --run-name")
         return dirs
-    given = Path(args.resume)
-    batch = read_run_config(given, ALGORITHM).get("batch", {"run_dirs": [given.name]})
-    dirs = [given.parent / name for name in batch["run_dirs"]]
-    for run_dir in dirs:
-        config = read_run_config(run_dir, ALGORITHM)
-        if config.get("batch", {"run_dirs": [run_dir.name]}) != batch:
-            fail(f"{run_dir} is not a run of the batch {given} belongs to (its config.json "
-                 "names another batch); restore the folder, or move it back where it was")
-    return dirs
+    return resume_batch_dirs(Path(args.resume), ALGORITHM)
 
 
 if __name__ == "__main__":
@@ -738,7 +727,7 @@ if __name__ == "__main__":
         for k, ckpt in enumerate(ckpts):
             rb.load_seed_state_dict(k, ckpt["buffer"])
             spaces[k].np_random.bit_generator.state = ckpt["rng"]["action_space"]
-        set_rng_states(ckpts[0]["rng"])
+        set_rng_states(ckpts[0]["rng"], device)
         global_step, elapsed = ckpts[0]["global_step"], ckpts[0]["elapsed"]
         progress = [c["progress"] for c in ckpts]
         # Every env's episode so far, replayed: the checkpoint may fall mid-episode.
@@ -794,7 +783,7 @@ if __name__ == "__main__":
     # Training takes a core, and with K > 1 so does each env's worker process.
     busy = 1 + (args.num_seeds if args.num_seeds > 1 else 0)
     eval_pool = EvalPool(default_workers(busy) if args.eval_workers is None else args.eval_workers,
-                         log_evaluation)
+                         log_evaluation, rounds_per_step=args.num_seeds)
     session_start, row_start, row_step = time.time(), time.time(), global_step
     losses = None
     while global_step < args.total_timesteps:
@@ -853,7 +842,7 @@ if __name__ == "__main__":
                               and global_step % args.checkpoint_interval == 0):
             eval_pool.drain()  # a checkpoint follows every round before it into eval.csv
             episodes = envs.get_attr("record")
-            rng = rng_states()
+            rng = rng_states(device)
             save_batch_checkpoint(dirs, [{
                 "args": dataclasses.asdict(args), "global_step": global_step,
                 "elapsed": elapsed + time.time() - session_start, "progress": progress[k],
@@ -880,9 +869,9 @@ if __name__ == "__main__":
     eval_pool.close()
     wall_time = elapsed + time.time() - session_start
     for k, (run_dir, log) in enumerate(zip(dirs, logs, strict=True)):
-        atomic_write(run_dir / "final_model.pt", lambda tmp, k=k: torch.save(
+        atomic_write(run_dir / "final_model.pt", lambda tmp, k=k: torch.save(on_cpu(
             {"actor": seed_slice(actor, k).state_dict(), "qf": seed_slice(qf, k).state_dict(),
-             "config": {f: getattr(args, f) for f in MODEL_FIELDS}}, tmp))
+             "config": {f: getattr(args, f) for f in MODEL_FIELDS}}), tmp))
         log["tb"].close()
         if log["tracker"] is not None:
             log["tracker"].finish()

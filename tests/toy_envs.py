@@ -106,3 +106,15 @@ class ToyCritic(nn.Module):
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         q1 = -(action - self.target).pow(2).sum(1)
         return torch.stack([q1, q1 + 1])
+
+
+class FailingEval(Countdown):
+    """A Countdown whose evaluation episodes raise the env's own error at their first step."""
+
+    def step(self, action):
+        if self.evaluating:
+            raise ValueError("the toy env's own failure")
+        return super().step(action)
+
+
+gym.register("FailingEval-v0", entry_point=FailingEval)

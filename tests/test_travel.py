@@ -1,0 +1,160 @@
+"""Run folders that travel: a copy resumes the copy and never touches the original; a batch
+resumes from where its folders sit now; the .pt files load without a GPU; evaluation failures
+end a run in one line; evaluation never holds a --num-seeds batch back."""
+
+import hashlib
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import tests.toy_envs  # noqa: F401  (registers the toy envs here; workers import them by id)
+from eval_runner import EvalPool, Round
+from run_folder import episode_state, on_cpu, rng_states
+from tests.test_sac import ROOT, command, read_csv, run, wait_for
+from tests.toy_envs import ToyActor
+
+TINY = ["--env-id", "Pendulum-v1", "--total-timesteps", "1200", "--learning-starts", "200",
+        "--eval-interval", "400", "--eval-episodes", "2", "--hidden-sizes", "8",
+        "--batch-size", "16", "--log-interval", "100", "--print-interval", "100",
+        "--checkpoint-interval", "0", "--eval-workers", "0"]
+
+
+def contents(folder: Path) -> dict[str, str]:
+    """Every file under the folder by relative path, as a hash of its bytes."""
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def stopped_run(out: Path, *args: str) -> None:
+    """A run stopped by SIGTERM after step 600: checkpointed mid-run, no done.json."""
+    name = args[args.index("--run-name") + 1].replace("{seed}", "0")
+    process = subprocess.Popen(command("sac_standard.py", *TINY, "--output-dir", str(out),
+                                       *args), cwd=ROOT, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL)
+    wait_for(lambda: (out / name / "train.csv").exists()
+             and "\n600," in (out / name / "train.csv").read_text())
+    process.send_signal(signal.SIGTERM)
+    assert process.wait() == 3
+
+
+def test_a_copied_folder_resumes_the_copy_and_never_touches_the_original(tmp_path):
+    stopped_run(tmp_path, "--run-name", "orig")
+    original = tmp_path / "orig"
+    assert not (original / "done.json").exists()
+    shutil.copytree(original, tmp_path / "copy")
+    before = contents(original)
+    result = run("sac_standard.py", "--resume", str(tmp_path / "copy"))
+    assert f"resuming {tmp_path / 'copy'} at step" in result.stdout
+    assert (tmp_path / "copy" / "done.json").exists()
+    assert read_csv(tmp_path / "copy" / "eval.csv")[-1]["global_step"] == "1200"
+    assert contents(original) == before
+    # A finished folder under a new name answers for itself.
+    (tmp_path / "copy").rename(tmp_path / "renamed")
+    result = run("sac_standard.py", "--resume", str(tmp_path / "renamed"))
+    assert result.stdout.startswith(f"{tmp_path / 'renamed'}: already finished")
+    # analyze.py reads a folder the same wherever it was copied to.
+    summaries = []
+    for place in (tmp_path / "here", tmp_path / "elsewhere" / "deeper"):
+        shutil.copytree(tmp_path / "renamed", place / "runs" / "renamed")
+        analysis = subprocess.run([*command("analyze.py", "runs"), "--out", "report", "--reps",
+                                   "200", "--curve-reps", "20"], cwd=place,
+                                  capture_output=True, text=True)
+        assert analysis.returncode == 0, analysis.stderr
+        summaries.append({name: (place / "report" / name).read_text()
+                          for name in ("summary.csv", "summary.md")})
+    assert summaries[0] == summaries[1]
+    assert "Pendulum-v1" in summaries[0]["summary.csv"]
+
+
+def test_a_batch_resumes_where_its_folders_sit_now_and_refuses_a_lone_or_renamed_one(tmp_path):
+    stopped_run(tmp_path / "a", "--run-name", "b{seed}", "--num-seeds", "2")
+    originals = contents(tmp_path / "a")
+    shutil.copytree(tmp_path / "a", tmp_path / "moved")
+    result = run("sac_standard.py", "--resume", str(tmp_path / "moved" / "b1"))
+    assert f"resuming {tmp_path / 'moved' / 'b0'}, {tmp_path / 'moved' / 'b1'}" in result.stdout
+    assert all((tmp_path / "moved" / f"b{k}" / "done.json").exists() for k in (0, 1))
+    assert contents(tmp_path / "a") == originals
+
+    shutil.copytree(tmp_path / "a" / "b0", tmp_path / "a" / "x0")  # one seed, another name
+    refused = run("sac_standard.py", "--resume", str(tmp_path / "a" / "x0"), check=False)
+    assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
+    assert "was made as b0, one of a batch of 2 seeds" in refused.stderr
+    shutil.rmtree(tmp_path / "a" / "x0")
+    shutil.rmtree(tmp_path / "a" / "b1")  # a sibling gone
+    refused = run("sac_standard.py", "--resume", str(tmp_path / "a" / "b0"), check=False)
+    assert refused.returncode == 2 and f"{tmp_path / 'a' / 'b1'} is missing" in refused.stderr
+    assert contents(tmp_path / "a") == {k: v for k, v in originals.items()
+                                        if not k.startswith("b1/")}
+
+
+def test_checkpoint_parts_are_saved_on_the_cpu_and_rng_only_for_cuda_runs():
+    tree = {"a": torch.ones(2), "b": [torch.zeros(1), (torch.arange(3), 5)], "c": "text"}
+    moved = on_cpu(tree)
+    assert moved["b"][1][1] == 5 and isinstance(moved["b"][1], tuple) and moved["c"] == "text"
+    assert torch.equal(moved["b"][1][0], torch.arange(3))
+    assert rng_states(torch.device("cpu"))["cuda"] is None
+    if not torch.cuda.is_available():
+        assert not torch.cuda.is_initialized()
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_a_gpu_runs_files_load_with_a_plain_torch_load_on_a_machine_without_a_gpu(tmp_path):
+    run("sac_standard.py", *TINY, "--output-dir", str(tmp_path), "--run-name", "gpu",
+        "--checkpoint-interval", "600")
+    script = ("import torch, sys; [torch.load(p, weights_only=False) for p in sys.argv[1:]]; "
+              "assert not torch.cuda.is_available()")
+    loaded = subprocess.run([sys.executable, "-c", script,
+                             str(tmp_path / "gpu" / "checkpoint.pt"),
+                             str(tmp_path / "gpu" / "final_model.pt")],
+                            env={"CUDA_VISIBLE_DEVICES": "", "PATH": "/usr/bin:/bin"},
+                            capture_output=True, text=True)
+    assert loaded.returncode == 0, loaded.stderr
+
+
+def test_recorded_actions_keep_every_value_exactly():
+    record = {"seed": 3, "rng": None,
+              "actions": [np.array([0.1, -0.3], np.float64), np.array([0.7, 0.2], np.float32)]}
+    actions = episode_state(record, 2)["actions"]
+    assert actions.dtype == torch.float64
+    assert actions[0].numpy().tolist() == [0.1, -0.3]
+    assert actions[1].numpy().tolist() == np.array([0.7, 0.2], np.float32).tolist()
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_an_env_error_in_evaluation_ends_the_run_in_one_line_with_the_pool_shut_down(workers):
+    pool = EvalPool(workers, lambda round_, result: None)
+    round_ = Round("tests.toy_envs:FailingEval-v0", [2**21], {"": "tanh_mu"}, ToyActor(),
+                   label="evaluation of seed 4 at step 3000")
+    with pytest.raises(SystemExit) as error:
+        pool.submit(round_)
+        pool.drain()
+    message = str(error.value)
+    assert message.startswith("evaluation of seed 4 at step 3000 failed: ValueError: the toy "
+                              "env's own failure") and "\n" not in message
+    if workers:
+        assert pool.executor._shutdown_thread
+
+
+def test_a_batchs_rounds_of_one_step_do_not_hold_training_back(tmp_path, monkeypatch):
+    gate = tmp_path / "gate"
+    monkeypatch.setenv("TOY_ENVS_GATE", str(gate))
+    pool = EvalPool(1, lambda round_, result: None, rounds_per_step=4)
+    rounds = [Round("tests.toy_envs:GatedCountdown-v0", [12], {"": "tanh_mu"}, ToyActor(),
+                    label=f"seed {k}") for k in range(8)]
+    submitted = threading.Thread(target=lambda: [pool.submit(r) for r in rounds], daemon=True)
+    submitted.start()
+    submitted.join(timeout=60)
+    still_waiting = submitted.is_alive()
+    gate.touch()
+    submitted.join()
+    pool.drain()
+    pool.close()
+    # Two evaluation steps of 4 seeds' rounds are in flight without waiting for any of them.
+    assert not still_waiting and pool.max_pending == 8
