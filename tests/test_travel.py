@@ -71,6 +71,15 @@ def test_a_copied_folder_resumes_the_copy_and_never_touches_the_original(tmp_pat
                           for name in ("summary.csv", "summary.md")})
     assert summaries[0] == summaries[1]
     assert "Pendulum-v1" in summaries[0]["summary.csv"]
+    # So does evaluate.py.
+    episodes = []
+    for place in (tmp_path / "here", tmp_path / "elsewhere" / "deeper"):
+        evaluation = subprocess.run([*command("evaluate.py", "runs/renamed"), "--episodes", "2",
+                                     "--workers", "0", "--reps", "50", "--out", "eval"],
+                                    cwd=place, capture_output=True, text=True)
+        assert evaluation.returncode == 0, evaluation.stderr
+        episodes.append((place / "eval" / "episodes.csv").read_text())
+    assert episodes[0] == episodes[1] and episodes[0].count("\n") == 5  # header, 2 x 2 rows
 
 
 def test_a_batch_resumes_where_its_folders_sit_now_and_refuses_a_lone_or_renamed_one(tmp_path):
