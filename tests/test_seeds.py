@@ -176,11 +176,50 @@ def test_sigkill_mid_batch_then_resume_equals_the_uninterrupted_batch(batch, tmp
              and "\n700," in (tmp_path / "std4" / "train.csv").read_text())
     process.send_signal(signal.SIGKILL)
     process.wait()
-    assert torch.load(tmp_path / "std3" / "checkpoint.pt", weights_only=True)["global_step"] \
-        in (500, 1000)
-    run("sac_standard.py", "--resume", str(tmp_path / "std4"), "--eval-workers", "1")
+    # Killed before the end, or the resume would have nothing to do and the batch would equal
+    # the uninterrupted one whatever --resume does.
+    steps = set()
+    for s in (3, 4):
+        assert not (tmp_path / f"std{s}" / "done.json").exists()
+        steps.add(torch.load(tmp_path / f"std{s}" / "checkpoint.pt",
+                             weights_only=True)["global_step"])
+    assert len(steps) == 1 and steps <= {500, 1000}
+    (step,) = steps
+    assert_analyze_counts_the_seeds(tmp_path, tmp_path / "report")  # an interrupted batch
+    result = run("sac_standard.py", "--resume", str(tmp_path / "std4"), "--eval-workers", "1")
+    assert f"resuming {tmp_path / 'std3'}, {tmp_path / 'std4'} at step {step}\n" in result.stdout
     for s in (3, 4):
         assert_same_run(tmp_path / f"std{s}", batch / f"std{s}")
+
+
+def assert_analyze_counts_the_seeds(runs: Path, out: Path) -> None:
+    """analyze.py on a batch's folders (finished or not): two seeds of Pendulum-v1, standard,
+    each to the last step of its eval.csv, and the final return the mean of the two at the last
+    step they share."""
+    import analyze
+
+    finals = {}
+    for s in (3, 4):
+        rows = read_csv(runs / f"std{s}" / "eval.csv")
+        finals[s] = {int(r["global_step"]): float(r["return_mean"]) for r in rows}
+    last = sorted({max(f) for f in finals.values()})
+    shared = max(set(finals[3]) & set(finals[4]))
+    assert analyze.main([str(runs), "--out", str(out), "--reps", "100", "--curve-reps", "20",
+                         "--curve-points", "3"]) == 0
+    text = (out / "summary.md").read_text()
+    assert f"Found 2 runs under {runs}:" in text
+    span = "-".join(f"{step:,}" for step in last)
+    assert f"| Pendulum-v1 | 2 seeds, to step {span} |" in text
+    with (out / "summary.csv").open(newline="") as f:
+        (final,) = [r for r in csv.DictReader(f)
+                    if r["section"] == "task_final" and r["metric"] == "return"]
+    assert (final["task"], final["group"], final["step"], final["n_runs"]) == (
+        "Pendulum-v1", "standard", str(shared), "2")
+    assert float(final["estimate"]) == pytest.approx((finals[3][shared] + finals[4][shared]) / 2)
+
+
+def test_analyze_reads_a_batch(batch, tmp_path):
+    assert_analyze_counts_the_seeds(batch, tmp_path / "report")
 
 
 def test_an_interrupted_batch_checkpoint_is_completed_on_resume(tmp_path):
@@ -217,6 +256,46 @@ def test_a_foreign_folder_in_the_batch_is_named_and_nothing_is_written(batch, tm
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert f"{tmp_path / 'std4'} is not a run of the batch" in result.stderr
     assert {s: snapshot(tmp_path / f"std{s}") for s in (3, 4)} == before
+
+
+def test_a_batch_folder_in_use_refuses_a_second_writer(batch, tmp_path):
+    """One writer per run folder, for a batch too: with one of its folders locked by another
+    process (this one, as lock_run_folder locks it), a --resume of the batch and a fresh batch
+    into a held folder are refused in one line naming that folder, before anything is written."""
+    import fcntl
+    import os
+    import shutil
+
+    from tests.test_validation import snapshot
+
+    for s in (3, 4):
+        shutil.copytree(batch / f"std{s}", tmp_path / f"std{s}")
+        (tmp_path / f"std{s}" / "done.json").unlink()  # else the resume would have nothing to do
+    (tmp_path / "new4").mkdir()  # a fresh batch's second folder, locked before its config.json
+    held = [tmp_path / "std4" / "lock", tmp_path / "new4" / "lock"]  # the second of each batch
+    fds = [os.open(path, os.O_RDWR | os.O_CREAT) for path in held]
+    try:
+        for fd in fds:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        before = snapshot(tmp_path)
+        for args, folder in ((["--resume", str(tmp_path / "std3")], tmp_path / "std4"),
+                             ([*TINY, "--output-dir", str(tmp_path), "--run-name", "new{seed}"],
+                              tmp_path / "new4")):
+            result = run("sac_standard.py", *args, check=False)
+            lines = result.stderr.strip().splitlines()
+            assert result.returncode == 2 and len(lines) == 1, result.stderr
+            assert f"{folder} is in use by process {os.getpid()}" in lines[0]
+            after = snapshot(tmp_path)
+            # Nothing written, but for the fresh batch's first folder, made and locked before
+            # its second was found held: at most that folder with an empty lock file.
+            assert {p: v for p, v in after.items() if p.parts[0] != "new3"} == before
+            assert {p: v[0] for p, v in after.items() if p.parts[0] == "new3"} in (
+                {}, {Path("new3/lock"): b""})
+    finally:
+        for fd in fds:
+            os.close(fd)
 
 
 def test_a_batch_needs_seed_in_its_run_name(tmp_path):
