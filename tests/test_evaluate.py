@@ -147,8 +147,15 @@ def test_sb3_gsde_policy_evaluates(sb3_models, capsys, tmp_path):
     code, out, err = run(capsys, str(sb3_models["sac_gsde"]), "--env-id", "Pendulum-v1",
                          "--episodes", "2", "--reps", "50", "--out", str(tmp_path))
     assert code == 0, err
-    shift = json.loads((tmp_path / "summary.json").read_text())["shift_at_visited_states"]
-    assert 0 < shift["sigma_mean"] < 10 and shift["mode_shift_abs_mean"] >= 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    shift = summary["shift_at_visited_states"]
+    # gSDE's sigma at a state comes from the latent features: wide enough that the mode is not
+    # tanh(mu), and the two actions' episodes differ.
+    assert 0 < shift["sigma_mean"] < 10 and shift["mode_shift_abs_mean"] > 1e-4
+    assert shift["mode_shift_abs_sum"] == pytest.approx(shift["mode_shift_abs_mean"])  # 1 dim
+    returns = {s: [float(r["return"]) for r in read_rows(tmp_path / "episodes.csv")
+                   if r["selector"] == s] for s in ("mode", "tanh_mu")}
+    assert len(returns["mode"]) == 2 and returns["mode"] != returns["tanh_mu"]
 
 
 def test_our_run_agrees_with_its_own_last_evaluation(our_run, tmp_path, capsys):
@@ -214,7 +221,8 @@ def test_results_do_not_depend_on_workers_and_stay_paired(our_run, tmp_path, cap
     assert sum(shares.values()) == pytest.approx(1.0)
     returns = {s: [float(r["return"]) for r in rows if r["selector"] == s]
                for s in evaluate.SELECTORS}
-    assert returns["mean"] != returns["tanh_mu"] != returns["mode"]
+    for a, b in (("mean", "tanh_mu"), ("tanh_mu", "mode"), ("mean", "mode")):
+        assert returns[a] != returns[b], (a, b)  # three actions, three sets of episodes
 
 
 def test_sb3_critic_is_sb3s_own(sb3_models, tmp_path, capsys):
@@ -383,9 +391,21 @@ def test_bad_flags_fail_clearly_before_running(our_run, tmp_path, capsys):
     refused(capsys, f"--video {taken}: a file of that name exists", run_dir, "--video",
             str(taken))
     assert taken.read_text() == "mine"
-    # A seed above 2**32 (NumPy's legacy generator's limit) still evaluates.
-    code, _, err = run(capsys, run_dir, "--seed", str(2**40), "--episodes", "1", "--reps", "10")
+    # A seed above 2**32 (NumPy's legacy generator's limit) still evaluates, from its own start
+    # state (not that of the seed modulo 2**32).
+    out = tmp_path / "big_seed"
+    code, stdout, err = run(capsys, run_dir, "--seed", str(2**40), "--episodes", "1", "--reps",
+                            "10", "--out", str(out))
     assert code == 0, err
+    assert f"the same start states for each (seed {2**40}, round 0)" in stdout
+    rows = read_rows(out / "episodes.csv")
+    assert [(r["selector"], int(r["reset_seed"])) for r in rows] == [
+        ("mode", eval_seeds(2**40, 0, 1)[0]), ("tanh_mu", eval_seeds(2**40, 0, 1)[0])]
+    assert eval_seeds(2**40, 0, 1) != eval_seeds(0, 0, 1)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["seed"] == 2**40
+    for selector, row in zip(("mode", "tanh_mu"), rows, strict=True):
+        assert summary["selectors"][selector]["return_mean"] == float(row["return"])
 
 
 def test_command_line_refusals_are_one_line(sb3_models):
