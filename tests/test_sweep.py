@@ -93,9 +93,30 @@ def test_rerun_skips_finished_runs_and_chains_analysis(reference, tmp_path):
                    *RUN_ARGS)
     assert "4 done or under way, 0 to launch" in result.stdout
     assert {d: (d / "sweep.log").read_text() for d in logs_before} == logs_before
+    # The analysis read the four runs: two seeds per script, each to step 800; the standard runs
+    # equal the corrected runs' paired tanh(mu) evaluation; its numbers are the runs' own.
     summary = (report / "summary.md").read_text()
-    assert "Pendulum-v1" in summary and "2 seeds" in summary
-    assert (report / "aggregate_metrics.png").stat().st_size > 0
+    assert f"Found 4 runs under {reference}:" in summary
+    assert ("| Pendulum-v1 | 2 seeds, to step 800 | 2 seeds, to step 800 | 2 seeds, to step 800 |"
+            in summary)
+    assert ("Pendulum-v1: the standard runs equal the corrected runs' paired tanh(mu) evaluation "
+            "at all 8 shared (seed, step) points.") in summary
+    last = {key: eval_rows(run_dir)[-1] for key, run_dir in run_dirs(reference).items()}
+    with open(report / "summary.csv", newline="") as f:
+        rows = {(r["section"], r["group"], r["metric"]): r for r in csv.DictReader(f)
+                if r["task"] == "Pendulum-v1"}
+    for algorithm in SCRIPTS:
+        final = rows["task_final", algorithm, "return"]
+        assert (final["step"], final["n_runs"]) == ("800", "2")
+        assert float(final["estimate"]) == pytest.approx(
+            sum(float(last[algorithm, s]["return_mean"]) for s in (0, 1)) / 2)
+        assert float(final["ci_low"]) <= float(final["estimate"]) <= float(final["ci_high"])
+    paired = rows["paired_difference", "corrected", "return"]
+    assert (paired["step"], paired["n_runs"]) == ("800", "2")
+    assert float(paired["estimate"]) == pytest.approx(sum(
+        float(last["corrected", s]["return_mean"]) - float(last["corrected", s][
+            "tanh_mu_return_mean"]) for s in (0, 1)) / 2)
+    assert (report / "aggregate_metrics.png").stat().st_size > 10_000
 
 
 def test_local_sweep_stopped_by_sigterm_resumes_to_the_same_result(reference, tmp_path):
