@@ -425,8 +425,15 @@ class ReplayBuffer:
         self.seed_index = torch.arange(seeds, device=device)[:, None]
 
     def add(self, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
-            terminated: np.ndarray, next_obs: np.ndarray, episode_end: np.ndarray) -> None:
-        """One transition per seed (rows); one copy to the buffer's device for all of them."""
+            terminated: np.ndarray, next_obs: np.ndarray, episode_end: np.ndarray,
+            invented: np.ndarray | None = None) -> None:
+        """One transition per seed (rows); one copy to the buffer's device for all of them.
+
+        An `invented` one (a physics blow-up: the env could not step, and reports its previous
+        observation) is not stored: its episode ends at the slot holding that observation, the
+        last it reached soundly, which the transition before it keeps as its next observation
+        (an episode blowing up at its first step leaves nothing)."""
+        invented = np.zeros(len(self.ptr), bool) if invented is None else invented
         i, j = self.ptr, (self.ptr + 1) % self.size
         packed = torch.as_tensor(np.concatenate(
             [obs, actions, rewards[:, None], terminated[:, None], next_obs], 1, dtype=np.float32))
@@ -434,12 +441,19 @@ class ReplayBuffer:
         packed, slots = packed.to(self.obs.device), slots.to(self.obs.device)
         o, a, r, t, n = packed.split([self.obs_dim, self.action_dim, 1, 1, self.obs_dim], 1)
         k = self.seed_index[:, 0]
+        ends_at = np.where(episode_end, (j + 1) % self.size, j)
+        if invented.any():  # rare: write the real transitions only
+            stepped = self.valid[k, (slots[0] - 1) % self.size].cpu().numpy()
+            ends_at = np.where(invented, np.where(stepped, j, i), ends_at)
+            k = torch.as_tensor(np.flatnonzero(~invented), device=self.obs.device)
+            slots, o, a, r, t, n = slots[:, k], o[k], a[k], r[k], t[k], n[k]
         self.obs[k, slots[0]], self.actions[k, slots[0]] = o, a
         self.rewards[k, slots[0]], self.terminated[k, slots[0]] = r[:, 0], t[:, 0]
         self.valid[k, slots[0]] = True
         self.obs[k, slots[1]], self.valid[k, slots[1]] = n, False
-        self.ptr = np.where(episode_end, (j + 1) % self.size, j)
-        self.filled = np.where(j == 0, self.size, np.maximum(self.filled, j + 1))
+        self.ptr = ends_at
+        self.filled = np.where(invented, self.filled,
+                               np.where(j == 0, self.size, np.maximum(self.filled, j + 1)))
         self.filled_tensor.copy_(torch.as_tensor(self.filled))
 
     def sample(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
@@ -612,6 +626,14 @@ def ends_without_bootstrap(terminated: np.ndarray, truncated: np.ndarray) -> np.
     """Whether the target of a transition drops the next state's value. HumanoidBench bootstraps
     one that is both terminated and truncated (its mask is `not terminated or truncated`)."""
     return terminated & ~truncated
+
+
+def physics_blow_ups(info: dict, episode_end: np.ndarray) -> np.ndarray:
+    """Which envs' last step was a physics blow-up (h1hand's info["physics_unstable"]): the
+    episode ended without a real transition."""
+    final = info.get("final_info", {})
+    return episode_end & final.get("_physics_unstable", False) \
+        & final.get("physics_unstable", False)
 
 
 def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None, k: int) -> dict:
@@ -803,7 +825,7 @@ if __name__ == "__main__":
         for k in np.flatnonzero(episode_end):
             final_obs[k] = info["final_obs"][k]
         rb.add(obs, action, reward, ends_without_bootstrap(terminated, truncated), final_obs,
-               episode_end)
+               episode_end, physics_blow_ups(info, episode_end))
         obs = next_obs
         for k, seed_progress in enumerate(progress):
             seed_progress["episode_return"] += float(reward[k])

@@ -167,3 +167,33 @@ def test_a_batchs_rounds_of_one_step_do_not_hold_training_back(tmp_path, monkeyp
     pool.close()
     # Two evaluation steps of 4 seeds' rounds are in flight without waiting for any of them.
     assert not still_waiting and pool.max_pending == 8
+
+
+def test_a_physics_blow_up_never_becomes_a_training_transition(tmp_path):
+    run("sac_standard.py", "--env-id", "tests.toy_envs:BlowUp-v0", "--total-timesteps", "400",
+        "--learning-starts", "100", "--eval-interval", "1000", "--eval-episodes", "1",
+        "--hidden-sizes", "8", "--batch-size", "16", "--checkpoint-interval", "400",
+        "--output-dir", str(tmp_path), "--run-name", "blow")
+    buffer = torch.load(tmp_path / "blow" / "checkpoint.pt", weights_only=False)["buffer"]
+    left, valid = buffer["obs"][:, 0], buffer["valid"]
+    # Each episode: 3 real steps (4 -> 3 -> 2 -> 1 steps left), then the blow-up at 1 left.
+    assert int(valid.sum()) == 300
+    assert set(left[valid].tolist()) == {4.0, 3.0, 2.0}
+    nxt = torch.roll(left, -1)
+    assert torch.equal(nxt[valid], left[valid] - 1)  # every stored transition is a real step
+    assert not valid[left == 1].any() and (left == 1).sum() == 100  # final observations
+    assert float(buffer["rewards"][valid].min()) == 1.0  # no blow-up's reward 0
+
+
+def test_a_blow_up_at_an_episodes_first_step_leaves_nothing_in_the_buffer():
+    from sac_standard import ReplayBuffer
+
+    rb = ReplayBuffer(2, 8, 1, 1, torch.device("cpu"))
+    one = lambda x: np.array([[x], [x]], np.float64)  # noqa: E731  (two seeds, same data)
+    both, first = np.array([True, True]), np.array([True, False])
+    # Seed 0 blows up at once; seed 1 makes a real 1-step episode.
+    rb.add(one(5), one(0.1), np.array([0.0, 1.0]), np.zeros(2), one(6), both, first)
+    assert rb.ptr.tolist() == [0, 2] and rb.filled.tolist() == [0, 2]
+    assert not rb.valid[0].any() and rb.valid[1].tolist()[:2] == [True, False]
+    rb.add(one(7), one(0.2), np.ones(2), np.zeros(2), one(8), ~both, None)
+    assert rb.valid[0].tolist()[:2] == [True, False] and rb.obs[0, :2, 0].tolist() == [7, 8]

@@ -118,3 +118,21 @@ class FailingEval(Countdown):
 
 
 gym.register("FailingEval-v0", entry_point=FailingEval)
+
+
+class BlowUp(Countdown):
+    """Episodes of 4 steps whose 4th is a physics blow-up, reported as H1HandEnv does: the
+    previous observation, reward 0, truncated, info["physics_unstable"]."""
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self.left, self.reward = 4, 1.0
+        return self._obs(), {}
+
+    def step(self, action):
+        if self.left == 1:
+            return self._obs(), 0.0, False, True, {"physics_unstable": True}
+        return super().step(action)
+
+
+gym.register("BlowUp-v0", entry_point=BlowUp, max_episode_steps=50)
