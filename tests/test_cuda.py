@@ -153,7 +153,8 @@ def ran_on(checkpoint: dict) -> str:
 
 
 def lines_up_to(path, step: int) -> list[str]:
-    """A CSV's header and its rows up to `step`, as written (wall_time included)."""
+    """A CSV's header and its rows up to `step`, as written (wall_time included; read as text,
+    so CRLF and LF line endings compare equal: open_csv rewrites the kept rows' CRLF as LF)."""
     lines = path.read_text().splitlines(keepends=True)
     return lines[:1] + [x for x in lines[1:] if int(x.split(",")[0]) <= step]
 
@@ -187,7 +188,8 @@ def test_checkpoints_move_between_gpu_and_cpu(tmp_path):
         # The resumed part's checkpoint (step 1200) was written on the other device.
         resumed = torch.load(run_dir / "checkpoint.pt", weights_only=True)
         assert resumed["global_step"] == 1200 and ran_on(resumed) == device_of[second]
-        # The rows before the checkpoint are kept byte for byte; the resumed part follows.
+        # The rows before the checkpoint are kept as written, wall_time included; the resumed
+        # part follows.
         for f, lines in kept.items():
             after = (run_dir / f).read_text().splitlines(keepends=True)
             assert after[:len(lines)] == lines, f
