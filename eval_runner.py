@@ -344,6 +344,20 @@ class EvalPool:
         while self.pending:
             self._finish_oldest()
 
+    def abandon(self) -> list[Round]:
+        """Stops at once: the rounds not yet handed back, in submission order, and the workers
+        killed without waiting for them (a stop under a short grace period records the rounds in
+        its checkpoint, and the resumed run reruns them: a round is a pure function)."""
+        rounds = [round_ for _, round_ in self.pending]
+        self.pending.clear()
+        if self.executor is not None:
+            # Workers ignore SIGTERM (the training process decides), and shutdown(wait=False)
+            # would still let the interpreter's exit wait for their running rounds.
+            for process in list(self.executor._processes.values()):
+                process.kill()
+            self.executor.shutdown(wait=False, cancel_futures=True)
+        return rounds
+
     def close(self) -> None:
         if self.executor is not None:
             self.executor.shutdown(wait=True, cancel_futures=True)

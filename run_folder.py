@@ -340,6 +340,15 @@ def episode_state(record: dict, action_dim: int) -> dict:
     return {"seed": record["seed"], "rng": record["rng"], "actions": torch.from_numpy(actions)}
 
 
+def pending_round_state(round_) -> dict:
+    """An evaluation round that a stop left unfinished, as its checkpoint keeps it: everything
+    the resumed run needs to rerun it exactly (the round is a function of these and the run's
+    arguments)."""
+    return {"global_step": round_.info["global_step"], "wall_time": round_.info["wall_time"],
+            "actor": round_.actor.state_dict(),
+            "qf": None if round_.critic is None else round_.critic.state_dict()}
+
+
 def seed_slice(module: nn.Module, k: int) -> nn.Module:
     """Seed k's networks alone, as a K = 1 module that shares no tensor with the batch."""
     memo = {id(p): nn.Parameter(p.detach()[k:k + 1].clone(), p.requires_grad)

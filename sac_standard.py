@@ -47,6 +47,7 @@ from run_folder import (
     on_cpu,
     open_csv,
     optimizer_seed_state,
+    pending_round_state,
     read_batch_checkpoints,
     read_run_config,
     record_holder,
@@ -524,18 +525,17 @@ def sac_update(batch: tuple[torch.Tensor, ...], actor: Actor, qf: TwinQ, qf_targ
     return qf_losses, qf_values, actor_losses, alpha, alpha_losses, log_pi
 
 
-def evaluation_round(args: Args, actor: Actor, qf: TwinQ, actions: dict[str, str], k: int,
-                     global_step: int, wall_time: float, run_dir: Path) -> Round:
-    """Seed k's evaluation round at this step, on CPU copies of its networks: training goes on
-    while a worker runs it (eval_runner.py)."""
+def evaluation_round(args: Args, seed_actor: Actor, seed_qf: TwinQ, actions: dict[str, str],
+                     k: int, global_step: int, wall_time: float, run_dir: Path) -> Round:
+    """Seed k's evaluation round at this step, on CPU copies of its networks (seed_slice):
+    training goes on while a worker runs it (eval_runner.py)."""
     seed, eval_round = args.seed + k, global_step // args.eval_interval
     videos = {"": run_dir / "videos" / f"eval_step{global_step}.mp4"} if args.capture_video \
         else {}
     if videos:
         videos[""].parent.mkdir(exist_ok=True)
     return Round(args.env_id, eval_seeds(seed, eval_round, args.eval_episodes), actions,
-                 seed_slice(actor, k).cpu(),
-                 seed_slice(qf, k).cpu() if "q_best" in actions.values() else None,
+                 seed_actor, seed_qf if "q_best" in actions.values() else None,
                  mode_solver=args.mode_solver, shift_of=SHIFT_OF, videos=videos,
                  label=f"evaluation of seed {seed} at step {global_step}",
                  info={"seed_index": k, "global_step": global_step, "wall_time": wall_time,
@@ -791,6 +791,8 @@ if __name__ == "__main__":
                      "train": open_csv(run_dir / "train.csv", list(TRAIN_COLUMNS), keep),
                      "tb": tb, "tracker": start_tracking(dataclasses.replace(args, seed=seed),
                                                          run_dir, ALGORITHM)})
+    # Evaluation rounds that a stop checkpointed before they finished: rerun first, below.
+    pending = [c.get("pending_rounds", []) for c in ckpts] if ckpts is not None else []
     del ckpts
 
     def log_evaluation(round_: Round, result: dict) -> None:
@@ -806,6 +808,14 @@ if __name__ == "__main__":
     busy = 1 + (args.num_seeds if args.num_seeds > 1 else 0)
     eval_pool = EvalPool(default_workers(busy) if args.eval_workers is None else args.eval_workers,
                          log_evaluation, rounds_per_step=args.num_seeds)
+    for k, rounds in enumerate(pending):
+        for state in rounds:
+            seed_actor, seed_qf = seed_slice(actor, k).cpu(), seed_slice(qf, k).cpu()
+            seed_actor.load_state_dict(state["actor"])
+            if state["qf"] is not None:
+                seed_qf.load_state_dict(state["qf"])
+            eval_pool.submit(evaluation_round(args, seed_actor, seed_qf, actions, k,
+                                              state["global_step"], state["wall_time"], dirs[k]))
     session_start, row_start, row_step = time.time(), time.time(), global_step
     losses = None
     while global_step < args.total_timesteps:
@@ -847,8 +857,9 @@ if __name__ == "__main__":
         if global_step % args.eval_interval == 0:
             wall_time = elapsed + time.time() - session_start
             for k, run_dir in enumerate(dirs):
-                eval_pool.submit(evaluation_round(args, actor, qf, actions, k, global_step,
-                                                  wall_time, run_dir))
+                eval_pool.submit(evaluation_round(
+                    args, seed_slice(actor, k).cpu(), seed_slice(qf, k).cpu(), actions, k,
+                    global_step, wall_time, run_dir))
         eval_pool.poll()
 
         if global_step % args.print_interval == 0:
@@ -862,7 +873,11 @@ if __name__ == "__main__":
 
         if stop.requested or (args.checkpoint_interval > 0
                               and global_step % args.checkpoint_interval == 0):
-            eval_pool.drain()  # a checkpoint follows every round before it into eval.csv
+            # A stop checkpoints at once, recording the rounds still running (the resumed run
+            # reruns them), so that it needs seconds of grace; otherwise every round before
+            # the checkpoint is in eval.csv first.
+            unfinished = eval_pool.abandon() if stop.requested else []
+            eval_pool.drain()
             episodes = envs.get_attr("record")
             rng = rng_states(device)
             save_batch_checkpoint(dirs, [{
@@ -876,7 +891,9 @@ if __name__ == "__main__":
                 "alpha_optimizer": optimizer_seed_state(alpha_optimizer, k),
                 "buffer": rb.seed_state_dict(k),
                 "rng": rng | {"action_space": spaces[k].np_random.bit_generator.state,
-                              "episode": episode_state(episodes[k], action_dim)}}
+                              "episode": episode_state(episodes[k], action_dim)},
+                "pending_rounds": [pending_round_state(r) for r in unfinished
+                                   if r.info["seed_index"] == k]}
                 for k in range(args.num_seeds)])
             if stop.requested:
                 for log in logs:

@@ -93,8 +93,8 @@ def test_run_folder_outputs(standard_run):
     assert json.loads((standard_run / "done.json").read_text())["global_step"] == 1500
     with open(standard_run / "eval.csv") as f:
         assert f.readline().strip().split(",") == [
-            "global_step", "wall_time", "eval_round", "return_mean", "return_std", "return_min",
-            "return_max", "length_mean", "success_rate"]
+            "global_step", "wall_time", "eval_round", "distinct_episodes", "return_mean",
+            "return_std", "return_min", "return_max", "length_mean", "success_rate"]
     eval_rows = read_csv(standard_run / "eval.csv")
     assert [r["success_rate"] for r in eval_rows] == ["", "", ""]  # Pendulum reports no success
     model = torch.load(standard_run / "final_model.pt", weights_only=True)  # cannot run code

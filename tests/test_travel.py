@@ -197,3 +197,32 @@ def test_a_blow_up_at_an_episodes_first_step_leaves_nothing_in_the_buffer():
     assert not rb.valid[0].any() and rb.valid[1].tolist()[:2] == [True, False]
     rb.add(one(7), one(0.2), np.ones(2), np.zeros(2), one(8), ~both, None)
     assert rb.valid[0].tolist()[:2] == [True, False] and rb.obs[0, :2, 0].tolist() == [7, 8]
+
+
+def test_sigterm_checkpoints_at_once_with_rounds_in_flight_and_resumes_them_exactly(
+        tmp_path, monkeypatch):
+    gate = tmp_path / "gate"
+    monkeypatch.setenv("TOY_ENVS_GATE", str(gate))  # the scripts and their workers inherit it
+    toy = ["--env-id", "tests.toy_envs:GatedEval-v0", "--total-timesteps", "1200",
+           "--learning-starts", "100", "--eval-interval", "300", "--eval-episodes", "2",
+           "--hidden-sizes", "8", "--batch-size", "16", "--log-interval", "100",
+           "--checkpoint-interval", "0", "--output-dir", str(tmp_path)]
+    gate.touch()
+    run("sac_standard.py", *toy, "--run-name", "whole", "--eval-workers", "0")
+    gate.unlink()  # from now on every evaluation round waits at its episodes' second step
+    stopped = tmp_path / "stopped"
+    process = subprocess.Popen(command("sac_standard.py", *toy, "--run-name", "stopped",
+                                       "--eval-workers", "2"), cwd=ROOT,
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    wait_for(lambda: (stopped / "train.csv").exists()
+             and "\n600," in (stopped / "train.csv").read_text())
+    process.send_signal(signal.SIGTERM)
+    output = process.communicate(timeout=120)[0]
+    assert process.returncode == 3, output
+    checkpoint = torch.load(stopped / "checkpoint.pt", weights_only=False)
+    pending = [r["global_step"] for r in checkpoint["pending_rounds"]]
+    assert pending[:2] == [300, 600] and len(read_csv(stopped / "eval.csv")) == 0
+    gate.touch()
+    run("sac_standard.py", "--resume", str(stopped), "--eval-workers", "1")
+    for name in ("eval.csv", "train.csv"):
+        assert read_csv(stopped / name) == read_csv(tmp_path / "whole" / name)

@@ -52,7 +52,7 @@ class Countdown(gym.Env):
         assert self.left > 0, "stepped after the episode ended"
         if self.evaluating or not self.eval_only:
             time.sleep(self.step_seconds)
-        if self.gated and self.steps == 1:
+        if self.gated and self.steps == 1 and (self.evaluating or not self.eval_only):
             wait_for_gate()
         self.left -= 1
         self.steps += 1
@@ -76,6 +76,7 @@ gym.register("Countdown-v0", entry_point=Countdown)
 gym.register("GatedCountdown-v0", entry_point=Countdown, kwargs={"gated": True})
 gym.register("SlowEval-v0", entry_point=Countdown, kwargs={"step_seconds": 0.02, "eval_only": True})
 gym.register("NanEval-v0", entry_point=Countdown, kwargs={"nan_obs": True, "eval_only": True})
+gym.register("GatedEval-v0", entry_point=Countdown, kwargs={"gated": True, "eval_only": True})
 
 
 class ToyActor(nn.Module):
