@@ -65,7 +65,8 @@ def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
     the file ends up with no duplicate or missing rows."""
     kept = []
     if keep_until_step is not None and path.exists():
-        lines = path.read_text().splitlines(keepends=True)[1:]
+        with path.open(newline="") as f:  # rows as written: csv ends them with \r\n
+            lines = f.read().splitlines(keepends=True)[1:]
         kept = [r for r in lines if r.endswith("\n") and int(r.split(",")[0]) <= keep_until_step]
     atomic_write(path, lambda tmp: tmp.write_text(",".join(columns) + "\n" + "".join(kept)))
     f = open(path, "a", newline="")  # noqa: SIM115  (kept open for the whole run)
@@ -194,20 +195,31 @@ def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: st
             "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
 
 
-def lock_run_folder(run_dir: Path) -> int:
-    """An exclusive OS lock on run_dir/lock, held while this process lives: one writer per run
-    folder (a Slurm requeue racing a job that has not died yet, a sweep started twice). The kernel
-    drops it when the process dies, SIGKILL included, so it is never stale. Returns its fd, for
-    record_holder once the folder has been checked (a refused start changes nothing)."""
-    run_dir.mkdir(parents=True, exist_ok=True)
-    fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-        fail(f"{run_dir} is in use by process {holder} (it holds {run_dir / 'lock'}); let it "
-             "finish or stop it, then --resume")
-    return fd
+def lock_run_folders(dirs: list[Path]) -> list[int]:
+    """An exclusive OS lock on each run_dir/lock, held while this process lives: one writer per
+    run folder (a Slurm requeue racing a job that has not died yet, a sweep started twice). The
+    kernel drops it when the process dies, SIGKILL included, so it is never stale. Returns the
+    fds, for record_holder once the folders have been checked. A refusal changes nothing: the
+    folders and lock files made here for it are removed again."""
+    fds, made = [], []
+    for run_dir in dirs:
+        if not run_dir.exists():
+            made.append(run_dir)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            for mine in made:
+                (mine / "lock").unlink(missing_ok=True)
+                mine.rmdir()
+            then = "then --resume" if (run_dir / "config.json").exists() else \
+                "or choose another --run-name"
+            fail(f"{run_dir} is in use by process {holder} (it holds {run_dir / 'lock'}); let it "
+                 f"finish or stop it, {then}")
+        fds.append(fd)
+    return fds
 
 
 def record_holder(lock_fd: int) -> None:

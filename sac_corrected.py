@@ -45,7 +45,7 @@ from run_folder import (
     fail,
     load_optimizer_seed_states,
     load_seed_states,
-    lock_run_folder,
+    lock_run_folders,
     on_cpu,
     open_csv,
     optimizer_seed_state,
@@ -730,7 +730,7 @@ if __name__ == "__main__":
 
     # The batch's folders: fresh, or resumed from their checkpoints, or restarted if they have
     # none yet. Every folder is locked and checked before anything in any of them is written.
-    locks = [lock_run_folder(run_dir) for run_dir in dirs]
+    locks = lock_run_folders(dirs)
     ckpts = read_batch_checkpoints(dirs) if args.resume is not None else None
     if ckpts is not None:
         wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}

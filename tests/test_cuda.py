@@ -154,7 +154,7 @@ def ran_on(checkpoint: dict) -> str:
 
 def lines_up_to(path, step: int) -> list[str]:
     """A CSV's header and its rows up to `step`, as written (wall_time included; read as text,
-    so CRLF and LF line endings compare equal: open_csv rewrites the kept rows' CRLF as LF)."""
+    so that only the rows' contents compare: tests/test_travel.py checks the bytes)."""
     lines = path.read_text().splitlines(keepends=True)
     return lines[:1] + [x for x in lines[1:] if int(x.split(",")[0]) <= step]
 

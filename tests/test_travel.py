@@ -55,6 +55,8 @@ def test_a_copied_folder_resumes_the_copy_and_never_touches_the_original(tmp_pat
     assert (tmp_path / "copy" / "done.json").exists()
     assert read_csv(tmp_path / "copy" / "eval.csv")[-1]["global_step"] == "1200"
     assert contents(original) == before
+    for name in ("eval.csv", "train.csv"):  # the rows before the stop kept byte for byte
+        assert (tmp_path / "copy" / name).read_bytes().startswith((original / name).read_bytes())
     # A finished folder under a new name answers for itself.
     (tmp_path / "copy").rename(tmp_path / "renamed")
     result = run("sac_standard.py", "--resume", str(tmp_path / "renamed"))
