@@ -998,8 +998,9 @@ def analyze(args: Args) -> Report:
     pairing = standard_from_paired(runs)
     LABELS[STANDARD] = standard_label(pairing, list(runs))
     groups = ordered_groups(runs)
-    n_runs = sum(len(curves) for by_group in runs.values()
-                 for group, curves in by_group.items() if is_algorithm(group))
+    # Run folders, not groups: a corrected folder also stands for the derived standard group.
+    n_runs = len({curve.run_dir for by_group in runs.values() for curves in by_group.values()
+                  for curve in curves})
     found = f"Found {n_runs} runs under {args.runs_dir}:\n\n" + found_table(runs, groups)
     print(found + "\n")
     tasks, align_notes = align(runs, args.at_step)
@@ -1514,8 +1515,8 @@ def report_dimensions(report: Report, args: Args, runs: Runs, tasks: dict[str, T
     if len(dims) < 2:
         report.notes.append(
             "dimension study skipped: it needs paired evaluations against tanh(mu) (corrected "
-            "runs, or runs made with --eval-selectors) on tasks of at least two action "
-            f"dimensions; found {dims or 'none'}")
+            "runs, or runs made with --eval-selectors) on tasks of at least two different "
+            f"action dimensions; found {'only ' + str(dims) if dims else 'none'}")
         return
     print(f"dimension study over {len(study)} tasks ({args.reps:,} reps) ...")
     study = dict(sorted(study.items(), key=lambda item: (item[1].action_dim, item[0])))

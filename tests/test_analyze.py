@@ -535,8 +535,8 @@ def test_dimension_study_needs_two_dimensions(tmp_path):
     assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
     assert not (tmp_path / "out" / "dimension_study.png").exists()
     assert ("dimension study skipped: it needs paired evaluations against tanh(mu) (corrected "
-            "runs, or runs made with --eval-selectors) on tasks of at least two action "
-            "dimensions; found [61]"
+            "runs, or runs made with --eval-selectors) on tasks of at least two different "
+            "action dimensions; found only [61]"
             in (tmp_path / "out" / "summary.md").read_text())
 
 
@@ -712,3 +712,15 @@ def test_over_training_recovers_known_paired_offsets_and_shift_at_every_step(tmp
     text = (tmp_path / "out" / "summary.md").read_text()
     assert "## Over training: paired differences and the measured shift" in text
     assert "| 60k | 50.0 [" in text  # the last step's row of the table
+
+
+def test_found_counts_run_folders_not_groups(tmp_path):
+    """Corrected runs alone: each folder also gives the derived standard group and its paired
+    columns, but it is one run."""
+    steps = 10_000 * np.arange(1, 4)
+    for seed in range(3):
+        write_run(tmp_path / "runs", TASKS[0], "corrected", seed, steps, steps / 1e3,
+                  steps / 1e3 - 1)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out", *FAST) == 0
+    assert f"Found 3 runs under {tmp_path / 'runs'}:" in (tmp_path / "out" /
+                                                          "summary.md").read_text()
