@@ -29,6 +29,7 @@ import numpy as np
 import torch
 import torch.nn as nn
 import tyro
+from torch.func import functional_call
 from torch.utils.tensorboard import SummaryWriter
 
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
@@ -133,6 +134,9 @@ class Args:
     """checkpoint every this many steps (0: off)"""
     cuda: bool = True
     """use a CUDA GPU if there is one"""
+    compile: bool = True
+    """compile the gradient update (one function: sac_update) with torch.compile at start-up; on
+    a CPU core it runs ~1.6x faster (docs/speed.md); needs a C++ compiler (g++)"""
     cudagraphs: bool = True
     """on CUDA: capture the update (batch sampling included) and the actions as CUDA graphs"""
     gpu_buffer: bool = True
@@ -157,7 +161,7 @@ class Args:
 # Flags that may differ when resuming: they change where and how fast, not what is computed.
 TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
 RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "print_interval",
-                  "cuda", "cudagraphs", "gpu_buffer", "torch_threads", "capture_video",
+                  "cuda", "compile", "cudagraphs", "gpu_buffer", "torch_threads", "capture_video",
                   "eval_workers", *TRACKING_FIELDS)
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
                  "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
@@ -323,10 +327,37 @@ class SeedLinear(nn.Module):
         return torch.baddbmm(self.bias, x, self.weight)
 
 
+class ReLUFromOutput(torch.autograd.Function):
+    """ReLU whose backward multiplies by sign(output), 1 where it passed and 0 where it clipped:
+    torch.relu's gradient, from a float tensor instead of a boolean mask of the input, which
+    inductor's CPU code stores ~10x slower (bench/bench_compile.py; the update has ten ReLUs)."""
+
+    @staticmethod
+    def forward(x: torch.Tensor) -> torch.Tensor:
+        return x.clamp_min(0)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output) -> None:  # torch.func.grad needs this form
+        ctx.save_for_backward(output)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        (output,) = ctx.saved_tensors
+        return grad * output.sign()
+
+
+class ReLU(nn.Module):
+    """torch.relu, as ReLUFromOutput when compiled (the same gradient; eager, under torch.func
+    the custom backward costs more than it saves)."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return ReLUFromOutput.apply(x) if torch.compiler.is_compiling() else torch.relu(x)
+
+
 def seed_mlp(seeds: int, sizes: tuple[int, ...]) -> nn.Sequential:
     """K MLPs with ReLU between the layers, none after the last."""
     layers = [m for i, o in zip(sizes, sizes[1:], strict=False)
-              for m in (SeedLinear(seeds, i, o), nn.ReLU())]
+              for m in (SeedLinear(seeds, i, o), ReLU())]
     return nn.Sequential(*layers[:-1])
 
 
@@ -348,7 +379,7 @@ class Actor(nn.Module):
         super().__init__()
         sizes, action_dim = (obs_dim, *hidden), int(np.prod(action_space.shape))
         self.trunk = nn.Sequential(*[m for i, o in zip(sizes, sizes[1:], strict=False)
-                                     for m in (SeedLinear(seeds, i, o), nn.ReLU())])
+                                     for m in (SeedLinear(seeds, i, o), ReLU())])
         self.fc_mean = SeedLinear(seeds, sizes[-1], action_dim)
         self.fc_logstd = SeedLinear(seeds, sizes[-1], action_dim)
         low, high = (torch.as_tensor(b, dtype=torch.float32) for b in (action_space.low,
@@ -364,10 +395,14 @@ class Actor(nn.Module):
         return self.fc_mean(h), self.fc_logstd(h).clamp(self.log_std_min, self.log_std_max)
 
     def get_action(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """A reparameterised sample scale * tanh(u) + bias, u ~ N(mu, sigma^2), and its
-        log-density."""
+        """A sampled action and its log-density (see squash)."""
         mu, log_std = self(obs)
-        noise = torch.randn_like(mu)
+        return self.squash(mu, log_std, torch.randn_like(mu))
+
+    def squash(self, mu: torch.Tensor, log_std: torch.Tensor,
+               noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The reparameterised sample scale * tanh(u) + bias, u = mu + sigma * noise, and its
+        log-density."""
         u = mu + noise * log_std.exp()
         # log N(u) - log|d tanh(u)/du| - log(scale), with the stable form of log(1 - tanh(u)^2).
         log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * np.log(2 * np.pi)
@@ -473,6 +508,12 @@ class ReplayBuffer:
                  self.obs[k, (idx + 1) % self.size], 1 - self.terminated[k, idx])
         return tuple(t.to(device, non_blocking=True) for t in batch)
 
+    def zero_batch(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
+        """A batch shaped as sample()'s, all zeros (for a first call that must not learn)."""
+        rows = (len(self.ptr), batch_size)
+        return tuple(torch.zeros((*rows, *shape), device=device) for shape in (
+            (self.obs_dim,), (self.action_dim,), (), (self.obs_dim,), ()))
+
     def seed_state_dict(self, k: int) -> dict:
         """Seed k's filled slots as CPU tensors: a checkpoint loads on any device."""
         n = int(self.filled[k])
@@ -489,40 +530,108 @@ class ReplayBuffer:
             getattr(self, a)[k, : state["filled"]].copy_(state[a])
 
 
-def sac_update(batch: tuple[torch.Tensor, ...], actor: Actor, qf: TwinQ, qf_target: TwinQ,
-               log_alpha: torch.Tensor, optimizers: tuple[torch.optim.Optimizer, ...],
-               gamma: float, tau: float, target_entropy: float) -> tuple[torch.Tensor, ...]:
-    """One gradient step of every seed's twin critics, actor and temperature (log_alpha: (K,)),
-    and the critics' Polyak-averaged targets. The losses are summed over seeds, so each seed's
-    gradients are its own, and Adam is elementwise: one Adam over the stacked parameters is K
-    independent Adams. Returns the tensors that train.csv logs, per seed."""
+def sac_losses(params: tuple[dict, dict, torch.Tensor], qf_target_params: dict,
+               batch: tuple[torch.Tensor, ...], noise: torch.Tensor, actor: Actor, qf: TwinQ,
+               gamma: float, target_entropy: float) -> tuple[torch.Tensor, tuple]:
+    """The critic, actor and temperature losses of every seed, summed into one number whose
+    gradient holds each one's: the critics' parameters get the critic loss's (the actor loss sees
+    them detached), the actor's the actor loss's, log alpha (K,) the temperature loss's. Seeds are
+    summed too: each seed's gradients are its own. noise: (2, K, batch, A), the next action's and
+    the action's. Also returns what train.csv logs, per seed."""
+    actor_params, qf_params, log_alpha = params
+
+    def policy(obs: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return actor.squash(*functional_call(actor, actor_params, obs), noise)
+
+    def q(params: dict, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return functional_call(qf, params, (obs, action))
+
     b_obs, b_actions, b_rewards, b_next_obs, b_not_done = batch
     alpha = log_alpha.exp().detach()
     with torch.no_grad():
-        next_actions, next_log_pi = actor.get_action(b_next_obs)
-        min_qf_next = qf_target(b_next_obs, next_actions).min(0).values
+        next_actions, next_log_pi = policy(b_next_obs, noise[0])
+        min_qf_next = q(qf_target_params, b_next_obs, next_actions).min(0).values
         next_q_value = b_rewards + b_not_done * gamma * (min_qf_next
                                                          - alpha[:, None] * next_log_pi)
-    qf_values = qf(b_obs, b_actions)
+    qf_values = q(qf_params, b_obs, b_actions)
     qf_losses = (qf_values - next_q_value).pow(2).mean(-1)
-    pi, log_pi = actor.get_action(b_obs)
-    actor_losses = (alpha[:, None] * log_pi - qf(b_obs, pi).min(0).values).mean(-1)
+    pi, log_pi = policy(b_obs, noise[1])
+    frozen_qf = {name: p.detach() for name, p in qf_params.items()}
+    actor_losses = (alpha[:, None] * log_pi - q(frozen_qf, b_obs, pi).min(0).values).mean(-1)
     alpha_losses = -(log_alpha.exp()[:, None] * (log_pi.detach() + target_entropy)).mean(-1)
+    total = qf_losses.sum() + actor_losses.sum() + alpha_losses.sum()
+    return total, (qf_losses, qf_values, actor_losses, alpha, alpha_losses, log_pi)
 
-    # As HumanoidBench's jaxrl_m: all three losses use the parameters from before this update
-    # (the actor is scored by the pre-update critic), and the target moves towards that critic.
-    for optimizer in optimizers:
-        optimizer.zero_grad()
-    qf_losses.sum().backward()
-    # Only the actor's gradients: autograd then skips the critics' weight gradients.
-    actor_losses.sum().backward(inputs=list(actor.parameters()))
-    alpha_losses.sum().backward()
-    with torch.no_grad():
-        for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
-            p_target.lerp_(p, tau)
-    for optimizer in optimizers:
-        optimizer.step()
-    return qf_losses, qf_values, actor_losses, alpha, alpha_losses, log_pi
+
+def adam_step(params: list[torch.Tensor], grads: list[torch.Tensor], state: dict) -> None:
+    """torch.optim.Adam's step (eps outside the square root, as optax's too), in place, on the
+    moments and step count of `state` (adam_state): as foreach ops, so that it compiles with the
+    rest of the update into one function."""
+    beta1, beta2 = state["betas"]
+    torch._foreach_add_(state["steps"], 1)
+    torch._foreach_lerp_(state["exp_avgs"], grads, 1 - beta1)
+    torch._foreach_mul_(state["exp_avg_sqs"], beta2)
+    torch._foreach_addcmul_(state["exp_avg_sqs"], grads, grads, 1 - beta2)
+    step = state["steps"][0]  # every parameter's count is the same
+    bias_correction1, bias_correction2 = 1 - beta1**step, 1 - beta2**step
+    denominators = torch._foreach_div(torch._foreach_sqrt(state["exp_avg_sqs"]),
+                                      bias_correction2.sqrt())
+    torch._foreach_add_(denominators, state["eps"])
+    steps = torch._foreach_div(state["exp_avgs"], denominators)
+    torch._foreach_mul_(steps, state["lr"] / bias_correction1)
+    torch._foreach_sub_(params, steps)
+
+
+# torch.func.grad ignores an outer no_grad; nothing else here needs autograd's records (and,
+# compiled, AOTAutograd then makes an inference graph: no autograd wrapper around each call).
+@torch.no_grad()
+def sac_update(learner: dict, batch: tuple[torch.Tensor, ...], noise: torch.Tensor,
+               actor: Actor, qf: TwinQ, gamma: float, tau: float,
+               target_entropy: float) -> tuple[torch.Tensor, ...]:
+    """One gradient step of every seed's twin critics, actor and temperature, and the critics'
+    Polyak-averaged targets, in place on the tensors of `learner` (learner_tensors): a function of
+    tensors only (the modules lend their forward passes), so that it compiles whole, once.
+
+    As HumanoidBench's jaxrl_m: all three losses use the parameters from before this update
+    (the actor is scored by the pre-update critic), and the target moves towards that critic.
+    Returns the tensors that train.csv logs, per seed."""
+    params = (learner["actor"], learner["qf"], learner["log_alpha"])
+    grads, logs = torch.func.grad(sac_losses, has_aux=True)(
+        params, learner["qf_target"], batch, noise, actor, qf, gamma, target_entropy)
+    torch._foreach_lerp_(list(learner["qf_target"].values()), list(learner["qf"].values()), tau)
+    for p, g, state in zip(params, grads, learner["adam"], strict=True):
+        if isinstance(p, dict):
+            adam_step(list(p.values()), list(g.values()), state)
+        else:
+            adam_step([p], [g], state)
+    return logs
+
+
+def adam_state(optimizer: torch.optim.Optimizer) -> dict:
+    """The tensors of a torch.optim.Adam (created if it has not stepped yet, as its first step
+    would) and its settings. The optimizer holds the state, so that checkpoints keep its
+    state_dict; sac_update applies the step."""
+    group = optimizer.param_groups[0]
+    for p in group["params"]:
+        if not optimizer.state[p]:
+            optimizer.state[p] = {"step": torch.zeros((), device=p.device),
+                                  "exp_avg": torch.zeros_like(p),
+                                  "exp_avg_sq": torch.zeros_like(p)}
+    states = [optimizer.state[p] for p in group["params"]]
+    return {"steps": [s["step"] for s in states], "exp_avgs": [s["exp_avg"] for s in states],
+            "exp_avg_sqs": [s["exp_avg_sq"] for s in states], "lr": group["lr"],
+            "betas": group["betas"], "eps": group["eps"]}
+
+
+def learner_tensors(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.Tensor,
+                    actor_optimizer: torch.optim.Optimizer, q_optimizer: torch.optim.Optimizer,
+                    alpha_optimizer: torch.optim.Optimizer) -> dict:
+    """What sac_update reads and changes: the networks' parameters by name, log alpha, and the
+    Adam states. The tensors are the modules' and optimizers' own: an update changes them in
+    place (a checkpoint's load replaces the optimizers' tensors: call this after it)."""
+    return {"actor": dict(actor.named_parameters()), "qf": dict(qf.named_parameters()),
+            "qf_target": dict(qf_target.named_parameters()), "log_alpha": log_alpha,
+            "adam": [adam_state(o) for o in (actor_optimizer, q_optimizer, alpha_optimizer)]}
 
 
 def evaluation_round(args: Args, seed_actor: Actor, seed_qf: TwinQ, actions: dict[str, str],
@@ -602,15 +711,43 @@ def cuda_graph(fn: Callable, restore: tuple = ()) -> Callable:
 
 def make_train_step(rb: ReplayBuffer, update: Callable, batch_size: int, device: torch.device,
                     graphs: bool, learner: tuple) -> Callable:
-    """One gradient update on a fresh batch, as a function of nothing. With graphs and the buffer
-    on the GPU, sampling is inside the graph; with the buffer in host memory, the batch is drawn
-    there and copied into the graph's inputs."""
+    """One gradient update (update(batch, noise)) on a fresh batch and fresh policy noise, as a
+    function of nothing. With graphs and the buffer on the GPU, sampling is inside the graph; with
+    the buffer in host memory, the batch is drawn there and copied into the graph's inputs."""
+    noise_shape = (2, len(rb.ptr), batch_size, rb.action_dim)  # the next action's, the action's
+
+    def update_with_noise(batch: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
+        return update(batch, torch.randn(noise_shape, device=device))
+
     if not graphs:
-        return lambda: update(rb.sample(batch_size, device))
+        return lambda: update_with_noise(rb.sample(batch_size, device))
     if rb.obs.device.type == device.type:  # the buffer is on the run's GPU
-        return cuda_graph(lambda: update(rb.sample(batch_size, device)), learner)
-    update_graph = cuda_graph(lambda *batch: update(batch), learner)
+        return cuda_graph(lambda: update_with_noise(rb.sample(batch_size, device)), learner)
+    update_graph = cuda_graph(lambda *batch: update_with_noise(batch), learner)
     return lambda: update_graph(*rb.sample(batch_size, device))
+
+
+def compile_update(update: Callable, learner: dict, batch: tuple[torch.Tensor, ...],
+                   restore: tuple) -> Callable:
+    """update(learner, batch, noise) compiled whole (torch.compile, fullgraph: one graph, no
+    breaks) and called once at start-up on an all-zero batch, so that the compile's cost and any
+    failure show at once, not after learning_starts steps; the tensors of `restore` are put back
+    afterwards. Inductor caches what it compiled (in /tmp by default): a second run or a resume
+    on the same machine compiles in a fraction of the time."""
+    compiled = torch.compile(update, fullgraph=True)
+    saved = [(t, t.detach().clone()) for t in training_state(*restore)]
+    start = time.time()
+    try:
+        compiled(learner, batch, torch.zeros((2, *batch[1].shape), device=batch[1].device))
+    except Exception as error:  # inductor's errors run to pages; the fix is one of two
+        cause = next((line for line in str(error).splitlines() if line.strip()), "")[:300]
+        fail(f"compiling the update failed ({type(error).__name__}: {cause}); install a C++ "
+             "compiler (apt-get install g++) or run with --no-compile")
+    with torch.no_grad():
+        for t, value in saved:
+            t.copy_(value)
+    print(f"compiled the update in {time.time() - start:.1f} s", flush=True)
+    return compiled
 
 
 def check_finite(x: np.ndarray, what: str) -> None:
@@ -708,8 +845,9 @@ if __name__ == "__main__":
                   args.num_seeds, generators).to(device)
     qf = TwinQ(obs_dim, action_dim, args.hidden_sizes, args.num_seeds, generators).to(device)
     qf_target = copy.deepcopy(qf)
-    # capturable: Adam's step counts stay on the GPU, as a CUDA graph needs (eager runs too, so
-    # that a graph run and an eager run compute the same update).
+    # The optimizers hold Adam's state (checkpoints keep their state_dict); sac_update steps it.
+    # fused: a loaded state_dict puts the step counts on the parameters' device, as the update,
+    # one function (a CUDA graph on a GPU), needs.
     adam = functools.partial(torch.optim.Adam, fused=True, capturable=device.type == "cuda")
     q_optimizer = adam(qf.parameters(), lr=args.q_lr)
     actor_optimizer = adam(actor.parameters(), lr=args.policy_lr)
@@ -717,7 +855,7 @@ if __name__ == "__main__":
     log_alpha = torch.full((args.num_seeds,), float(np.log(args.alpha_init)), device=device,
                            requires_grad=True)
     alpha_optimizer = adam([log_alpha], lr=args.alpha_lr)
-    optimizers = (q_optimizer, actor_optimizer, alpha_optimizer)
+    optimizers = (actor_optimizer, q_optimizer, alpha_optimizer)
     rb = ReplayBuffer(args.num_seeds, args.buffer_size, obs_dim, action_dim,
                       device if args.gpu_buffer else torch.device("cpu"))
 
@@ -777,10 +915,15 @@ if __name__ == "__main__":
     graphs = device.type == "cuda" and args.cudagraphs
     graphed = cuda_graph if graphs else (lambda fn, restore=(): fn)
     train_action = graphed(torch.no_grad()(lambda obs: actor.get_action(obs[:, None])[0][:, 0]))
-    train_step = make_train_step(
-        rb, lambda batch: sac_update(batch, actor, qf, qf_target, log_alpha, optimizers,
-                                     args.gamma, args.tau, target_entropy),
-        args.batch_size, device, graphs, (actor, qf, qf_target, log_alpha, *optimizers))
+    learner = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
+    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=args.gamma, tau=args.tau,
+                               target_entropy=target_entropy)
+    if args.compile:
+        update = compile_update(update, learner, rb.zero_batch(args.batch_size, device),
+                                (actor, qf, qf_target, log_alpha, *optimizers))
+    train_step = make_train_step(rb, lambda batch, noise: update(learner, batch, noise),
+                                 args.batch_size, device, graphs,
+                                 (actor, qf, qf_target, log_alpha, *optimizers))
     logs = []  # per seed: eval.csv and train.csv writers, TensorBoard, W&B
     for run_dir, seed in zip(dirs, seeds, strict=True):
         tb = SummaryWriter(run_dir, purge_step=global_step + 1 if ckpts is not None else None)

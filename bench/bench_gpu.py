@@ -23,6 +23,7 @@ after the first, which holds the CUDA-graph captures) per seed and in all:
 """
 
 import csv
+import functools
 import statistics
 import subprocess
 import sys
@@ -47,7 +48,9 @@ from mode_search import mode_action  # noqa: E402
 from sac_standard import (  # noqa: E402
     Actor,
     TwinQ,
+    compile_update,
     cuda_graph,
+    learner_tensors,
     make_env,
     make_train_step,
     make_vector_env,
@@ -120,21 +123,26 @@ def cuda_time(fn: Callable, repeats: int, calls: int) -> float:
 
 
 def build_train_step(env, seeds: int, graphs: bool, batch_size: int,
-                     buffer_device: torch.device = CUDA) -> tuple[Callable, Actor]:
+                     buffer_device: torch.device = CUDA,
+                     compiled: bool = False) -> tuple[Callable, Actor]:
     """The scripts' learner for K seeds at the paper's sizes on the GPU, a buffer of 20k random
-    transitions per seed."""
+    transitions per seed, its update compiled or eager."""
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
     actor = Actor(obs_dim, (256, 256), env.action_space, -10.0, 2.0, seeds).to(CUDA)
     qf, qf_target = (TwinQ(obs_dim, action_dim, (256, 256), seeds).to(CUDA) for _ in range(2))
     qf_target.load_state_dict(qf.state_dict())
     log_alpha = torch.zeros(seeds, device=CUDA, requires_grad=True)
     optimizers = tuple(torch.optim.Adam(p, lr=3e-4, fused=True, capturable=True) for p in (
-        qf.parameters(), actor.parameters(), [log_alpha]))
+        actor.parameters(), qf.parameters(), [log_alpha]))
     rb = random_buffer(seeds, 20_000, obs_dim, action_dim, buffer_device)
-    return make_train_step(
-        rb, lambda batch: sac_update(batch, actor, qf, qf_target, log_alpha, optimizers, 0.99,
-                                     0.005, -action_dim / 2),
-        batch_size, CUDA, graphs, (actor, qf, qf_target, log_alpha, *optimizers)), actor
+    state = (actor, qf, qf_target, log_alpha, *optimizers)
+    tensors = learner_tensors(*state)
+    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=0.99, tau=0.005,
+                               target_entropy=-action_dim / 2)
+    if compiled:
+        update = compile_update(update, tensors, rb.zero_batch(batch_size, CUDA), state)
+    return make_train_step(rb, lambda batch, noise: update(tensors, batch, noise), batch_size,
+                           CUDA, graphs, state), actor
 
 
 def time_updates(args: Args, env, seeds: int) -> Actor:
@@ -145,6 +153,9 @@ def time_updates(args: Args, env, seeds: int) -> Actor:
               f"{cuda_time(step, args.repeats, args.calls) * 1e3:7.3f} ms", flush=True)
     step, _ = build_train_step(env, seeds, True, args.batch_size, torch.device("cpu"))
     print(f"K = {seeds:2d}: update, CUDA graph (host buffer): "
+          f"{cuda_time(step, args.repeats, args.calls) * 1e3:7.3f} ms", flush=True)
+    step, _ = build_train_step(env, seeds, True, args.batch_size, compiled=True)
+    print(f"K = {seeds:2d}: update, compiled, CUDA graph (GPU buffer): "
           f"{cuda_time(step, args.repeats, args.calls) * 1e3:7.3f} ms", flush=True)
     return actor
 

@@ -4,14 +4,15 @@
 
 Times are process CPU seconds (the machine is shared; with one torch thread, CPU time is what
 an idle machine's wall clock shows), medians over --repeats: one gradient update alone (the
-script's: two MLP critics, fused Adam, eager; for comparison, batched-matmul twin critics,
-PyTorch's default Adam, and the update under torch.compile),
+script's, compiled with torch.compile unless --no-compile, then the other way; for comparison,
+batched-matmul twin critics),
 one env step alone, one actor forward; the training loop's cost per step after the start steps
 (two runs of sac_standard.py as subprocesses, with and without --loop-steps more steps,
 differenced); an evaluation round of 10 episodes; and the resident memory of a full
 1M-transition replay buffer with 308-dim observations (bookshelf's size).
 """
 
+import functools
 import resource
 import statistics
 import subprocess
@@ -35,8 +36,11 @@ from sac_standard import (  # noqa: E402
     Actor,
     ReplayBuffer,
     TwinQ,
+    compile_update,
     ends_without_bootstrap,
+    learner_tensors,
     make_env,
+    make_train_step,
     make_vector_env,
     sac_update,
 )
@@ -59,7 +63,8 @@ class Args:
     eval_episodes: int = 10
     """episodes of the timed evaluation round"""
     compile: bool = True
-    """also time a torch.compile'd update"""
+    """time the update compiled (the scripts' default) first, then eager; --no-compile the
+    reverse, and the other figures eager"""
     wall_clock: bool = False
     """time the in-process figures by wall clock instead of CPU time (to compare thread counts
     on an idle machine: CPU time adds up all threads)"""
@@ -100,16 +105,17 @@ def median_time(fn, repeats: int, calls: int) -> float:
     return statistics.median(times)
 
 
-def build_learner(env, critic_class=TwinQ, fused_adam: bool = True) -> tuple:
-    """The scripts' networks at the paper's sizes: actor, qf, qf_target, log_alpha, optimizers."""
+def build_learner(env, critic_class=TwinQ) -> tuple:
+    """The scripts' networks at the paper's sizes: actor, qf, qf_target, log_alpha and the actor's,
+    critics' and temperature's optimizers."""
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
     hidden = (256, 256)
     actor = Actor(obs_dim, hidden, env.action_space, -10.0, 2.0)
     qf, qf_target = (critic_class(obs_dim, action_dim, hidden) for _ in range(2))
     qf_target.load_state_dict(qf.state_dict())
     log_alpha = torch.zeros(1, requires_grad=True)  # one seed: the scripts' (K,) layout
-    optimizers = tuple(torch.optim.Adam(params, lr=3e-4, fused=fused_adam) for params in (
-        qf.parameters(), actor.parameters(), [log_alpha]))
+    optimizers = tuple(torch.optim.Adam(params, lr=3e-4, fused=True) for params in (
+        actor.parameters(), qf.parameters(), [log_alpha]))
     return actor, qf, qf_target, log_alpha, optimizers
 
 
@@ -126,22 +132,25 @@ def random_buffer(seeds: int, size: int, obs_dim: int, action_dim: int,
     return rb
 
 
-def time_update(args: Args, env, critic_class=TwinQ, fused_adam: bool = True,
-                compiled: bool = False) -> float:
-    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    actor, qf, qf_target, log_alpha, optimizers = build_learner(env, critic_class, fused_adam)
-    rb = random_buffer(1, 20_000, obs_dim, action_dim, torch.device("cpu"))
-    update = torch.compile(sac_update) if compiled else sac_update
-    device = torch.device("cpu")
-
-    def step():
-        update(rb.sample(args.batch_size, device), actor, qf, qf_target, log_alpha, optimizers,
-               0.99, 0.005, -action_dim / 2)
-
+def learner_update(learner: tuple, rb: ReplayBuffer, batch_size: int, compiled: bool):
+    """The scripts' update(batch, noise) of this learner (build_learner), compiled or eager."""
+    actor, qf, qf_target, log_alpha, optimizers = learner
+    tensors = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
+    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=0.99, tau=0.005,
+                               target_entropy=-rb.action_dim / 2)
     if compiled:
-        for _ in range(5):
-            step()  # compiles the graphs of the first steps
-    return median_time(step, args.repeats, args.updates)
+        update = compile_update(update, tensors, rb.zero_batch(batch_size, torch.device("cpu")),
+                                (actor, qf, qf_target, log_alpha, *optimizers))
+    return lambda batch, noise: update(tensors, batch, noise)
+
+
+def time_update(args: Args, env, critic_class=TwinQ, compiled: bool = True) -> float:
+    """Seconds per gradient update, batch sampling and policy noise included (make_train_step)."""
+    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
+    rb = random_buffer(1, 20_000, obs_dim, action_dim, torch.device("cpu"))
+    update = learner_update(build_learner(env, critic_class), rb, args.batch_size, compiled)
+    return median_time(make_train_step(rb, update, args.batch_size, torch.device("cpu"), False,
+                                       ()), args.repeats, args.updates)
 
 
 def time_env_step(env, steps: int, repeats: int) -> tuple[float, float]:
@@ -182,6 +191,7 @@ def script_cpu_seconds(args: Args, total_timesteps: int, learning_starts: int) -
                         "--total-timesteps", str(total_timesteps), "--learning-starts",
                         str(learning_starts), "--eval-interval", str(10 * total_timesteps),
                         "--checkpoint-interval", "0", "--torch-threads", str(args.torch_threads),
+                        "--compile" if args.compile else "--no-compile",
                         "--output-dir", out, "--run-name", "bench"], check=True,
                        capture_output=True)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -207,8 +217,11 @@ def time_loop_parts(args: Args, steps: int = 3000, start: int = 1000) -> dict[st
     space.seed(0)
     envs = make_vector_env(args.env_id, 1)
     obs_dim, action_dim = envs.single_observation_space.shape[0], space.shape[0]
-    actor, qf, qf_target, log_alpha, optimizers = build_learner(make_env(args.env_id))
+    learner = build_learner(make_env(args.env_id))
+    actor = learner[0]
     rb = ReplayBuffer(1, 1_000_000, obs_dim, action_dim, torch.device("cpu"))
+    update = learner_update(learner, rb, args.batch_size, args.compile)
+    noise_shape = (2, 1, args.batch_size, action_dim)
     parts = dict.fromkeys(("act", "env step", "buffer add", "batch sample", "update"), 0.0)
     obs, _ = envs.reset(seed=[0])
     for step in range(start + steps):
@@ -230,10 +243,9 @@ def time_loop_parts(args: Args, steps: int = 3000, start: int = 1000) -> dict[st
         t3 = clock()
         if step < start:
             continue
-        batch = rb.sample(args.batch_size, torch.device("cpu"))
+        batch, noise = rb.sample(args.batch_size, torch.device("cpu")), torch.randn(noise_shape)
         t4 = clock()
-        sac_update(batch, actor, qf, qf_target, log_alpha, optimizers, 0.99, 0.005,
-                   -action_dim / 2)
+        update(batch, noise)
         t5 = clock()
         for name, seconds in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4),
                                  strict=True):
@@ -268,15 +280,13 @@ if __name__ == "__main__":
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
     print(f"{args.env_id}: obs {obs_dim}, actions {action_dim}, batch {args.batch_size}, "
           f"torch threads {args.torch_threads}, torch {torch.__version__}")
-    update = time_update(args, env)
-    print(f"update (as in the scripts):           {update * 1e3:6.2f} ms")
-    batched = time_update(args, env, BatchedTwinQ)
+    update = time_update(args, env, compiled=args.compile)
+    print(f"update ({'compiled' if args.compile else 'eager'}, as the scripts run it):"
+          f"{'':5s}{update * 1e3:6.2f} ms")
+    print(f"  {'eager' if args.compile else 'compiled'} (--{'no-' * args.compile}compile):"
+          f"{'':17s}{time_update(args, env, compiled=not args.compile) * 1e3:6.2f} ms")
+    batched = time_update(args, env, BatchedTwinQ, compiled=args.compile)
     print(f"  with batched-matmul twin critics:   {batched * 1e3:6.2f} ms")
-    print(f"  with PyTorch's default Adam:        "
-          f"{time_update(args, env, fused_adam=False) * 1e3:6.2f} ms")
-    if args.compile:
-        print(f"  under torch.compile:                "
-              f"{time_update(args, env, compiled=True) * 1e3:6.2f} ms")
     env_step, episode_length = time_env_step(env, 1000, args.repeats)
     actor_forward = time_actor_forward(env, args.repeats)
     print(f"env step:                             {env_step * 1e3:6.2f} ms "

@@ -402,7 +402,8 @@ def test_reads_what_the_sac_scripts_write(tmp_path):
         subprocess.run([sys.executable, script, "--env-id", "Pendulum-v1", "--seed", "0",
                         "--total-timesteps", "400", "--learning-starts", "200",
                         "--eval-interval", "200", "--eval-episodes", "1",
-                        "--checkpoint-interval", "0", "--output-dir", str(tmp_path / "runs")],
+                        "--checkpoint-interval", "0", "--no-compile",
+                        "--output-dir", str(tmp_path / "runs")],
                        cwd=root, check=True, capture_output=True)
     assert run_analysis(tmp_path / "runs", tmp_path / "out", "--normalize", "min-max") == 0
     summary = read_summary(tmp_path / "out")

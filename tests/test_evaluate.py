@@ -19,6 +19,7 @@ import torch
 import evaluate
 from eval_runner import Q_BEST_CANDIDATES, Round, eval_seeds, run_round
 from mode_search import tanh_normal_log_prob
+from tests.test_sac import EAGER
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -85,7 +86,7 @@ def our_run(tmp_path_factory) -> Path:
         [sys.executable, str(ROOT / "sac_corrected.py"), "--env-id", "Pendulum-v1",
          "--total-timesteps", "1600", "--learning-starts", "500", "--eval-interval", "800",
          "--eval-episodes", "2", "--eval-selectors", "mean", "q_best", "--hidden-sizes", "32",
-         "32", "--checkpoint-interval", "1600",
+         "32", "--checkpoint-interval", "1600", *EAGER,
          "--output-dir", str(out), "--run-name", "ours"], capture_output=True, text=True, cwd=ROOT)
     assert result.returncode == 0, result.stderr
     return out / "ours"

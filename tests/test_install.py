@@ -32,6 +32,7 @@ TASK_IDS = [
 COPY_IGNORE = shutil.ignore_patterns(
     ".git",
     ".venv",
+    ".venv-peers",
     "runs",
     "report",
     "figures",

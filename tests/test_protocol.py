@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import analyze
+from tests.test_sac import EAGER
 
 ROOT = Path(__file__).resolve().parent.parent
 # Pendulum, tiny networks: updates start at step 300, evaluation rounds at 400, 800, 1200.
@@ -45,7 +46,7 @@ def runs(tmp_path_factory) -> Path:
             ("sac_standard.py", "std", ["--eval-workers", "0"]),
             ("sac_corrected.py", "cor", ["--eval-workers", "1", "--eval-selectors", "mean",
                                          "q_best"])):
-        result = subprocess.run([sys.executable, str(ROOT / script), *TINY, *extra,
+        result = subprocess.run([sys.executable, str(ROOT / script), *TINY, *extra, *EAGER,
                                  "--output-dir", str(out / "runs"), "--run-name", name],
                                 capture_output=True, text=True, cwd=ROOT)
         assert result.returncode == 0, result.stderr

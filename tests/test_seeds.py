@@ -7,7 +7,6 @@ import json
 import signal
 import subprocess
 from pathlib import Path
-from unittest import mock
 
 import gymnasium as gym
 import numpy as np
@@ -37,8 +36,17 @@ def learner(seeds: int):
             p.add_(0.05)
     log_alpha = torch.linspace(-0.5, 0.5, seeds).requires_grad_()
     adam = functools.partial(torch.optim.Adam, lr=0.01, fused=True)
-    return actor, qf, qf_target, log_alpha, (adam(qf.parameters()), adam(actor.parameters()),
+    return actor, qf, qf_target, log_alpha, (adam(actor.parameters()), adam(qf.parameters()),
                                              adam([log_alpha]))
+
+
+def update(learner, batch: tuple[torch.Tensor, ...], noise: torch.Tensor) -> None:
+    """The scripts' sac_update of a learner (as learner() makes them)."""
+    from sac_standard import learner_tensors, sac_update
+
+    actor, qf, qf_target, log_alpha, optimizers = learner
+    sac_update(learner_tensors(actor, qf, qf_target, log_alpha, *optimizers), batch, noise,
+               actor, qf, 0.99, 0.1, -1.0)
 
 
 def single_seed(batch_learner, k: int):
@@ -57,20 +65,18 @@ def single_seed(batch_learner, k: int):
 
 
 def test_the_batched_update_of_three_seeds_is_three_single_seed_updates():
-    from sac_standard import sac_update, seed_slice
+    from sac_standard import seed_slice
 
     torch.manual_seed(0)
     batch_learner = learner(3)
-    sac_update(make_batch(3, 0), *batch_learner[:4], batch_learner[4], 0.99, 0.1, -1.0)  # Adam
-    singles = [single_seed(batch_learner, k) for k in range(3)]  # states exist: they must carry
+    update(batch_learner, make_batch(3, 0), torch.randn(2, 3, 16, 2))  # Adam's states exist
+    singles = [single_seed(batch_learner, k) for k in range(3)]  # they must carry over
     for step in range(1, 4):
         batch = make_batch(3, step)
-        noise = [torch.randn(3, 16, 2) for _ in range(2)]  # the next action's, then the action's
-        with mock.patch("torch.randn_like", side_effect=list(noise)):
-            sac_update(batch, *batch_learner[:4], batch_learner[4], 0.99, 0.1, -1.0)
+        noise = torch.randn(2, 3, 16, 2)  # the next action's, then the action's
+        update(batch_learner, batch, noise)
         for k, one in enumerate(singles):
-            with mock.patch("torch.randn_like", side_effect=[n[k:k + 1] for n in noise]):
-                sac_update(tuple(t[k:k + 1] for t in batch), *one[:4], one[4], 0.99, 0.1, -1.0)
+            update(one, tuple(t[k:k + 1] for t in batch), noise[:, k:k + 1])
     for k, one in enumerate(singles):
         for module, alone in zip(batch_learner[:3], one[:3], strict=True):  # targets included
             for (name, a), b in zip(seed_slice(module, k).state_dict().items(),

@@ -18,8 +18,8 @@ SWEEP = [sys.executable, str(ROOT / "sweep.py")]
 # Pendulum episodes are 200 steps: four episodes, gradient updates from step 200, an evaluation
 # and (with --checkpoint-interval 200) a checkpoint at every episode end. A stop asked for after
 # the first checkpoint leaves at least one episode to resume.
-RUN_ARGS = ["--total-timesteps", "800", "--learning-starts", "200", "--eval-interval", "200",
-            "--eval-episodes", "1", "--batch-size", "32"]
+RUN_ARGS = ["--no-compile", "--total-timesteps", "800", "--learning-starts", "200",
+            "--eval-interval", "200", "--eval-episodes", "1", "--batch-size", "32"]
 CELLS = ["--env-ids", "Pendulum-v1", "--checkpoint-interval", "200"]
 GRID = [*CELLS, "--seeds", "0", "1"]
 SCRIPTS = ("standard", "corrected")
@@ -198,8 +198,8 @@ def test_dimensions_preset_runs_and_analyzes_with_the_default_normalisation(tmp_
     result = sweep("--preset", "dimensions", "--env-ids", "Hopper-v5", "h1hand-powerlift-v0",
                    "--seeds", "0", "--workers", "2", "--output-dir", str(tmp_path / "runs"),
                    "--analyze", str(report), "--analyze-args=--reps 200 --curve-reps 20", "--",
-                   "--total-timesteps", "300", "--learning-starts", "200", "--eval-interval",
-                   "100", "--eval-episodes", "1", "--batch-size", "32")
+                   "--no-compile", "--total-timesteps", "300", "--learning-starts", "200",
+                   "--eval-interval", "100", "--eval-episodes", "1", "--batch-size", "32")
     assert "2 done" in result.stdout
     summary = (report / "summary.md").read_text()
     assert "`auto` chose `min-max`: no HumanoidBench success bar for Hopper-v5" in summary

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.test_sac import wait_for
+from tests.test_sac import EAGER, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 SHORT = ["--env-id", "Pendulum-v1", "--total-timesteps", "3000", "--learning-starts", "200",
@@ -59,7 +59,7 @@ def csv_rows(path: Path) -> list[dict]:
 
 def test_track_logs_our_scalars_offline_and_a_resume_continues_the_run(tmp_path):
     run_dir = tmp_path / "tracked"
-    command = [sys.executable, str(ROOT / "sac_corrected.py"), *SHORT, "--output-dir",
+    command = [sys.executable, str(ROOT / "sac_corrected.py"), *SHORT, *EAGER, "--output-dir",
                str(tmp_path), "--run-name", "tracked"]
     process = subprocess.Popen(command, cwd=ROOT, env=OFFLINE, stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL)
@@ -69,7 +69,8 @@ def test_track_logs_our_scalars_offline_and_a_resume_continues_the_run(tmp_path)
     process.send_signal(signal.SIGTERM)
     assert process.wait() == 3
     resumed = subprocess.run([sys.executable, str(ROOT / "sac_corrected.py"), "--resume",
-                              str(run_dir)], cwd=ROOT, env=OFFLINE, capture_output=True, text=True)
+                              str(run_dir), *EAGER], cwd=ROOT, env=OFFLINE, capture_output=True,
+                             text=True)
     assert resumed.returncode == 0, resumed.stderr
 
     run_id = (run_dir / "wandb_run_id.txt").read_text().strip()
