@@ -727,27 +727,35 @@ def make_train_step(rb: ReplayBuffer, update: Callable, batch_size: int, device:
     return lambda: update_graph(*rb.sample(batch_size, device))
 
 
-def compile_update(update: Callable, learner: dict, batch: tuple[torch.Tensor, ...],
-                   restore: tuple) -> Callable:
-    """update(learner, batch, noise) compiled whole (torch.compile, fullgraph: one graph, no
-    breaks) and called once at start-up on an all-zero batch, so that the compile's cost and any
-    failure show at once, not after learning_starts steps; the tensors of `restore` are put back
-    afterwards. Inductor caches what it compiled (in /tmp by default): a second run or a resume
-    on the same machine compiles in a fraction of the time."""
-    compiled = torch.compile(update, fullgraph=True)
+def compile_at_start(fn: Callable, example: tuple, restore: tuple, name: str) -> Callable:
+    """fn compiled whole (torch.compile, fullgraph: one graph, no breaks) and called once, at
+    start-up, on the `example` arguments, so that the compile's cost and any failure show at
+    once, not after learning_starts steps; the tensors of `restore` are put back afterwards.
+    Inductor caches what it compiled (in /tmp by default): a second run or a resume on the same
+    machine compiles in a fraction of the time."""
+    compiled = torch.compile(fn, fullgraph=True)
     saved = [(t, t.detach().clone()) for t in training_state(*restore)]
     start = time.time()
     try:
-        compiled(learner, batch, torch.zeros((2, *batch[1].shape), device=batch[1].device))
-    except Exception as error:  # inductor's errors run to pages; the fix is one of two
+        compiled(*example)
+    except Exception as error:  # inductor's errors run to pages: the first line, and the fixes
         cause = next((line for line in str(error).splitlines() if line.strip()), "")[:300]
-        fail(f"compiling the update failed ({type(error).__name__}: {cause}); install a C++ "
-             "compiler (apt-get install g++) or run with --no-compile")
+        fail(f"compiling {name} failed ({type(error).__name__}: {cause}); run with "
+             "--no-compile, or if a C++ compiler or Python's headers are missing, install them "
+             "(apt-get install g++ python3-dev)")
     with torch.no_grad():
         for t, value in saved:
             t.copy_(value)
-    print(f"compiled the update in {time.time() - start:.1f} s", flush=True)
+    print(f"compiled {name} in {time.time() - start:.1f} s", flush=True)
     return compiled
+
+
+def compile_update(update: Callable, learner: dict, batch: tuple[torch.Tensor, ...],
+                   restore: tuple) -> Callable:
+    """update(learner, batch, noise) compiled and run once on `batch` (zeros) and zero noise,
+    the learner's state put back (`restore`: its modules, tensors and optimizers)."""
+    noise = torch.zeros((2, *batch[1].shape), device=batch[1].device)
+    return compile_at_start(update, (learner, batch, noise), restore, "the update")
 
 
 def check_finite(x: np.ndarray, what: str) -> None:
@@ -914,7 +922,13 @@ if __name__ == "__main__":
     keep = global_step if args.resume is not None else None
     graphs = device.type == "cuda" and args.cudagraphs
     graphed = cuda_graph if graphs else (lambda fn, restore=(): fn)
-    train_action = graphed(torch.no_grad()(lambda obs: actor.get_action(obs[:, None])[0][:, 0]))
+    # Acting: a sampled action per seed from its observation, (K, obs) -> (K, A).
+    act = torch.no_grad()(lambda obs, noise: actor.squash(*actor(obs[:, None]), noise)[0][:, 0])
+    noise_shape = (args.num_seeds, 1, action_dim)
+    if args.compile:
+        act = compile_at_start(act, (torch.zeros((args.num_seeds, obs_dim), device=device),
+                                     torch.zeros(noise_shape, device=device)), (), "acting")
+    train_action = graphed(lambda obs: act(obs, torch.randn(noise_shape, device=device)))
     learner = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
     update = functools.partial(sac_update, actor=actor, qf=qf, gamma=args.gamma, tau=args.tau,
                                target_entropy=target_entropy)
