@@ -163,6 +163,9 @@ TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
 RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "print_interval",
                   "cuda", "compile", "cudagraphs", "gpu_buffer", "torch_threads", "capture_video",
                   "eval_workers", *TRACKING_FIELDS)
+# Of those, what a resume keeps unless told otherwise: a tracked run goes on being tracked, to
+# the same W&B run; a compiled run stays compiled and an eager one eager (they round apart).
+KEPT_FIELDS = (*TRACKING_FIELDS, "compile")
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
                  "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
                  "episode_return_mean", "episode_length_mean")
@@ -191,13 +194,12 @@ def parse_args() -> Args:
         stored[key] = tuple(stored.get(key, getattr(args, key)))
     # A folder's config.json holds its own seed; the batch's arguments start at its first.
     stored["seed"] = config.get("batch", {}).get("first_seed", stored.get("seed", args.seed))
-    # A tracked run goes on being tracked, to the same W&B run, unless told otherwise.
-    tracking = {k: config[k] for k in TRACKING_FIELDS if k in config}
-    wrong = [k for k, v in (stored | tracking).items() if not same_type(v, getattr(args, k))]
+    kept = {k: config[k] for k in KEPT_FIELDS if k in config}
+    wrong = [k for k, v in (stored | kept).items() if not same_type(v, getattr(args, k))]
     if wrong:
         fail(f"{path} holds values of the wrong type for {wrong}; it was edited or damaged: "
              "restore it, or start a new run")
-    resumed = tyro.cli(Args, default=dataclasses.replace(args, **stored, **tracking))
+    resumed = tyro.cli(Args, default=dataclasses.replace(args, **stored, **kept))
     changed = [k for k, v in stored.items() if getattr(resumed, k) != v]
     if changed:
         fail(f"--resume {args.resume}: flags {changed} contradict the run's stored arguments; "
@@ -538,6 +540,8 @@ def sac_losses(params: tuple[dict, dict, torch.Tensor], qf_target_params: dict,
     them detached), the actor's the actor loss's, log alpha (K,) the temperature loss's. Seeds are
     summed too: each seed's gradients are its own. noise: (2, K, batch, A), the next action's and
     the action's. Also returns what train.csv logs, per seed."""
+    # The networks stay nn.Modules, defined as usual; functional_call runs one on the parameters
+    # given here, which is what torch.func.grad differentiates.
     actor_params, qf_params, log_alpha = params
 
     def policy(obs: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -12,6 +12,7 @@ import os
 import shutil
 import signal
 import subprocess
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -166,8 +167,12 @@ def test_compiled_scripts_make_the_same_training_decisions(compiled_runs):
 
 def test_compiled_sigkill_and_resume_equals_the_uninterrupted_run(compiled_runs):
     out, _ = compiled_runs
-    result = run("sac_standard.py", "--resume", str(out / "killed"), "--compile")
+    # No flag: a resume keeps the run's path (sweep.py resumes runs so).
+    result = subprocess.run([sys.executable, str(ROOT / "sac_standard.py"), "--resume",
+                             str(out / "killed")], cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
     assert "resuming" in result.stdout and "at step 600" in result.stdout
+    assert "compiled the update in " in result.stdout
     for name in ("train.csv", "eval.csv"):
         assert read_csv(out / "killed" / name) == read_csv(out / "std" / name), name
 
