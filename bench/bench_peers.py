@@ -15,7 +15,8 @@ evaluation. Every run is a process of its own, pinned to one core (taskset) with
 The figure is the update phase's ms per env step (acting, env step, buffer and update): two runs
 of 1,000 + --short and 1,000 + --long steps, differenced, so that start-up, imports, compiling
 and the random start steps cancel; each implementation and task first gets a throwaway warm-up
-run (sac_corrected.py's compiled update is cached on disk after its first run). Medians over
+run (sac_corrected.py's compiled update is cached on disk after its first run; the compile
+seconds it prints are taken out of its runs' times, as they vary from run to run). Medians over
 --repeats; with the defaults, roughly 10 to 15 minutes on one idle core (--cores 0 1: about half).
 Each row gives the speed-up over Stable-Baselines3 and over SBX, and the compute floor as a
 share of it: the matmul FLOPs of one update at batch 64 (from the task's observation and action
@@ -29,6 +30,7 @@ under gymnasium 1's next-step autoreset) rather than let the first truncation cr
 import importlib.metadata
 import os
 import queue
+import re
 import runpy
 import shlex
 import statistics
@@ -208,8 +210,14 @@ class RunFailed(Exception):
     """A run exited non-zero: its command line and the end of its output."""
 
 
+# sac_corrected.py prints what compiling cost ("compiled the update in 5.6 s"): with inductor's
+# on-disk cache it varies by seconds from run to run, which differencing would not cancel.
+COMPILE_LINE = re.compile(r"^compiled .+ in ([0-9.]+) s$", re.MULTILINE)
+
+
 def run_seconds(command: list[str], core: int, cpu_time: bool) -> float:
-    """Wall-clock (or CPU) seconds of one run, pinned to `core` with one thread."""
+    """Wall-clock (or CPU) seconds of one run, pinned to `core` with one thread, less the
+    seconds it says it spent compiling."""
     with tempfile.TemporaryDirectory() as scratch, open(Path(scratch) / "output", "w+") as log:
         start = time.perf_counter()
         child = subprocess.Popen(["taskset", "-c", str(core), *command], cwd=scratch,
@@ -217,11 +225,13 @@ def run_seconds(command: list[str], core: int, cpu_time: bool) -> float:
         _, status, usage = os.wait4(child.pid, 0)  # the child's own rusage: runs overlap
         wall = time.perf_counter() - start
         child.returncode = os.waitstatus_to_exitcode(status)
+        log.seek(0)
+        output = log.read()
         if child.returncode != 0:
-            log.seek(0)
             raise RunFailed(f"exit {child.returncode}: {shlex.join(command)}\n"
-                            + "\n".join(log.read().splitlines()[-15:]))
-    return usage.ru_utime + usage.ru_stime if cpu_time else wall
+                            + "\n".join(output.splitlines()[-15:]))
+    compiling = sum(float(seconds) for seconds in COMPILE_LINE.findall(output))
+    return (usage.ru_utime + usage.ru_stime if cpu_time else wall) - compiling
 
 
 def seconds_per_step(args: Args, impl: str, env_id: str, core: int) -> float:
