@@ -1,4 +1,6 @@
-"""What makes the SAC scripts fast, kept out of them: CUDA graphs and torch.compile at start-up.
+"""What makes the SAC scripts fast, kept out of them: torch.compile at start-up, CUDA graphs, and
+the pieces that let the update compile whole (Adam as foreach ops, a ReLU whose backward inductor
+runs fast).
 
 Both scripts import these; none of it is the algorithm (docs/speed.md).
 """
@@ -10,6 +12,68 @@ import torch
 import torch.nn as nn
 
 from run_folder import fail
+
+
+class ReLUFromOutput(torch.autograd.Function):
+    """ReLU whose backward multiplies by sign(output), 1 where it passed and 0 where it clipped:
+    torch.relu's gradient, from a float tensor instead of a boolean mask of the input, which
+    inductor's CPU code stores ~10x slower (bench/bench_compile.py; the update has ten ReLUs)."""
+
+    @staticmethod
+    def forward(x: torch.Tensor) -> torch.Tensor:
+        return x.clamp_min(0)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output) -> None:  # torch.func.grad needs this form
+        ctx.save_for_backward(output)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        (output,) = ctx.saved_tensors
+        return grad * output.sign()
+
+
+class ReLU(nn.Module):
+    """torch.relu, as ReLUFromOutput when compiled (the same gradient; eager, under torch.func
+    the custom backward costs more than it saves)."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return ReLUFromOutput.apply(x) if torch.compiler.is_compiling() else torch.relu(x)
+
+
+def adam_step(params: list[torch.Tensor], grads: list[torch.Tensor], state: dict) -> None:
+    """torch.optim.Adam's step (eps outside the square root, as optax's too), in place, on the
+    moments and step count of `state` (adam_state): as foreach ops, so that it compiles with the
+    rest of the update into one function."""
+    beta1, beta2 = state["betas"]
+    torch._foreach_add_(state["steps"], 1)
+    torch._foreach_lerp_(state["exp_avgs"], grads, 1 - beta1)
+    torch._foreach_mul_(state["exp_avg_sqs"], beta2)
+    torch._foreach_addcmul_(state["exp_avg_sqs"], grads, grads, 1 - beta2)
+    step = state["steps"][0]  # every parameter's count is the same
+    bias_correction1, bias_correction2 = 1 - beta1**step, 1 - beta2**step
+    denominators = torch._foreach_div(torch._foreach_sqrt(state["exp_avg_sqs"]),
+                                      bias_correction2.sqrt())
+    torch._foreach_add_(denominators, state["eps"])
+    steps = torch._foreach_div(state["exp_avgs"], denominators)
+    torch._foreach_mul_(steps, state["lr"] / bias_correction1)
+    torch._foreach_sub_(params, steps)
+
+
+def adam_state(optimizer: torch.optim.Optimizer) -> dict:
+    """The tensors of a torch.optim.Adam (created if it has not stepped yet, as its first step
+    would) and its settings. The optimizer holds the state, so that checkpoints keep its
+    state_dict; adam_step applies the step."""
+    group = optimizer.param_groups[0]
+    for p in group["params"]:
+        if not optimizer.state[p]:
+            optimizer.state[p] = {"step": torch.zeros((), device=p.device),
+                                  "exp_avg": torch.zeros_like(p),
+                                  "exp_avg_sq": torch.zeros_like(p)}
+    states = [optimizer.state[p] for p in group["params"]]
+    return {"steps": [s["step"] for s in states], "exp_avgs": [s["exp_avg"] for s in states],
+            "exp_avg_sqs": [s["exp_avg_sq"] for s in states], "lr": group["lr"],
+            "betas": group["betas"], "eps": group["eps"]}
 
 
 # CUDA graphs (LeanRL's recipe with torch.cuda.graphs): eager PyTorch launches ~300 small kernels
@@ -92,3 +156,30 @@ def compile_at_start(fn: Callable, example: tuple, restore: tuple, name: str) ->
             t.copy_(value)
     print(f"compiled {name} in {time.time() - start:.1f} s", flush=True)
     return compiled
+
+
+def compile_update(update: Callable, learner: dict, batch: tuple[torch.Tensor, ...],
+                   restore: tuple) -> Callable:
+    """update(learner, batch, noise) compiled and run once on `batch` (zeros) and zero noise,
+    the learner's state put back (`restore`: its modules, tensors and optimizers)."""
+    noise = torch.zeros((2, *batch[1].shape), device=batch[1].device)
+    return compile_at_start(update, (learner, batch, noise), restore, "the update")
+
+
+def make_train_step(rb, update: Callable, batch_size: int, device: torch.device, graphs: bool,
+                    learner: tuple) -> Callable:
+    """One gradient update (update(batch, noise)) on a fresh batch from the replay buffer `rb`
+    and fresh policy noise, as a function of nothing. With graphs and the buffer on the GPU,
+    sampling is inside the graph; with the buffer in host memory, the batch is drawn there and
+    copied into the graph's inputs."""
+    noise_shape = (2, len(rb.ptr), batch_size, rb.action_dim)  # the next action's, the action's
+
+    def update_with_noise(batch: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
+        return update(batch, torch.randn(noise_shape, device=device))
+
+    if not graphs:
+        return lambda: update_with_noise(rb.sample(batch_size, device))
+    if rb.obs.device.type == device.type:  # the buffer is on the run's GPU
+        return cuda_graph(lambda: update_with_noise(rb.sample(batch_size, device)), learner)
+    update_graph = cuda_graph(lambda *batch: update_with_noise(batch), learner)
+    return lambda: update_graph(*rb.sample(batch_size, device))

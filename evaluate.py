@@ -40,6 +40,7 @@ import tyro
 
 import sac_corrected as sac
 from eval_runner import ACTIONS, Q_BEST_CANDIDATES, SHIFT_COLUMNS, EvalPool, Round, eval_seeds
+from run_folder import fail
 
 SELECTORS = ACTIONS
 CONFIDENCE = 0.95
@@ -87,7 +88,7 @@ def parse_args(argv: list[str] | None = None) -> Args:
     except SystemExit as exit_:
         if exit_.code in (0, None):  # --help
             raise
-        sac.fail(f"{one_line(captured.getvalue())} (see evaluate.py --help)")
+        fail(f"{one_line(captured.getvalue())} (see evaluate.py --help)")
 
 
 def one_line(box: str) -> str:
@@ -115,13 +116,13 @@ def check_args(args: Args) -> None:
         if not ok:
             value = getattr(args, name)
             shown = " ".join(value) if isinstance(value, tuple) else value
-            sac.fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
+            fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
     if not args.source.exists():
-        sac.fail(f"{args.source} does not exist; give a run folder, a final_model.pt or an SB3 "
+        fail(f"{args.source} does not exist; give a run folder, a final_model.pt or an SB3 "
                  "SAC .zip")
     for flag, folder in (("--out", args.out), ("--video", args.video)):
         if folder is not None and folder.exists() and not folder.is_dir():
-            sac.fail(f"{flag} {folder}: a file of that name exists; give a folder")
+            fail(f"{flag} {folder}: a file of that name exists; give a folder")
 
 
 # ----------------------------------------------------------------------------- load
@@ -174,11 +175,11 @@ def load_policy(args: Args) -> tuple[nn.Module, nn.Module | None, str, dict]:
         weights = next((source / n for n in ("final_model.pt", "checkpoint.pt")
                         if (source / n).is_file()), None)
         if weights is None:
-            sac.fail(f"{source} holds no final_model.pt or checkpoint.pt yet: nothing to evaluate")
+            fail(f"{source} holds no final_model.pt or checkpoint.pt yet: nothing to evaluate")
         state = load_weights(weights)
         env_id = args.env_id or config.get("env_id")
         if not isinstance(env_id, str):
-            sac.fail(f"{source / 'config.json'} names no env_id; restore it, or pass --env-id")
+            fail(f"{source / 'config.json'} names no env_id; restore it, or pass --env-id")
         actor = build_actor(state["actor"], env_id, config, weights)
         return actor, build_critic(state, actor, weights) if need_critic else None, env_id, \
             {"source": str(weights), "kind": "run", "run_seed": config.get("seed")}
@@ -187,7 +188,7 @@ def load_policy(args: Args) -> tuple[nn.Module, nn.Module | None, str, dict]:
     config = state.get("config") or state.get("args") or {}
     env_id = args.env_id or (config.get("env_id") if isinstance(config, dict) else None)
     if not isinstance(env_id, str):
-        sac.fail(f"{source} does not say which env it was trained on; pass --env-id")
+        fail(f"{source} does not say which env it was trained on; pass --env-id")
     actor = build_actor(state["actor"], env_id, config, source)
     return actor, build_critic(state, actor, source) if need_critic else None, env_id, \
         {"source": str(source), "kind": "weights"}
@@ -196,14 +197,14 @@ def load_policy(args: Args) -> tuple[nn.Module, nn.Module | None, str, dict]:
 def read_config(run_dir: Path) -> dict:
     path = run_dir / "config.json"
     if not path.is_file():
-        sac.fail(f"{run_dir} is not a run folder (no config.json); give a folder made by "
+        fail(f"{run_dir} is not a run folder (no config.json); give a folder made by "
                  "sac_standard.py or sac_corrected.py, a final_model.pt or an SB3 .zip")
     try:
         config = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        sac.fail(f"{path} is not valid JSON ({error}); restore it from a copy")
+        fail(f"{path} is not valid JSON ({error}); restore it from a copy")
     if not isinstance(config, dict):
-        sac.fail(f"{path} does not hold a JSON object; restore it from a copy")
+        fail(f"{path} does not hold a JSON object; restore it from a copy")
     return config
 
 
@@ -213,14 +214,14 @@ def load_weights(path: Path) -> dict:
     try:
         state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
     except Exception as error:  # not a torch file, truncated, or holding more than weights
-        sac.fail(f"{path} is not a weights file of ours ({type(error).__name__}: "
+        fail(f"{path} is not a weights file of ours ({type(error).__name__}: "
                  f"{str(error).splitlines()[0][:120]}); give a final_model.pt or a run folder")
     actor = state.get("actor") if isinstance(state, dict) else None
     if not isinstance(actor, dict) or not all(torch.is_tensor(v) for v in actor.values()):
-        sac.fail(f"{path} holds no 'actor' weights; give a final_model.pt or a run folder")
+        fail(f"{path} holds no 'actor' weights; give a final_model.pt or a run folder")
     broken = [k for k, v in actor.items() if v.is_floating_point() and not v.isfinite().all()]
     if broken:
-        sac.fail(f"{path}: the actor's {broken[0]} holds NaN/inf (training diverged); evaluate "
+        fail(f"{path}: the actor's {broken[0]} holds NaN/inf (training diverged); evaluate "
                  "an earlier model")
     return state
 
@@ -246,11 +247,11 @@ def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Act
                                          and k.endswith(".weight")),
                                         key=lambda k: int(k.split(".")[1]))]
     if not trunk or trunk[0].dim() != 3 or "fc_mean.weight" not in weights:
-        sac.fail(f"{path} holds no actor of sac_standard.py or sac_corrected.py (no trunk or "
+        fail(f"{path} holds no actor of sac_standard.py or sac_corrected.py (no trunk or "
                  "fc_mean layers); give a final_model.pt or a run folder")
     shapes = (trunk[0].shape[-2], weights["fc_mean.weight"].shape[-1])
     if shapes != (obs_dim, action_dim):
-        sac.fail(f"{path} was trained on {shapes[0]}-dim observations and {shapes[1]}-dim "
+        fail(f"{path} was trained on {shapes[0]}-dim observations and {shapes[1]}-dim "
                  f"actions; {env_id} has {obs_dim} and {action_dim}: pass the --env-id it was "
                  "trained on")
     actor = sac.Actor(obs_dim, tuple(w.shape[-1] for w in trunk), env.action_space,
@@ -259,7 +260,7 @@ def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Act
     try:
         actor.load_state_dict(weights)
     except RuntimeError as error:  # layers missing, extra or of the wrong shape
-        sac.fail(f"{path}: its actor does not fit our Actor ({' '.join(str(error).split())[:200]})"
+        fail(f"{path}: its actor does not fit our Actor ({' '.join(str(error).split())[:200]})"
                  "; give a final_model.pt of sac_standard.py or sac_corrected.py")
     return actor
 
@@ -270,7 +271,7 @@ def build_critic(state: dict, actor: sac.Actor, path: Path) -> sac.TwinQ:
     weights = state.get("qf")
     if not isinstance(weights, dict) or not weights or \
             not all(torch.is_tensor(v) for v in weights.values()):
-        sac.fail(f"{path} holds no critic weights ('qf'), which q_best needs; give a "
+        fail(f"{path} holds no critic weights ('qf'), which q_best needs; give a "
                  "final_model.pt or checkpoint.pt that holds them, or drop q_best from --selectors")
     weights = with_seed_axis(weights)
     layers = [weights[k] for k in sorted((k for k in weights if k.startswith("qf1.")
@@ -279,49 +280,49 @@ def build_critic(state: dict, actor: sac.Actor, path: Path) -> sac.TwinQ:
     obs_dim, action_dim = actor.trunk[0].weight.shape[-2], actor.fc_mean.weight.shape[-1]
     if not layers or any(w.dim() != 3 for w in layers) or layers[-1].shape[-1] != 1 \
             or layers[0].shape[-2] != obs_dim + action_dim:
-        sac.fail(f"{path}: its 'qf' is not a critic of sac_standard.py or sac_corrected.py for "
+        fail(f"{path}: its 'qf' is not a critic of sac_standard.py or sac_corrected.py for "
                  f"{obs_dim}-dim observations and {action_dim}-dim actions; give the run's own "
                  "final_model.pt, or drop q_best from --selectors")
     critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[-1] for w in layers[:-1]))
     try:
         critic.load_state_dict(weights)
     except RuntimeError as error:  # the second critic missing, or of other widths
-        sac.fail(f"{path}: its critic does not fit our TwinQ "
+        fail(f"{path}: its critic does not fit our TwinQ "
                  f"({' '.join(str(error).split())[:200]}); give a final_model.pt of "
                  "sac_standard.py or sac_corrected.py, or drop q_best from --selectors")
     broken = [k for k, v in weights.items() if v.is_floating_point() and not v.isfinite().all()]
     if broken:
-        sac.fail(f"{path}: the critic's {broken[0]} holds NaN/inf (training diverged); evaluate "
+        fail(f"{path}: the critic's {broken[0]} holds NaN/inf (training diverged); evaluate "
                  "an earlier model, or drop q_best from --selectors")
     return critic.eval()
 
 
 def load_sb3(path: Path, env_id: str | None) -> tuple[nn.Module, str, dict]:
     if env_id is None:
-        sac.fail(f"{path} is a Stable-Baselines3 file: pass --env-id, the env it was trained on")
+        fail(f"{path} is a Stable-Baselines3 file: pass --env-id, the env it was trained on")
     try:
         data = json.loads(zipfile.ZipFile(path).read("data"))
     except (zipfile.BadZipFile, KeyError, json.JSONDecodeError) as error:
-        sac.fail(f"{path} is not a Stable-Baselines3 model ({error}); give an SB3 SAC .zip")
+        fail(f"{path} is not a Stable-Baselines3 model ({error}); give an SB3 SAC .zip")
     policy = data.get("policy_class", {})
     module = policy.get("__module__", "") if isinstance(policy, dict) else ""
     if not module.startswith("stable_baselines3.sac"):
-        sac.fail(f"{path} is not a Stable-Baselines3 SAC model (its policy comes from "
+        fail(f"{path} is not a Stable-Baselines3 SAC model (its policy comes from "
                  f"{module or 'an unknown module'}): the mode of a tanh-squashed Gaussian needs "
                  "a SAC policy")
     try:
         from stable_baselines3 import SAC
     except ImportError:
-        sac.fail("an SB3 .zip needs stable-baselines3: pip install stable-baselines3==2.9.2")
+        fail("an SB3 .zip needs stable-baselines3: pip install stable-baselines3==2.9.2")
     env = sac.make_env(env_id)
     try:
         model = SAC.load(path, device="cpu")
     except Exception as error:  # a damaged archive or one from an incompatible SB3 version
-        sac.fail(f"{path} cannot be loaded by stable-baselines3 ({type(error).__name__}: "
+        fail(f"{path} cannot be loaded by stable-baselines3 ({type(error).__name__}: "
                  f"{' '.join(str(error).split())[:160]}); give an SB3 SAC .zip it can load")
     spaces = (model.observation_space.shape, model.action_space.shape)
     if spaces != (env.observation_space.shape, env.action_space.shape):
-        sac.fail(f"{path} was trained on observations {spaces[0]} and actions {spaces[1]}; "
+        fail(f"{path} was trained on observations {spaces[0]} and actions {spaces[1]}; "
                  f"{env_id} has {env.observation_space.shape} and {env.action_space.shape}: "
                  "pass the --env-id it was trained on")
     return SB3Actor(model), env_id, {"source": str(path), "kind": "stable-baselines3"}
@@ -361,7 +362,7 @@ def run_jobs(jobs: list[Round], workers: int, progress: Callable[[int], None]) -
     except SystemExit as exit_:
         if isinstance(exit_.code, str):  # the runner's one line; its advice is for training
             fact = exit_.code.split("; ")[0]
-            sac.fail(f"{fact}; the model is damaged or does not belong to this env" if
+            fail(f"{fact}; the model is damaged or does not belong to this env" if
                      "NaN/inf" in fact else f"{fact}; run again, with --workers 0 to see why")
         raise
     finally:
@@ -485,7 +486,7 @@ def write_outputs(out: Path, results: dict, seeds: list[int], summary: dict) -> 
         out.mkdir(parents=True, exist_ok=True)
         write_files(out, results, seeds, summary)
     except OSError as error:
-        sac.fail(f"--out {out}: cannot write there ({error.strerror}); give a writable folder")
+        fail(f"--out {out}: cannot write there ({error.strerror}); give a writable folder")
 
 
 def write_files(out: Path, results: dict, seeds: list[int], summary: dict) -> None:
@@ -509,7 +510,7 @@ def main(argv: list[str] | None = None) -> None:
         try:
             args.video.mkdir(parents=True, exist_ok=True)
         except OSError as error:
-            sac.fail(f"--video {args.video}: cannot create it ({error.strerror}); give a "
+            fail(f"--video {args.video}: cannot create it ({error.strerror}); give a "
                      "writable folder")
     seeds = eval_seeds(args.seed, args.eval_round, args.episodes)
     selectors = list(dict.fromkeys(args.selectors))

@@ -13,6 +13,7 @@ import csv
 import dataclasses
 import fcntl
 import json
+import multiprocessing
 import os
 import platform
 import random
@@ -247,6 +248,14 @@ class StopRequest:
               flush=True)
 
 
+def ignore_stop_signals_in_worker() -> None:
+    """In an env worker process (not in the trainer): the signals that stop a run are left to
+    the trainer, which checkpoints and then stops its workers."""
+    if multiprocessing.parent_process() is not None:
+        for s in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1, signal.SIGUSR2):
+            signal.signal(s, signal.SIG_IGN)
+
+
 def rng_states(device: torch.device) -> dict:
     """The process's random streams (the batch's): torch draws the actions and batches of every
     seed. Nothing of ours uses the global numpy and python generators; libraries might. The CUDA
@@ -389,3 +398,193 @@ def load_optimizer_seed_states(optimizer: torch.optim.Optimizer, states: list[di
                       else torch.cat([s["state"][i][n] for s in states])
                       for n, v in state.items()} for i, state in states[0]["state"].items()},
         "param_groups": states[0]["param_groups"]})
+
+
+# The scripts' run folders, from start to finish: named, written fresh or resumed, logged to,
+# checkpointed and finished.
+
+
+def run_dirs(args, algorithm: str) -> list[Path]:
+    """Each seed's run folder: --run-name with {seed} filled in, or the default name."""
+    name = args.run_name or (f"{args.env_id}__{algorithm}__seed{{seed}}__"
+                             f"{time.strftime('%Y%m%d-%H%M%S')}")
+    return [Path(args.output_dir) / name.replace("{seed}", str(args.seed + k))
+            for k in range(args.num_seeds)]
+
+
+def batch_run_dirs(args, algorithm: str) -> list[Path]:
+    """With --resume, the folders of the batch the given one belongs to, each checked before
+    anything is written; else fresh folders, none of which may hold a run."""
+    if args.resume is None:
+        dirs = run_dirs(args, algorithm)
+        for run_dir in dirs:
+            if (run_dir / "config.json").exists():
+                fail(f"{run_dir} already holds a run; continue it with --resume {run_dir} or "
+                     "choose another --run-name")
+        return dirs
+    return resume_batch_dirs(Path(args.resume), algorithm)
+
+
+def write_configs(args, dirs: list[Path], obs_dim: int, action_dim: int, algorithm: str,
+                  script: str) -> None:
+    """Each seed's config.json (run_metadata, and the batch it is trained in), at a fresh start;
+    TensorBoard files of an earlier start are removed (a restart from step 0)."""
+    batch = {"first_seed": args.seed, "num_seeds": args.num_seeds,
+             "run_dirs": [d.name for d in dirs]}
+    for k, run_dir in enumerate(dirs):
+        for old in run_dir.glob("events.out.tfevents.*"):
+            old.unlink()
+        config = run_metadata(dataclasses.replace(args, seed=args.seed + k), obs_dim, action_dim,
+                              algorithm, script)
+        atomic_write(run_dir / "config.json", lambda tmp, c=config: tmp.write_text(
+            json.dumps(c | {"batch": batch}, indent=2)))
+
+
+def new_progress() -> dict:
+    """A seed's training episodes as train.csv reports them, and its last evaluation."""
+    return {"episode_returns": [], "episode_lengths": [], "last_eval": None,
+            "episode_return": 0.0, "episode_length": 0}
+
+
+def count_episodes(progress: list[dict], reward: np.ndarray, episode_end: np.ndarray) -> None:
+    """Adds a step's rewards to each seed's episode under way; an ended one joins the list that
+    the next train.csv row averages."""
+    for k, seed_progress in enumerate(progress):
+        seed_progress["episode_return"] += float(reward[k])
+        seed_progress["episode_length"] += 1
+        if episode_end[k]:
+            seed_progress["episode_returns"].append(seed_progress["episode_return"])
+            seed_progress["episode_lengths"].append(seed_progress["episode_length"])
+            seed_progress["episode_return"], seed_progress["episode_length"] = 0.0, 0
+
+
+def progress_line(global_step: int, total: int, elapsed: float, progress: list[dict]) -> str:
+    """The line printed every --print-interval steps."""
+    last = [p["last_eval"] for p in progress if p["last_eval"] is not None]
+    return (f"step {global_step:,}/{total:,} | {global_step / elapsed:.0f} SPS per seed | "
+            + (f"last eval {np.mean([r for _, r in last]):.1f}"
+               + (f" (mean over {len(last)} seeds)" if len(last) > 1 else "")
+               + f" at step {last[0][0]:,}" if last else "no eval yet"))
+
+
+def open_logs(args, dirs: list[Path], eval_header: list[str], train_header: list[str],
+              global_step: int, resumed: bool, algorithm: str) -> list[dict]:
+    """Per seed: the eval.csv and train.csv writers (a resume keeps their rows up to its step),
+    TensorBoard and, with --track, W&B."""
+    logs = []
+    keep = global_step if resumed else None
+    for k, run_dir in enumerate(dirs):
+        tb = SummaryWriter(run_dir, purge_step=global_step + 1 if resumed else None)
+        if not resumed:
+            tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
+                f"|{k}|{v}|" for k, v in dataclasses.asdict(args).items()))
+        logs.append({"eval": open_csv(run_dir / "eval.csv", eval_header, keep),
+                     "train": open_csv(run_dir / "train.csv", train_header, keep), "tb": tb,
+                     "tracker": start_tracking(dataclasses.replace(args, seed=args.seed + k),
+                                               run_dir, algorithm)})
+    return logs
+
+
+def close_logs(logs: list[dict]) -> None:
+    for log in logs:
+        log["tb"].close()
+        if log["tracker"] is not None:
+            log["tracker"].finish()
+        for f, _ in (log["eval"], log["train"]):
+            f.close()
+
+
+def seed_checkpoint(k: int, args, global_step: int, elapsed: float, progress: dict,
+                    networks: dict[str, nn.Module], log_alpha: torch.Tensor,
+                    optimizers: dict[str, torch.optim.Optimizer], buffer, space: gym.Space,
+                    episode: dict, rng: dict, unfinished: list) -> dict:
+    """Seed k's checkpoint.pt: its part of the batch's networks, temperature, optimizers and
+    replay buffer, and what an exact resume needs besides (the random states, the episode under
+    way, the evaluation rounds a stop left unfinished)."""
+    return {"args": dataclasses.asdict(args), "global_step": global_step, "elapsed": elapsed,
+            "progress": progress,
+            **{name: seed_slice(net, k).state_dict() for name, net in networks.items()},
+            "log_alpha": log_alpha.detach()[k:k + 1].clone(),
+            **{name: optimizer_seed_state(opt, k) for name, opt in optimizers.items()},
+            "buffer": buffer.seed_state_dict(k),
+            "rng": rng | {"action_space": space.np_random.bit_generator.state,
+                          "episode": episode_state(episode, space.shape[0])},
+            "pending_rounds": [pending_round_state(r) for r in unfinished
+                               if r.info["seed_index"] == k]}
+
+
+def load_checkpoints(ckpts: list[dict], networks: dict[str, nn.Module], log_alpha: torch.Tensor,
+                     optimizers: dict[str, torch.optim.Optimizer], buffer, spaces: list,
+                     device: torch.device) -> tuple[int, float, list[dict]]:
+    """The batch's state from its seeds' checkpoints (seed_checkpoint); returns the step, the
+    training time so far and each seed's progress."""
+    for name, net in networks.items():
+        load_seed_states(net, [c[name] for c in ckpts])
+    for name, optimizer in optimizers.items():
+        load_optimizer_seed_states(optimizer, [c[name] for c in ckpts])
+        for group in optimizer.param_groups:
+            group["capturable"] = device.type == "cuda"  # the checkpoint's is its device's
+    with torch.no_grad():
+        log_alpha.copy_(torch.cat([c["log_alpha"] for c in ckpts]))
+    for k, ckpt in enumerate(ckpts):
+        buffer.load_seed_state_dict(k, ckpt["buffer"])
+        spaces[k].np_random.bit_generator.state = ckpt["rng"]["action_space"]
+    set_rng_states(ckpts[0]["rng"], device)
+    return ckpts[0]["global_step"], ckpts[0]["elapsed"], [c["progress"] for c in ckpts]
+
+
+def replay_episodes(envs: gym.vector.VectorEnv, seeds: list[int], ckpts: list[dict]) -> np.ndarray:
+    """Every env's episode so far, replayed (the checkpoint may fall mid-episode); returns the
+    observations the run goes on from."""
+    envs.reset(seed=seeds)
+    envs.set_attr("record", [c["rng"]["episode"] for c in ckpts])
+    return np.stack(envs.call("replay"))
+
+
+def pending_round_networks(actor: nn.Module, qf: nn.Module, k: int,
+                           state: dict) -> tuple[nn.Module, nn.Module]:
+    """Seed k's networks as an unfinished evaluation round had them (pending_round_state)."""
+    seed_actor, seed_qf = seed_slice(actor, k).cpu(), seed_slice(qf, k).cpu()
+    seed_actor.load_state_dict(state["actor"])
+    if state["qf"] is not None:
+        seed_qf.load_state_dict(state["qf"])
+    return seed_actor, seed_qf
+
+
+def finish_runs(dirs: list[Path], logs: list[dict], final_models: list[dict], global_step: int,
+                wall_time: float) -> None:
+    """Each seed's final_model.pt, its logs closed, and done.json last: a folder with done.json
+    is a finished run (sweep.py skips it)."""
+    for run_dir, model in zip(dirs, final_models, strict=True):
+        atomic_write(run_dir / "final_model.pt", lambda tmp, m=model: torch.save(on_cpu(m), tmp))
+    close_logs(logs)
+    for run_dir in dirs:
+        atomic_write(run_dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
+            {"global_step": global_step, "wall_time": wall_time})))
+
+
+def check_finite(x: np.ndarray, what: str) -> None:
+    if not np.isfinite(x).all():
+        raise SystemExit(f"non-finite {what} (NaN/inf): training diverged; try lower learning "
+                         "rates or resume from an earlier checkpoint")
+
+
+def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None, k: int) -> dict:
+    """Seed k's train.csv statistics: the last update's losses (sac_losses's logs; none before
+    learning starts) and the training episodes that ended since the previous row (taken out of
+    its `progress`)."""
+    returns, lengths = progress["episode_returns"], progress["episode_lengths"]
+    row = {"episodes": len(returns),
+           "episode_return_mean": np.mean(returns) if returns else None,
+           "episode_length_mean": np.mean(lengths) if lengths else None}
+    returns.clear()
+    lengths.clear()
+    if losses is not None:
+        qf_losses, qf_values, actor_losses, alpha, alpha_losses, log_pi = losses
+        check_finite(qf_losses[:, k].detach().cpu().numpy(), "critic loss")
+        row |= {"qf1_loss": qf_losses[0, k].item(), "qf2_loss": qf_losses[1, k].item(),
+                "qf1_value": qf_values[0, k].mean().item(),
+                "qf2_value": qf_values[1, k].mean().item(), "actor_loss": actor_losses[k].item(),
+                "alpha": alpha[k].item(), "alpha_loss": alpha_losses[k].item(),
+                "entropy": -log_pi[k].mean().item()}
+    return row

@@ -8,18 +8,10 @@ replaced by the mode of the tanh-squashed policy: `diff` the two to see the corr
 
 import atexit
 import copy
-import dataclasses
-import difflib
 import functools
-import importlib
-import json
-import math
-import multiprocessing
 import random
-import signal
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -28,40 +20,21 @@ import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn as nn
-import tyro
 from torch.func import functional_call
-from torch.utils.tensorboard import SummaryWriter
 
+import flags
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
-from compiled import compile_at_start, cuda_graph, training_state  # noqa: F401
-from eval_runner import EvalPool, Round, default_workers, eval_columns, eval_seeds, round_row
-from run_folder import (
-    INTERRUPTED_EXIT_CODE,
-    EpisodeRecord,
-    StopRequest,
-    atomic_write,
-    check_csv,
-    episode_state,
-    fail,
-    load_optimizer_seed_states,
-    load_seed_states,
-    lock_run_folders,
-    on_cpu,
-    open_csv,
-    optimizer_seed_state,
-    pending_round_state,
-    read_batch_checkpoints,
-    read_run_config,
-    record_holder,
-    resume_batch_dirs,
-    rng_states,
-    run_metadata,
-    save_batch_checkpoint,
-    seed_slice,
-    set_rng_states,
-    start_tracking,
-    write_row,
+import run_folder
+from compiled import (
+    ReLU,
+    adam_state,
+    adam_step,
+    compile_at_start,
+    compile_update,
+    cuda_graph,
+    make_train_step,
 )
+from eval_runner import EvalPool, Round, default_workers, eval_columns, eval_seeds, round_row
 
 ALGORITHM = "standard"
 SHIFT_OF = None  # no shift columns in eval.csv (sac_corrected.py logs them)
@@ -159,14 +132,6 @@ class Args:
     """the W&B group (sweep.py sets {env_id}__{algorithm})"""
 
 
-# Flags that may differ when resuming: they change where and how fast, not what is computed.
-TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
-RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "print_interval",
-                  "cuda", "compile", "cudagraphs", "gpu_buffer", "torch_threads", "capture_video",
-                  "eval_workers", *TRACKING_FIELDS)
-# Of those, what a resume keeps unless told otherwise: a tracked run goes on being tracked, to
-# the same W&B run; a compiled run stays compiled and an eager one eager (they round apart).
-KEPT_FIELDS = (*TRACKING_FIELDS, "compile")
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
                  "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
                  "episode_return_mean", "episode_length_mean")
@@ -180,122 +145,12 @@ def eval_actions(args: Args) -> dict[str, str]:
     return {"": "tanh_mu", **{f"{s}_": s for s in args.eval_selectors}}
 
 
-def parse_args() -> Args:
-    """Parses and checks the flags; with --resume, the run's stored arguments are the defaults
-    and a flag that contradicts them is an error."""
-    args = tyro.cli(Args)
-    if args.resume is None:
-        check_args(args)
-        return args
-    path = Path(args.resume) / "config.json"
-    config = read_run_config(Path(args.resume), ALGORITHM)
-    stored = {f.name: config[f.name] for f in dataclasses.fields(Args)
-              if f.name in config and f.name not in RUNTIME_FIELDS}
-    for key in ("hidden_sizes", "eval_selectors"):  # JSON lists back to the flags' tuples
-        stored[key] = tuple(stored.get(key, getattr(args, key)))
-    # A folder's config.json holds its own seed; the batch's arguments start at its first.
-    stored["seed"] = config.get("batch", {}).get("first_seed", stored.get("seed", args.seed))
-    kept = {k: config[k] for k in KEPT_FIELDS if k in config}
-    wrong = [k for k, v in (stored | kept).items() if not same_type(v, getattr(args, k))]
-    if wrong:
-        fail(f"{path} holds values of the wrong type for {wrong}; it was edited or damaged: "
-             "restore it, or start a new run")
-    resumed = tyro.cli(Args, default=dataclasses.replace(args, **stored, **kept))
-    changed = [k for k, v in stored.items() if getattr(resumed, k) != v]
-    if changed:
-        fail(f"--resume {args.resume}: flags {changed} contradict the run's stored arguments; "
-             "drop them or start a new run")
-    check_args(resumed)
-    return resumed
-
-
-def same_type(value: object, default: object) -> bool:
-    """Whether a config.json value can stand for a flag with this default (None: any)."""
-    if default is None or value is None:
-        return True
-    if isinstance(default, float):
-        return isinstance(value, int | float) and not isinstance(value, bool)
-    if isinstance(default, tuple):  # hidden_sizes holds ints, eval_selectors names
-        return isinstance(value, tuple) and all(type(v) is type(default[0]) if default
-                                                else type(v) is str for v in value)
-    return type(value) is type(default)
-
-
-def check_args(args: Args) -> None:
-    """Every flag's valid range, checked before anything is created or written."""
-    finite = math.isfinite
-    own_actions = eval_actions(dataclasses.replace(args, eval_selectors=())).values()
-    rules = (
-        ("seed", args.seed >= 0, "a non-negative integer"),
-        ("num_seeds", args.num_seeds >= 1, "at least 1"),
-        ("total_timesteps", args.total_timesteps >= 1, "at least 1"),
-        ("buffer_size", args.buffer_size >= 2, "at least 2 (a transition takes two slots)"),
-        ("batch_size", 1 <= args.batch_size <= args.buffer_size,
-         f"between 1 and --buffer-size ({args.buffer_size})"),
-        ("gamma", 0 <= args.gamma <= 1, "in [0, 1]"),
-        ("tau", 0 < args.tau <= 1, "in (0, 1]"),
-        ("learning_starts", 0 <= args.learning_starts < args.total_timesteps,
-         f"in [0, --total-timesteps ({args.total_timesteps})), or no gradient update would run"),
-        ("policy_lr", finite(args.policy_lr) and args.policy_lr > 0, "a positive number"),
-        ("q_lr", finite(args.q_lr) and args.q_lr > 0, "a positive number"),
-        ("alpha_lr", finite(args.alpha_lr) and args.alpha_lr > 0, "a positive number"),
-        ("alpha_init", finite(args.alpha_init) and args.alpha_init > 0, "a positive number"),
-        ("target_entropy_scale", finite(args.target_entropy_scale), "a finite number"),
-        ("hidden_sizes", len(args.hidden_sizes) > 0 and min(args.hidden_sizes) >= 1,
-         "one or more positive layer widths, e.g. --hidden-sizes 256 256"),
-        ("log_std_max", finite(args.log_std_max), "a finite number"),
-        ("log_std_min", finite(args.log_std_min) and args.log_std_min < args.log_std_max,
-         f"a finite number below --log-std-max ({args.log_std_max})"),
-        ("eval_interval", args.eval_interval >= 1, "at least 1 (above --total-timesteps: no "
-         "evaluation)"),
-        ("eval_episodes", args.eval_episodes >= 1, "at least 1 (to skip evaluation, set "
-         "--eval-interval above --total-timesteps)"),
-        ("eval_selectors", len(set(eval_actions(args).values())) == len(eval_actions(args)),
-         f"evaluation actions other than this script's own ({', '.join(own_actions)}), each once"),
-        ("eval_workers", args.eval_workers is None or args.eval_workers >= 0,
-         "0 (in-process) or more"),
-        ("log_interval", args.log_interval >= 1, "at least 1"),
-        ("print_interval", args.print_interval >= 1, "at least 1"),
-        ("checkpoint_interval", args.checkpoint_interval >= 0, "0 (off) or more"),
-        ("torch_threads", args.torch_threads >= 1, "at least 1"),
-        ("run_name", args.run_name is None or (args.run_name not in ("", ".", "..")
-                                               and "/" not in args.run_name
-                                               and (args.num_seeds == 1
-                                                    or "{seed}" in args.run_name)),
-         "a folder name without '/' (with --num-seeds above 1, containing {seed})"),
-        ("wandb_project_name", bool(args.wandb_project_name), "a non-empty name"),
-    )
-    for name, ok, allowed in rules:
-        if not ok:
-            value = getattr(args, name)
-            shown = " ".join(map(str, value)) if isinstance(value, tuple) else repr(value)
-            fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
-
-
 def make_env(env_id: str, render: bool = False) -> gym.Env:
-    """The gymnasium env, with a clear error for an id or a space that SAC cannot use. An id
-    "package.module:EnvId" imports the module first, which registers the env (gymnasium's way)."""
-    module, _, name = env_id.rpartition(":")
-    if module:
-        try:
-            importlib.import_module(module)
-        except ImportError as error:
-            fail(f"--env-id {env_id}: cannot import {module!r} ({error}); check the module path "
-                 "(run from the folder that holds it)")
-    if name not in gym.registry:
-        close = difflib.get_close_matches(name, list(gym.registry), n=5, cutoff=0.5)
-        ours = sorted(k for k in gym.registry if k.startswith("h1hand-"))
-        fail(f"unknown env id {env_id!r}; close matches: {close}; our tasks: {ours}")
-    env = gym.make(env_id, **({"render_mode": "rgb_array"} if render else {}))
-    space = env.action_space
-    if not isinstance(space, gym.spaces.Box):
-        fail(f"{env_id} has a {type(space).__name__} action space; SAC needs a Box")
-    if not (np.isfinite(space.low).all() and np.isfinite(space.high).all()):
-        fail(f"{env_id} has unbounded actions; SAC squashes into finite bounds")
-    obs_space = env.observation_space
-    if not isinstance(obs_space, gym.spaces.Box) or len(obs_space.shape) != 1:
-        fail(f"{env_id} observations are not a flat Box; flatten them first")
-    return env
+    """The gymnasium env; an unknown id, or spaces SAC cannot use, end the run in one line that
+    names the problem (flags.py)."""
+    render_mode = {"render_mode": "rgb_array"} if render else {}
+    env = gym.make(flags.registered_env_id(env_id), **render_mode)
+    return flags.check_spaces(env, env_id)
 
 
 def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
@@ -303,10 +158,8 @@ def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
     steps in-process: no pipe to cross). An episode's end resets that env in the same step, its
     final observation in info["final_obs"] (gymnasium's SAME_STEP autoreset)."""
     def make() -> gym.Env:
-        if multiprocessing.parent_process() is not None:  # in a worker: the trainer stops it
-            for s in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1, signal.SIGUSR2):
-                signal.signal(s, signal.SIG_IGN)
-        return EpisodeRecord(gym.make(env_id))
+        run_folder.ignore_stop_signals_in_worker()
+        return run_folder.EpisodeRecord(gym.make(env_id))
 
     vector = gym.vector.AsyncVectorEnv if num_envs > 1 else gym.vector.SyncVectorEnv
     return vector([make] * num_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
@@ -315,7 +168,7 @@ def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
 class SeedLinear(nn.Module):
     """One linear layer per seed, K in all: weight (K, in, out), bias (K, 1, out). A batched
     matmul runs the K layers as one; each seed's gradients stay its own. A (batch, in) input is
-    one seed's batch through a K = 1 layer (the evaluation's copies, see seed_slice)."""
+    one seed's batch through a K = 1 layer (the evaluation's copies, see run_folder.seed_slice)."""
 
     def __init__(self, seeds: int, in_features: int, out_features: int):
         super().__init__()
@@ -328,33 +181,6 @@ class SeedLinear(nn.Module):
         if x.dim() == 2:
             return self(x[None])[0]
         return torch.baddbmm(self.bias, x, self.weight)
-
-
-class ReLUFromOutput(torch.autograd.Function):
-    """ReLU whose backward multiplies by sign(output), 1 where it passed and 0 where it clipped:
-    torch.relu's gradient, from a float tensor instead of a boolean mask of the input, which
-    inductor's CPU code stores ~10x slower (bench/bench_compile.py; the update has ten ReLUs)."""
-
-    @staticmethod
-    def forward(x: torch.Tensor) -> torch.Tensor:
-        return x.clamp_min(0)
-
-    @staticmethod
-    def setup_context(ctx, inputs, output) -> None:  # torch.func.grad needs this form
-        ctx.save_for_backward(output)
-
-    @staticmethod
-    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
-        (output,) = ctx.saved_tensors
-        return grad * output.sign()
-
-
-class ReLU(nn.Module):
-    """torch.relu, as ReLUFromOutput when compiled (the same gradient; eager, under torch.func
-    the custom backward costs more than it saves)."""
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return ReLUFromOutput.apply(x) if torch.compiler.is_compiling() else torch.relu(x)
 
 
 def seed_mlp(seeds: int, sizes: tuple[int, ...]) -> nn.Sequential:
@@ -568,25 +394,6 @@ def sac_losses(params: tuple[dict, dict, torch.Tensor], qf_target_params: dict,
     return total, (qf_losses, qf_values, actor_losses, alpha, alpha_losses, log_pi)
 
 
-def adam_step(params: list[torch.Tensor], grads: list[torch.Tensor], state: dict) -> None:
-    """torch.optim.Adam's step (eps outside the square root, as optax's too), in place, on the
-    moments and step count of `state` (adam_state): as foreach ops, so that it compiles with the
-    rest of the update into one function."""
-    beta1, beta2 = state["betas"]
-    torch._foreach_add_(state["steps"], 1)
-    torch._foreach_lerp_(state["exp_avgs"], grads, 1 - beta1)
-    torch._foreach_mul_(state["exp_avg_sqs"], beta2)
-    torch._foreach_addcmul_(state["exp_avg_sqs"], grads, grads, 1 - beta2)
-    step = state["steps"][0]  # every parameter's count is the same
-    bias_correction1, bias_correction2 = 1 - beta1**step, 1 - beta2**step
-    denominators = torch._foreach_div(torch._foreach_sqrt(state["exp_avg_sqs"]),
-                                      bias_correction2.sqrt())
-    torch._foreach_add_(denominators, state["eps"])
-    steps = torch._foreach_div(state["exp_avgs"], denominators)
-    torch._foreach_mul_(steps, state["lr"] / bias_correction1)
-    torch._foreach_sub_(params, steps)
-
-
 # torch.func.grad ignores an outer no_grad; nothing else here needs autograd's records (and,
 # compiled, AOTAutograd then makes an inference graph: no autograd wrapper around each call).
 @torch.no_grad()
@@ -610,22 +417,6 @@ def sac_update(learner: dict, batch: tuple[torch.Tensor, ...], noise: torch.Tens
         else:
             adam_step([p], [g], state)
     return logs
-
-
-def adam_state(optimizer: torch.optim.Optimizer) -> dict:
-    """The tensors of a torch.optim.Adam (created if it has not stepped yet, as its first step
-    would) and its settings. The optimizer holds the state, so that checkpoints keep its
-    state_dict; sac_update applies the step."""
-    group = optimizer.param_groups[0]
-    for p in group["params"]:
-        if not optimizer.state[p]:
-            optimizer.state[p] = {"step": torch.zeros((), device=p.device),
-                                  "exp_avg": torch.zeros_like(p),
-                                  "exp_avg_sq": torch.zeros_like(p)}
-    states = [optimizer.state[p] for p in group["params"]]
-    return {"steps": [s["step"] for s in states], "exp_avgs": [s["exp_avg"] for s in states],
-            "exp_avg_sqs": [s["exp_avg_sq"] for s in states], "lr": group["lr"],
-            "betas": group["betas"], "eps": group["eps"]}
 
 
 def learner_tensors(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.Tensor,
@@ -656,38 +447,6 @@ def evaluation_round(args: Args, seed_actor: Actor, seed_qf: TwinQ, actions: dic
                        "eval_round": eval_round})
 
 
-def make_train_step(rb: ReplayBuffer, update: Callable, batch_size: int, device: torch.device,
-                    graphs: bool, learner: tuple) -> Callable:
-    """One gradient update (update(batch, noise)) on a fresh batch and fresh policy noise, as a
-    function of nothing. With graphs and the buffer on the GPU, sampling is inside the graph; with
-    the buffer in host memory, the batch is drawn there and copied into the graph's inputs."""
-    noise_shape = (2, len(rb.ptr), batch_size, rb.action_dim)  # the next action's, the action's
-
-    def update_with_noise(batch: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
-        return update(batch, torch.randn(noise_shape, device=device))
-
-    if not graphs:
-        return lambda: update_with_noise(rb.sample(batch_size, device))
-    if rb.obs.device.type == device.type:  # the buffer is on the run's GPU
-        return cuda_graph(lambda: update_with_noise(rb.sample(batch_size, device)), learner)
-    update_graph = cuda_graph(lambda *batch: update_with_noise(batch), learner)
-    return lambda: update_graph(*rb.sample(batch_size, device))
-
-
-def compile_update(update: Callable, learner: dict, batch: tuple[torch.Tensor, ...],
-                   restore: tuple) -> Callable:
-    """update(learner, batch, noise) compiled and run once on `batch` (zeros) and zero noise,
-    the learner's state put back (`restore`: its modules, tensors and optimizers)."""
-    noise = torch.zeros((2, *batch[1].shape), device=batch[1].device)
-    return compile_at_start(update, (learner, batch, noise), restore, "the update")
-
-
-def check_finite(x: np.ndarray, what: str) -> None:
-    if not np.isfinite(x).all():
-        raise SystemExit(f"non-finite {what} (NaN/inf): training diverged; try lower learning "
-                         "rates or resume from an earlier checkpoint")
-
-
 def ends_without_bootstrap(terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
     """Whether the target of a transition drops the next state's value. HumanoidBench bootstraps
     one that is both terminated and truncated (its mask is `not terminated or truncated`)."""
@@ -702,52 +461,11 @@ def physics_blow_ups(info: dict, episode_end: np.ndarray) -> np.ndarray:
         & final.get("physics_unstable", False)
 
 
-def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None, k: int) -> dict:
-    """Seed k's train.csv statistics: the last update's losses (none before learning starts) and
-    the training episodes that ended since the previous row (taken out of its `progress`)."""
-    returns, lengths = progress["episode_returns"], progress["episode_lengths"]
-    row = {"episodes": len(returns),
-           "episode_return_mean": np.mean(returns) if returns else None,
-           "episode_length_mean": np.mean(lengths) if lengths else None}
-    returns.clear()
-    lengths.clear()
-    if losses is not None:
-        qf_losses, qf_values, actor_losses, alpha, alpha_losses, log_pi = losses
-        check_finite(qf_losses[:, k].detach().cpu().numpy(), "critic loss")
-        row |= {"qf1_loss": qf_losses[0, k].item(), "qf2_loss": qf_losses[1, k].item(),
-                "qf1_value": qf_values[0, k].mean().item(),
-                "qf2_value": qf_values[1, k].mean().item(), "actor_loss": actor_losses[k].item(),
-                "alpha": alpha[k].item(), "alpha_loss": alpha_losses[k].item(),
-                "entropy": -log_pi[k].mean().item()}
-    return row
-
-
-def run_dirs(args: Args) -> list[Path]:
-    """Each seed's run folder: --run-name with {seed} filled in, or the default name."""
-    name = args.run_name or (f"{args.env_id}__{ALGORITHM}__seed{{seed}}__"
-                             f"{time.strftime('%Y%m%d-%H%M%S')}")
-    return [Path(args.output_dir) / name.replace("{seed}", str(args.seed + k))
-            for k in range(args.num_seeds)]
-
-
-def batch_run_dirs(args: Args) -> list[Path]:
-    """With --resume, the folders of the batch the given one belongs to, each checked before
-    anything is written (run_folder.py); else fresh folders, none of which may hold a run."""
-    if args.resume is None:
-        dirs = run_dirs(args)
-        for run_dir in dirs:
-            if (run_dir / "config.json").exists():
-                fail(f"{run_dir} already holds a run; continue it with --resume {run_dir} or "
-                     "choose another --run-name")
-        return dirs
-    return resume_batch_dirs(Path(args.resume), ALGORITHM)
-
-
 if __name__ == "__main__":
-    args = parse_args()
-    stop = StopRequest()  # from the start, so a signal during setup also ends in exit code 3
+    args = flags.parse_args(Args, ALGORITHM, eval_actions)
+    stop = run_folder.StopRequest()  # from the start: a signal during setup also ends in code 3
     torch.set_num_threads(args.torch_threads)
-    dirs = batch_run_dirs(args)
+    dirs = run_folder.batch_run_dirs(args, ALGORITHM)
     seeds = [args.seed + k for k in range(args.num_seeds)]
     if all((d / "done.json").exists() for d in dirs):
         print(f"{', '.join(map(str, dirs))}: already finished (done.json); nothing to do")
@@ -787,7 +505,10 @@ if __name__ == "__main__":
     log_alpha = torch.full((args.num_seeds,), float(np.log(args.alpha_init)), device=device,
                            requires_grad=True)
     alpha_optimizer = adam([log_alpha], lr=args.alpha_lr)
-    optimizers = (actor_optimizer, q_optimizer, alpha_optimizer)
+    # By their names in checkpoint.pt.
+    networks = {"actor": actor, "qf": qf, "qf_target": qf_target}
+    optimizers = {"actor_optimizer": actor_optimizer, "q_optimizer": q_optimizer,
+                  "alpha_optimizer": alpha_optimizer}
     rb = ReplayBuffer(args.num_seeds, args.buffer_size, obs_dim, action_dim,
                       device if args.gpu_buffer else torch.device("cpu"))
 
@@ -797,81 +518,45 @@ if __name__ == "__main__":
 
     # The batch's folders: fresh, or resumed from their checkpoints, or restarted if they have
     # none yet. Every folder is locked and checked before anything in any of them is written.
-    locks = lock_run_folders(dirs)
-    ckpts = read_batch_checkpoints(dirs) if args.resume is not None else None
+    locks = run_folder.lock_run_folders(dirs)
+    ckpts = run_folder.read_batch_checkpoints(dirs) if args.resume is not None else None
     if ckpts is not None:
-        wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}
-        for run_dir, ckpt in zip(dirs, ckpts, strict=True):
-            if {k: v for k, v in ckpt["args"].items() if k not in RUNTIME_FIELDS} != wanted:
-                fail(f"{run_dir / 'checkpoint.pt'} was made with other arguments than "
-                     f"{run_dir / 'config.json'}; the run folder is inconsistent")
-            check_csv(run_dir / "eval.csv", eval_header)
-            check_csv(run_dir / "train.csv", list(TRAIN_COLUMNS))
-        for module, key in ((actor, "actor"), (qf, "qf"), (qf_target, "qf_target")):
-            load_seed_states(module, [c[key] for c in ckpts])
-        for optimizer, key in ((q_optimizer, "q_optimizer"), (actor_optimizer, "actor_optimizer"),
-                               (alpha_optimizer, "alpha_optimizer")):
-            load_optimizer_seed_states(optimizer, [c[key] for c in ckpts])
-        for group in (g for optimizer in optimizers for g in optimizer.param_groups):
-            group["capturable"] = device.type == "cuda"  # the checkpoint's is its device's
-        with torch.no_grad():
-            log_alpha.copy_(torch.cat([c["log_alpha"] for c in ckpts]))
-        for k, ckpt in enumerate(ckpts):
-            rb.load_seed_state_dict(k, ckpt["buffer"])
-            spaces[k].np_random.bit_generator.state = ckpt["rng"]["action_space"]
-        set_rng_states(ckpts[0]["rng"], device)
-        global_step, elapsed = ckpts[0]["global_step"], ckpts[0]["elapsed"]
-        progress = [c["progress"] for c in ckpts]
-        # Every env's episode so far, replayed: the checkpoint may fall mid-episode.
-        envs.reset(seed=seeds)
-        envs.set_attr("record", [c["rng"]["episode"] for c in ckpts])
-        obs = np.stack(envs.call("replay"))
+        flags.check_checkpoint_args(dirs, ckpts, args)
+        for run_dir in dirs:
+            run_folder.check_csv(run_dir / "eval.csv", eval_header)
+            run_folder.check_csv(run_dir / "train.csv", list(TRAIN_COLUMNS))
+        global_step, elapsed, progress = run_folder.load_checkpoints(
+            ckpts, networks, log_alpha, optimizers, rb, spaces, device)
+        obs = run_folder.replay_episodes(envs, seeds, ckpts)
         print(f"resuming {', '.join(map(str, dirs))} at step {global_step}", flush=True)
     else:
-        global_step, elapsed = 0, 0.0
-        progress = [{"episode_returns": [], "episode_lengths": [], "last_eval": None,
-                     "episode_return": 0.0, "episode_length": 0} for _ in seeds]
-        batch = {"first_seed": args.seed, "num_seeds": args.num_seeds,
-                 "run_dirs": [d.name for d in dirs]}
-        for run_dir, seed in zip(dirs, seeds, strict=True):
-            for old in run_dir.glob("events.out.tfevents.*"):  # a restart from step 0
-                old.unlink()
-            config = run_metadata(dataclasses.replace(args, seed=seed), obs_dim, action_dim,
-                                  ALGORITHM, Path(__file__).name)
-            atomic_write(run_dir / "config.json", lambda tmp, c=config: tmp.write_text(
-                json.dumps(c | {"batch": batch}, indent=2)))
+        global_step, elapsed, progress = 0, 0.0, [run_folder.new_progress() for _ in seeds]
+        run_folder.write_configs(args, dirs, obs_dim, action_dim, ALGORITHM, Path(__file__).name)
         obs, _ = envs.reset(seed=seeds)
     for lock in locks:
-        record_holder(lock)
-    keep = global_step if args.resume is not None else None
-    graphs = device.type == "cuda" and args.cudagraphs
-    graphed = cuda_graph if graphs else (lambda fn, restore=(): fn)
+        run_folder.record_holder(lock)
+
     # Acting: a sampled action per seed from its observation, (K, obs) -> (K, A).
     act = torch.no_grad()(lambda obs, noise: actor.squash(*actor(obs[:, None]), noise)[0][:, 0])
     noise_shape = (args.num_seeds, 1, action_dim)
+    learner = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers.values())
+    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=args.gamma, tau=args.tau,
+                               target_entropy=target_entropy)
+    # Speed, not the algorithm (compiled.py): both compiled whole at start-up, and on a GPU
+    # replayed as CUDA graphs.
+    restore = (actor, qf, qf_target, log_alpha, *optimizers.values())
     if args.compile:
         act = compile_at_start(act, (torch.zeros((args.num_seeds, obs_dim), device=device),
                                      torch.zeros(noise_shape, device=device)), (), "acting")
+        update = compile_update(update, learner, rb.zero_batch(args.batch_size, device), restore)
+    graphs = device.type == "cuda" and args.cudagraphs
+    graphed = cuda_graph if graphs else (lambda fn, restore=(): fn)
     train_action = graphed(lambda obs: act(obs, torch.randn(noise_shape, device=device)))
-    learner = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
-    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=args.gamma, tau=args.tau,
-                               target_entropy=target_entropy)
-    if args.compile:
-        update = compile_update(update, learner, rb.zero_batch(args.batch_size, device),
-                                (actor, qf, qf_target, log_alpha, *optimizers))
     train_step = make_train_step(rb, lambda batch, noise: update(learner, batch, noise),
-                                 args.batch_size, device, graphs,
-                                 (actor, qf, qf_target, log_alpha, *optimizers))
-    logs = []  # per seed: eval.csv and train.csv writers, TensorBoard, W&B
-    for run_dir, seed in zip(dirs, seeds, strict=True):
-        tb = SummaryWriter(run_dir, purge_step=global_step + 1 if ckpts is not None else None)
-        if ckpts is None:
-            tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
-                f"|{k}|{v}|" for k, v in dataclasses.asdict(args).items()))
-        logs.append({"eval": open_csv(run_dir / "eval.csv", eval_header, keep),
-                     "train": open_csv(run_dir / "train.csv", list(TRAIN_COLUMNS), keep),
-                     "tb": tb, "tracker": start_tracking(dataclasses.replace(args, seed=seed),
-                                                         run_dir, ALGORITHM)})
+                                 args.batch_size, device, graphs, restore)
+
+    logs = run_folder.open_logs(args, dirs, eval_header, list(TRAIN_COLUMNS), global_step,
+                                ckpts is not None, ALGORITHM)  # CSVs, TensorBoard, W&B
     # Evaluation rounds that a stop checkpointed before they finished: rerun first, below.
     pending = [c.get("pending_rounds", []) for c in ckpts] if ckpts is not None else []
     del ckpts
@@ -881,8 +566,8 @@ if __name__ == "__main__":
         row, k = dict(round_.info), round_.info["seed_index"]
         del row["seed_index"]
         row |= round_row(result, actions)
-        write_row(*logs[k]["eval"], logs[k]["tb"], logs[k]["tracker"], "eval", row,
-                  round_.videos.get(""))
+        run_folder.write_row(*logs[k]["eval"], logs[k]["tb"], logs[k]["tracker"], "eval", row,
+                             round_.videos.get(""))
         progress[k]["last_eval"] = (row["global_step"], row["return_mean"])
 
     # Training takes a core, and with K > 1 so does each env's worker process.
@@ -891,12 +576,10 @@ if __name__ == "__main__":
                          log_evaluation, rounds_per_step=args.num_seeds)
     for k, rounds in enumerate(pending):
         for state in rounds:
-            seed_actor, seed_qf = seed_slice(actor, k).cpu(), seed_slice(qf, k).cpu()
-            seed_actor.load_state_dict(state["actor"])
-            if state["qf"] is not None:
-                seed_qf.load_state_dict(state["qf"])
-            eval_pool.submit(evaluation_round(args, seed_actor, seed_qf, actions, k,
-                                              state["global_step"], state["wall_time"], dirs[k]))
+            eval_pool.submit(evaluation_round(
+                args, *run_folder.pending_round_networks(actor, qf, k, state), actions, k,
+                state["global_step"], state["wall_time"], dirs[k]))
+
     session_start, row_start, row_step = time.time(), time.time(), global_step
     losses = None
     while global_step < args.total_timesteps:
@@ -905,7 +588,7 @@ if __name__ == "__main__":
         else:
             action = train_action(torch.as_tensor(obs, dtype=torch.float32, device=device))
             action = action.cpu().numpy()
-            check_finite(action, "action")
+            run_folder.check_finite(action, "action")
         next_obs, reward, terminated, truncated, info = envs.step(action)
         global_step += 1
         episode_end = terminated | truncated
@@ -915,13 +598,7 @@ if __name__ == "__main__":
         rb.add(obs, action, reward, ends_without_bootstrap(terminated, truncated), final_obs,
                episode_end, physics_blow_ups(info, episode_end))
         obs = next_obs
-        for k, seed_progress in enumerate(progress):
-            seed_progress["episode_return"] += float(reward[k])
-            seed_progress["episode_length"] += 1
-            if episode_end[k]:
-                seed_progress["episode_returns"].append(seed_progress["episode_return"])
-                seed_progress["episode_lengths"].append(seed_progress["episode_length"])
-                seed_progress["episode_return"], seed_progress["episode_length"] = 0.0, 0
+        run_folder.count_episodes(progress, reward, episode_end)
 
         if global_step >= args.learning_starts:
             losses = train_step()
@@ -931,25 +608,22 @@ if __name__ == "__main__":
             for k, log in enumerate(logs):
                 row = {"global_step": global_step, "wall_time": elapsed + now - session_start,
                        "sps": (global_step - row_step) / (now - row_start),
-                       **train_statistics(progress[k], losses, k)}
-                write_row(*log["train"], log["tb"], log["tracker"], "train", row)
+                       **run_folder.train_statistics(progress[k], losses, k)}
+                run_folder.write_row(*log["train"], log["tb"], log["tracker"], "train", row)
             row_start, row_step = now, global_step
 
         if global_step % args.eval_interval == 0:
             wall_time = elapsed + time.time() - session_start
             for k, run_dir in enumerate(dirs):
                 eval_pool.submit(evaluation_round(
-                    args, seed_slice(actor, k).cpu(), seed_slice(qf, k).cpu(), actions, k,
-                    global_step, wall_time, run_dir))
+                    args, run_folder.seed_slice(actor, k).cpu(),
+                    run_folder.seed_slice(qf, k).cpu(), actions, k, global_step, wall_time,
+                    run_dir))
         eval_pool.poll()
 
         if global_step % args.print_interval == 0:
-            last = [p["last_eval"] for p in progress if p["last_eval"] is not None]
-            print(f"step {global_step:,}/{args.total_timesteps:,} | "
-                  f"{global_step / (elapsed + time.time() - session_start):.0f} SPS per seed | "
-                  + (f"last eval {np.mean([r for _, r in last]):.1f}"
-                     + (f" (mean over {len(last)} seeds)" if len(last) > 1 else "")
-                     + f" at step {last[0][0]:,}" if last else "no eval yet"),
+            print(run_folder.progress_line(global_step, args.total_timesteps,
+                                           elapsed + time.time() - session_start, progress),
                   flush=True)
 
         if stop.requested or (args.checkpoint_interval > 0
@@ -959,45 +633,24 @@ if __name__ == "__main__":
             # the checkpoint is in eval.csv first.
             unfinished = eval_pool.abandon() if stop.requested else []
             eval_pool.drain()
-            episodes = envs.get_attr("record")
-            rng = rng_states(device)
-            save_batch_checkpoint(dirs, [{
-                "args": dataclasses.asdict(args), "global_step": global_step,
-                "elapsed": elapsed + time.time() - session_start, "progress": progress[k],
-                "actor": seed_slice(actor, k).state_dict(), "qf": seed_slice(qf, k).state_dict(),
-                "qf_target": seed_slice(qf_target, k).state_dict(),
-                "log_alpha": log_alpha.detach()[k:k + 1].clone(),
-                "q_optimizer": optimizer_seed_state(q_optimizer, k),
-                "actor_optimizer": optimizer_seed_state(actor_optimizer, k),
-                "alpha_optimizer": optimizer_seed_state(alpha_optimizer, k),
-                "buffer": rb.seed_state_dict(k),
-                "rng": rng | {"action_space": spaces[k].np_random.bit_generator.state,
-                              "episode": episode_state(episodes[k], action_dim)},
-                "pending_rounds": [pending_round_state(r) for r in unfinished
-                                   if r.info["seed_index"] == k]}
+            episodes, rng = envs.get_attr("record"), run_folder.rng_states(device)
+            run_folder.save_batch_checkpoint(dirs, [run_folder.seed_checkpoint(
+                k, args, global_step, elapsed + time.time() - session_start, progress[k],
+                networks, log_alpha, optimizers, rb, spaces[k], episodes[k], rng, unfinished)
                 for k in range(args.num_seeds)])
             if stop.requested:
-                for log in logs:
-                    log["tb"].close()
-                    if log["tracker"] is not None:
-                        log["tracker"].finish()
+                run_folder.close_logs(logs)
                 print(f"interrupted at step {global_step}; resume with --resume {dirs[0]}",
                       flush=True)
-                sys.exit(INTERRUPTED_EXIT_CODE)
+                sys.exit(run_folder.INTERRUPTED_EXIT_CODE)
 
     eval_pool.drain()
     eval_pool.close()
     wall_time = elapsed + time.time() - session_start
-    for k, (run_dir, log) in enumerate(zip(dirs, logs, strict=True)):
-        atomic_write(run_dir / "final_model.pt", lambda tmp, k=k: torch.save(on_cpu(
-            {"actor": seed_slice(actor, k).state_dict(), "qf": seed_slice(qf, k).state_dict(),
-             "config": {f: getattr(args, f) for f in MODEL_FIELDS}}), tmp))
-        log["tb"].close()
-        if log["tracker"] is not None:
-            log["tracker"].finish()
-        for f, _ in (log["eval"], log["train"]):
-            f.close()
-        atomic_write(run_dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
-            {"global_step": global_step, "wall_time": wall_time})))
+    final_models = [{"actor": run_folder.seed_slice(actor, k).state_dict(),
+                     "qf": run_folder.seed_slice(qf, k).state_dict(),
+                     "config": {f: getattr(args, f) for f in MODEL_FIELDS}}
+                    for k in range(args.num_seeds)]
+    run_folder.finish_runs(dirs, logs, final_models, global_step, wall_time)
     print(f"finished {global_step} steps in {wall_time:.0f} s: "
           f"{', '.join(map(str, dirs))}", flush=True)

@@ -43,19 +43,17 @@ sys.path.insert(0, str(ROOT))
 
 from bench_sac import random_buffer  # noqa: E402  (bench/ is on the path: the script's folder)
 
+from compiled import compile_update, cuda_graph, make_train_step  # noqa: E402
 from eval_runner import Round, eval_seeds, run_round  # noqa: E402
 from mode_search import mode_action  # noqa: E402
+from run_folder import seed_slice  # noqa: E402
 from sac_standard import (  # noqa: E402
     Actor,
     TwinQ,
-    compile_update,
-    cuda_graph,
     learner_tensors,
     make_env,
-    make_train_step,
     make_vector_env,
     sac_update,
-    seed_slice,
 )
 from sweep import mps_daemon  # noqa: E402
 

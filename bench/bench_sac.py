@@ -31,16 +31,15 @@ import tyro
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from compiled import compile_update, make_train_step  # noqa: E402
 from eval_runner import Round, eval_seeds, run_round  # noqa: E402
 from sac_standard import (  # noqa: E402
     Actor,
     ReplayBuffer,
     TwinQ,
-    compile_update,
     ends_without_bootstrap,
     learner_tensors,
     make_env,
-    make_train_step,
     make_vector_env,
     sac_update,
 )

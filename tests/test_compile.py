@@ -61,7 +61,8 @@ def updates(compiled: bool, steps: int = 200) -> tuple[list, dict]:
 
 
 def run_updates(compiled: bool, steps: int) -> tuple[list, dict]:
-    from sac_standard import compile_update, learner_tensors, sac_update
+    from compiled import compile_update
+    from sac_standard import learner_tensors, sac_update
 
     actor, qf, qf_target, log_alpha, optimizers = small_learner(0)
     tensors = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
@@ -104,7 +105,7 @@ def test_the_compiled_update_is_the_eager_update_in_one_graph():
 
 def test_the_update_steps_adam_as_torch_optim_adam_does():
     """sac_update's own Adam step (foreach ops, so that it compiles) against torch's."""
-    from sac_standard import adam_state, adam_step
+    from compiled import adam_state, adam_step
 
     torch.manual_seed(0)
     params = [torch.randn(5, 7, requires_grad=True), torch.randn(3, requires_grad=True)]

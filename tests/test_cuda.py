@@ -13,17 +13,9 @@ import numpy as np
 import pytest
 import torch
 
+from compiled import compile_update, cuda_graph, make_train_step
 from mode_search import mode_action
-from sac_standard import (
-    Actor,
-    ReplayBuffer,
-    TwinQ,
-    compile_update,
-    cuda_graph,
-    learner_tensors,
-    make_train_step,
-    sac_update,
-)
+from sac_standard import Actor, ReplayBuffer, TwinQ, learner_tensors, sac_update
 from tests.test_sac import SHORT, command, read_csv, run, wait_for
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")

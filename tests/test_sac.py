@@ -243,7 +243,7 @@ def test_bad_resumes_fail_clearly(standard_run, tmp_path):
 
 
 def test_nan_is_a_clear_error():
-    from sac_standard import check_finite
+    from run_folder import check_finite
 
     with pytest.raises(SystemExit, match="training diverged"):
         check_finite(torch.tensor([0.0, float("nan")]).numpy(), "action")
@@ -307,7 +307,8 @@ def test_a_seeds_networks_come_from_its_own_seed_whatever_the_batch():
     import gymnasium as gym
     import numpy as np
 
-    from sac_standard import Actor, seed_slice
+    from run_folder import seed_slice
+    from sac_standard import Actor
 
     space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
     batch = Actor(5, (8,), space, -10.0, 2.0, 3,

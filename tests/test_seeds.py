@@ -51,7 +51,7 @@ def update(learner, batch: tuple[torch.Tensor, ...], noise: torch.Tensor) -> Non
 
 def single_seed(batch_learner, k: int):
     """Seed k of a batched learner as a K = 1 learner, its optimiser states included."""
-    from sac_standard import load_optimizer_seed_states, optimizer_seed_state, seed_slice
+    from run_folder import load_optimizer_seed_states, optimizer_seed_state, seed_slice
 
     actor, qf, qf_target, log_alpha, optimizers = batch_learner
     one = learner(1)
@@ -65,7 +65,7 @@ def single_seed(batch_learner, k: int):
 
 
 def test_the_batched_update_of_three_seeds_is_three_single_seed_updates():
-    from sac_standard import seed_slice
+    from run_folder import seed_slice
 
     torch.manual_seed(0)
     batch_learner = learner(3)
@@ -229,7 +229,7 @@ def test_analyze_reads_a_batch(batch, tmp_path):
 
 
 def test_an_interrupted_batch_checkpoint_is_completed_on_resume(tmp_path):
-    from sac_standard import read_batch_checkpoints, save_batch_checkpoint
+    from run_folder import read_batch_checkpoints, save_batch_checkpoint
 
     dirs = [tmp_path / "a", tmp_path / "b"]
     for d in dirs:

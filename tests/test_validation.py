@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+import flags as flags_module
 import sac_corrected
 import sac_standard
 
@@ -67,7 +68,7 @@ def snapshot(folder: Path) -> dict:
 @pytest.mark.parametrize("script", [sac_standard, sac_corrected])
 def test_every_sac_flag_has_a_range(script, flags, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
-        script.check_args(script.Args(**flags))
+        flags_module.check_args(script.Args(**flags), script.eval_actions)
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err
@@ -78,7 +79,7 @@ def test_the_defaults_and_edge_cases_that_are_allowed():
                  sac_standard.Args(eval_interval=10**9),  # no evaluation at all: allowed
                  sac_standard.Args(buffer_size=100, batch_size=100, learning_starts=0),
                  sac_standard.Args(checkpoint_interval=0, gamma=1.0, tau=1.0)):
-        sac_standard.check_args(args)
+        flags_module.check_args(args, sac_standard.eval_actions)
 
 
 @pytest.mark.parametrize("flags", [

@@ -1,0 +1,160 @@
+"""The SAC scripts' command line, kept out of them: each flag's valid range, the rules of
+--resume (a run's stored arguments are the defaults; a flag may change where and how fast, never
+what is computed), and the checks of --env-id. Both scripts call parse_args with their own Args.
+
+None of it is the algorithm; the flags themselves, with a docstring each, are the scripts' Args.
+"""
+
+import dataclasses
+import difflib
+import importlib
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import tyro
+
+from run_folder import fail, read_run_config
+
+# Flags that may differ when resuming: they change where and how fast, not what is computed.
+TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
+RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "print_interval",
+                  "cuda", "compile", "cudagraphs", "gpu_buffer", "torch_threads", "capture_video",
+                  "eval_workers", *TRACKING_FIELDS)
+# Of those, what a resume keeps unless told otherwise: a tracked run goes on being tracked, to
+# the same W&B run; a compiled run stays compiled and an eager one eager (they round apart).
+KEPT_FIELDS = (*TRACKING_FIELDS, "compile")
+
+
+def parse_args(args_class: type, algorithm: str, eval_actions: Callable) -> object:
+    """Parses and checks the flags of a script's Args; with --resume, the run's stored arguments
+    are the defaults and a flag that contradicts them is an error."""
+    args = tyro.cli(args_class)
+    if args.resume is None:
+        check_args(args, eval_actions)
+        return args
+    path = Path(args.resume) / "config.json"
+    config = read_run_config(Path(args.resume), algorithm)
+    stored = {f.name: config[f.name] for f in dataclasses.fields(args_class)
+              if f.name in config and f.name not in RUNTIME_FIELDS}
+    for key in ("hidden_sizes", "eval_selectors"):  # JSON lists back to the flags' tuples
+        stored[key] = tuple(stored.get(key, getattr(args, key)))
+    # A folder's config.json holds its own seed; the batch's arguments start at its first.
+    stored["seed"] = config.get("batch", {}).get("first_seed", stored.get("seed", args.seed))
+    kept = {k: config[k] for k in KEPT_FIELDS if k in config}
+    wrong = [k for k, v in (stored | kept).items() if not same_type(v, getattr(args, k))]
+    if wrong:
+        fail(f"{path} holds values of the wrong type for {wrong}; it was edited or damaged: "
+             "restore it, or start a new run")
+    resumed = tyro.cli(args_class, default=dataclasses.replace(args, **stored, **kept))
+    changed = [k for k, v in stored.items() if getattr(resumed, k) != v]
+    if changed:
+        fail(f"--resume {args.resume}: flags {changed} contradict the run's stored arguments; "
+             "drop them or start a new run")
+    check_args(resumed, eval_actions)
+    return resumed
+
+
+def same_type(value: object, default: object) -> bool:
+    """Whether a config.json value can stand for a flag with this default (None: any)."""
+    if default is None or value is None:
+        return True
+    if isinstance(default, float):
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if isinstance(default, tuple):  # hidden_sizes holds ints, eval_selectors names
+        return isinstance(value, tuple) and all(type(v) is type(default[0]) if default
+                                                else type(v) is str for v in value)
+    return type(value) is type(default)
+
+
+def check_args(args, eval_actions: Callable) -> None:
+    """Every flag's valid range, checked before anything is created or written. eval_actions:
+    the script's own (it names the evaluation actions that --eval-selectors may add to)."""
+    finite = math.isfinite
+    own_actions = eval_actions(dataclasses.replace(args, eval_selectors=())).values()
+    rules = (
+        ("seed", args.seed >= 0, "a non-negative integer"),
+        ("num_seeds", args.num_seeds >= 1, "at least 1"),
+        ("total_timesteps", args.total_timesteps >= 1, "at least 1"),
+        ("buffer_size", args.buffer_size >= 2, "at least 2 (a transition takes two slots)"),
+        ("batch_size", 1 <= args.batch_size <= args.buffer_size,
+         f"between 1 and --buffer-size ({args.buffer_size})"),
+        ("gamma", 0 <= args.gamma <= 1, "in [0, 1]"),
+        ("tau", 0 < args.tau <= 1, "in (0, 1]"),
+        ("learning_starts", 0 <= args.learning_starts < args.total_timesteps,
+         f"in [0, --total-timesteps ({args.total_timesteps})), or no gradient update would run"),
+        ("policy_lr", finite(args.policy_lr) and args.policy_lr > 0, "a positive number"),
+        ("q_lr", finite(args.q_lr) and args.q_lr > 0, "a positive number"),
+        ("alpha_lr", finite(args.alpha_lr) and args.alpha_lr > 0, "a positive number"),
+        ("alpha_init", finite(args.alpha_init) and args.alpha_init > 0, "a positive number"),
+        ("target_entropy_scale", finite(args.target_entropy_scale), "a finite number"),
+        ("hidden_sizes", len(args.hidden_sizes) > 0 and min(args.hidden_sizes) >= 1,
+         "one or more positive layer widths, e.g. --hidden-sizes 256 256"),
+        ("log_std_max", finite(args.log_std_max), "a finite number"),
+        ("log_std_min", finite(args.log_std_min) and args.log_std_min < args.log_std_max,
+         f"a finite number below --log-std-max ({args.log_std_max})"),
+        ("eval_interval", args.eval_interval >= 1, "at least 1 (above --total-timesteps: no "
+         "evaluation)"),
+        ("eval_episodes", args.eval_episodes >= 1, "at least 1 (to skip evaluation, set "
+         "--eval-interval above --total-timesteps)"),
+        ("eval_selectors", len(set(eval_actions(args).values())) == len(eval_actions(args)),
+         f"evaluation actions other than this script's own ({', '.join(own_actions)}), each once"),
+        ("eval_workers", args.eval_workers is None or args.eval_workers >= 0,
+         "0 (in-process) or more"),
+        ("log_interval", args.log_interval >= 1, "at least 1"),
+        ("print_interval", args.print_interval >= 1, "at least 1"),
+        ("checkpoint_interval", args.checkpoint_interval >= 0, "0 (off) or more"),
+        ("torch_threads", args.torch_threads >= 1, "at least 1"),
+        ("run_name", args.run_name is None or (args.run_name not in ("", ".", "..")
+                                               and "/" not in args.run_name
+                                               and (args.num_seeds == 1
+                                                    or "{seed}" in args.run_name)),
+         "a folder name without '/' (with --num-seeds above 1, containing {seed})"),
+        ("wandb_project_name", bool(args.wandb_project_name), "a non-empty name"),
+    )
+    for name, ok, allowed in rules:
+        if not ok:
+            value = getattr(args, name)
+            shown = " ".join(map(str, value)) if isinstance(value, tuple) else repr(value)
+            fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
+
+
+def check_checkpoint_args(dirs: list[Path], ckpts: list[dict], args) -> None:
+    """A resume's checkpoints must have been made with the arguments config.json holds."""
+    wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}
+    for run_dir, ckpt in zip(dirs, ckpts, strict=True):
+        if {k: v for k, v in ckpt["args"].items() if k not in RUNTIME_FIELDS} != wanted:
+            fail(f"{run_dir / 'checkpoint.pt'} was made with other arguments than "
+                 f"{run_dir / 'config.json'}; the run folder is inconsistent")
+
+
+def registered_env_id(env_id: str) -> str:
+    """The gymnasium id of --env-id, or one line naming close matches. An id
+    "package.module:EnvId" imports the module first, which registers the env (gymnasium's way)."""
+    module, _, name = env_id.rpartition(":")
+    if module:
+        try:
+            importlib.import_module(module)
+        except ImportError as error:
+            fail(f"--env-id {env_id}: cannot import {module!r} ({error}); check the module path "
+                 "(run from the folder that holds it)")
+    if name not in gym.registry:
+        close = difflib.get_close_matches(name, list(gym.registry), n=5, cutoff=0.5)
+        ours = sorted(k for k in gym.registry if k.startswith("h1hand-"))
+        fail(f"unknown env id {env_id!r}; close matches: {close}; our tasks: {ours}")
+    return env_id
+
+
+def check_spaces(env: gym.Env, env_id: str) -> gym.Env:
+    """The env, if SAC can act in it: a bounded Box of actions, a flat Box of observations."""
+    space = env.action_space
+    if not isinstance(space, gym.spaces.Box):
+        fail(f"{env_id} has a {type(space).__name__} action space; SAC needs a Box")
+    if not (np.isfinite(space.low).all() and np.isfinite(space.high).all()):
+        fail(f"{env_id} has unbounded actions; SAC squashes into finite bounds")
+    obs_space = env.observation_space
+    if not isinstance(obs_space, gym.spaces.Box) or len(obs_space.shape) != 1:
+        fail(f"{env_id} observations are not a flat Box; flatten them first")
+    return env
