@@ -24,6 +24,8 @@ import torch
 import torch.nn as nn
 from torch.func import functional_call
 
+# What is not the algorithm sits behind named calls: flags.* (the command line), run_folder.*
+# (the run folder: logs, checkpoints, resume) and compiled.py (speed; see docs/scripts.md).
 import flags
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
 import run_folder
@@ -187,7 +189,8 @@ class SeedLinear(nn.Module):
 
 
 def seed_mlp(seeds: int, sizes: tuple[int, ...]) -> nn.Sequential:
-    """K MLPs with ReLU between the layers, none after the last."""
+    """K MLPs with ReLU between the layers, none after the last (compiled.ReLU: torch.relu,
+    with a backward that inductor compiles into faster code)."""
     layers = [m for i, o in zip(sizes, sizes[1:], strict=False)
               for m in (SeedLinear(seeds, i, o), ReLU())]
     return nn.Sequential(*layers[:-1])
