@@ -40,7 +40,7 @@ import tyro
 
 import sac_corrected as sac
 from eval_runner import ACTIONS, Q_BEST_CANDIDATES, SHIFT_COLUMNS, EvalPool, Round, eval_seeds
-from run_folder import fail
+from run_folder import fail, read_config_json
 
 SELECTORS = ACTIONS
 CONFIDENCE = 0.95
@@ -119,7 +119,7 @@ def check_args(args: Args) -> None:
             fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
     if not args.source.exists():
         fail(f"{args.source} does not exist; give a run folder, a final_model.pt or an SB3 "
-                 "SAC .zip")
+             "SAC .zip")
     for flag, folder in (("--out", args.out), ("--video", args.video)):
         if folder is not None and folder.exists() and not folder.is_dir():
             fail(f"{flag} {folder}: a file of that name exists; give a folder")
@@ -195,17 +195,9 @@ def load_policy(args: Args) -> tuple[nn.Module, nn.Module | None, str, dict]:
 
 
 def read_config(run_dir: Path) -> dict:
-    path = run_dir / "config.json"
-    if not path.is_file():
-        fail(f"{run_dir} is not a run folder (no config.json); give a folder made by "
-                 "sac_standard.py or sac_corrected.py, a final_model.pt or an SB3 .zip")
-    try:
-        config = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        fail(f"{path} is not valid JSON ({error}); restore it from a copy")
-    if not isinstance(config, dict):
-        fail(f"{path} does not hold a JSON object; restore it from a copy")
-    return config
+    return read_config_json(run_dir, "give a folder made by sac_standard.py or "
+                            "sac_corrected.py, a final_model.pt or an SB3 .zip",
+                            "restore it from a copy")
 
 
 def load_weights(path: Path) -> dict:
@@ -215,14 +207,14 @@ def load_weights(path: Path) -> dict:
         state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
     except Exception as error:  # not a torch file, truncated, or holding more than weights
         fail(f"{path} is not a weights file of ours ({type(error).__name__}: "
-                 f"{str(error).splitlines()[0][:120]}); give a final_model.pt or a run folder")
+             f"{str(error).splitlines()[0][:120]}); give a final_model.pt or a run folder")
     actor = state.get("actor") if isinstance(state, dict) else None
     if not isinstance(actor, dict) or not all(torch.is_tensor(v) for v in actor.values()):
         fail(f"{path} holds no 'actor' weights; give a final_model.pt or a run folder")
     broken = [k for k, v in actor.items() if v.is_floating_point() and not v.isfinite().all()]
     if broken:
         fail(f"{path}: the actor's {broken[0]} holds NaN/inf (training diverged); evaluate "
-                 "an earlier model")
+             "an earlier model")
     return state
 
 
@@ -248,12 +240,12 @@ def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Act
                                         key=lambda k: int(k.split(".")[1]))]
     if not trunk or trunk[0].dim() != 3 or "fc_mean.weight" not in weights:
         fail(f"{path} holds no actor of sac_standard.py or sac_corrected.py (no trunk or "
-                 "fc_mean layers); give a final_model.pt or a run folder")
+             "fc_mean layers); give a final_model.pt or a run folder")
     shapes = (trunk[0].shape[-2], weights["fc_mean.weight"].shape[-1])
     if shapes != (obs_dim, action_dim):
         fail(f"{path} was trained on {shapes[0]}-dim observations and {shapes[1]}-dim "
-                 f"actions; {env_id} has {obs_dim} and {action_dim}: pass the --env-id it was "
-                 "trained on")
+             f"actions; {env_id} has {obs_dim} and {action_dim}: pass the --env-id it was "
+             "trained on")
     actor = sac.Actor(obs_dim, tuple(w.shape[-1] for w in trunk), env.action_space,
                       config.get("log_std_min", sac.Args.log_std_min),
                       config.get("log_std_max", sac.Args.log_std_max))
@@ -261,7 +253,7 @@ def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Act
         actor.load_state_dict(weights)
     except RuntimeError as error:  # layers missing, extra or of the wrong shape
         fail(f"{path}: its actor does not fit our Actor ({' '.join(str(error).split())[:200]})"
-                 "; give a final_model.pt of sac_standard.py or sac_corrected.py")
+             "; give a final_model.pt of sac_standard.py or sac_corrected.py")
     return actor
 
 
@@ -272,7 +264,7 @@ def build_critic(state: dict, actor: sac.Actor, path: Path) -> sac.TwinQ:
     if not isinstance(weights, dict) or not weights or \
             not all(torch.is_tensor(v) for v in weights.values()):
         fail(f"{path} holds no critic weights ('qf'), which q_best needs; give a "
-                 "final_model.pt or checkpoint.pt that holds them, or drop q_best from --selectors")
+             "final_model.pt or checkpoint.pt that holds them, or drop q_best from --selectors")
     weights = with_seed_axis(weights)
     layers = [weights[k] for k in sorted((k for k in weights if k.startswith("qf1.")
                                           and k.endswith(".weight")),
@@ -281,19 +273,19 @@ def build_critic(state: dict, actor: sac.Actor, path: Path) -> sac.TwinQ:
     if not layers or any(w.dim() != 3 for w in layers) or layers[-1].shape[-1] != 1 \
             or layers[0].shape[-2] != obs_dim + action_dim:
         fail(f"{path}: its 'qf' is not a critic of sac_standard.py or sac_corrected.py for "
-                 f"{obs_dim}-dim observations and {action_dim}-dim actions; give the run's own "
-                 "final_model.pt, or drop q_best from --selectors")
+             f"{obs_dim}-dim observations and {action_dim}-dim actions; give the run's own "
+             "final_model.pt, or drop q_best from --selectors")
     critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[-1] for w in layers[:-1]))
     try:
         critic.load_state_dict(weights)
     except RuntimeError as error:  # the second critic missing, or of other widths
         fail(f"{path}: its critic does not fit our TwinQ "
-                 f"({' '.join(str(error).split())[:200]}); give a final_model.pt of "
-                 "sac_standard.py or sac_corrected.py, or drop q_best from --selectors")
+             f"({' '.join(str(error).split())[:200]}); give a final_model.pt of "
+             "sac_standard.py or sac_corrected.py, or drop q_best from --selectors")
     broken = [k for k, v in weights.items() if v.is_floating_point() and not v.isfinite().all()]
     if broken:
         fail(f"{path}: the critic's {broken[0]} holds NaN/inf (training diverged); evaluate "
-                 "an earlier model, or drop q_best from --selectors")
+             "an earlier model, or drop q_best from --selectors")
     return critic.eval()
 
 
@@ -308,8 +300,8 @@ def load_sb3(path: Path, env_id: str | None) -> tuple[nn.Module, str, dict]:
     module = policy.get("__module__", "") if isinstance(policy, dict) else ""
     if not module.startswith("stable_baselines3.sac"):
         fail(f"{path} is not a Stable-Baselines3 SAC model (its policy comes from "
-                 f"{module or 'an unknown module'}): the mode of a tanh-squashed Gaussian needs "
-                 "a SAC policy")
+             f"{module or 'an unknown module'}): the mode of a tanh-squashed Gaussian needs "
+             "a SAC policy")
     try:
         from stable_baselines3 import SAC
     except ImportError:
@@ -319,12 +311,12 @@ def load_sb3(path: Path, env_id: str | None) -> tuple[nn.Module, str, dict]:
         model = SAC.load(path, device="cpu")
     except Exception as error:  # a damaged archive or one from an incompatible SB3 version
         fail(f"{path} cannot be loaded by stable-baselines3 ({type(error).__name__}: "
-                 f"{' '.join(str(error).split())[:160]}); give an SB3 SAC .zip it can load")
+             f"{' '.join(str(error).split())[:160]}); give an SB3 SAC .zip it can load")
     spaces = (model.observation_space.shape, model.action_space.shape)
     if spaces != (env.observation_space.shape, env.action_space.shape):
         fail(f"{path} was trained on observations {spaces[0]} and actions {spaces[1]}; "
-                 f"{env_id} has {env.observation_space.shape} and {env.action_space.shape}: "
-                 "pass the --env-id it was trained on")
+             f"{env_id} has {env.observation_space.shape} and {env.action_space.shape}: "
+             "pass the --env-id it was trained on")
     return SB3Actor(model), env_id, {"source": str(path), "kind": "stable-baselines3"}
 
 
@@ -363,7 +355,7 @@ def run_jobs(jobs: list[Round], workers: int, progress: Callable[[int], None]) -
         if isinstance(exit_.code, str):  # the runner's one line; its advice is for training
             fact = exit_.code.split("; ")[0]
             fail(f"{fact}; the model is damaged or does not belong to this env" if
-                     "NaN/inf" in fact else f"{fact}; run again, with --workers 0 to see why")
+                 "NaN/inf" in fact else f"{fact}; run again, with --workers 0 to see why")
         raise
     finally:
         pool.close()
@@ -511,7 +503,7 @@ def main(argv: list[str] | None = None) -> None:
             args.video.mkdir(parents=True, exist_ok=True)
         except OSError as error:
             fail(f"--video {args.video}: cannot create it ({error.strerror}); give a "
-                     "writable folder")
+                 "writable folder")
     seeds = eval_seeds(args.seed, args.eval_round, args.episodes)
     selectors = list(dict.fromkeys(args.selectors))
     workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers

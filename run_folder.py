@@ -44,18 +44,26 @@ def fail(message: str) -> NoReturn:
     sys.exit(2)
 
 
-def read_run_config(run_dir: Path, algorithm: str) -> dict:
-    """The config.json of a run folder made by this script, or a clear error."""
+def read_config_json(run_dir: Path, give_instead: str, restore: str) -> dict:
+    """A run folder's config.json as a dict, or one line naming the problem: `give_instead` says
+    what to give where the folder is not a run, `restore` what to do about a damaged file."""
     path = run_dir / "config.json"
     if not path.is_file():
-        fail(f"{run_dir} is not a run folder (no config.json); give --resume a folder made by "
-             "sac_standard.py or sac_corrected.py")
+        fail(f"{run_dir} is not a run folder (no config.json); {give_instead}")
     try:
         config = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        fail(f"{path} is not valid JSON ({error}); restore it from a copy, or start a new run")
+        fail(f"{path} is not valid JSON ({error}); {restore}")
     if not isinstance(config, dict):
-        fail(f"{path} does not hold a JSON object; restore it from a copy, or start a new run")
+        fail(f"{path} does not hold a JSON object; {restore}")
+    return config
+
+
+def read_run_config(run_dir: Path, algorithm: str) -> dict:
+    """The config.json of a run folder made by this script, or a clear error."""
+    config = read_config_json(
+        run_dir, "give --resume a folder made by sac_standard.py or sac_corrected.py",
+        "restore it from a copy, or start a new run")
     if config.get("algorithm") != algorithm:
         fail(f"{run_dir} is a run of {config.get('script')}; resume it with that script")
     return config
