@@ -1,0 +1,90 @@
+"""Does the compiled update's per-call overhead pay to cut? (issue 26)
+
+    .venv/bin/python bench/bench_update_overhead.py --env-id Hopper-v5
+
+Times the scripts' compiled update (batch sampling included, make_train_step), built the scripts'
+way, against the same update compiled with less per-call work around the graph: Dynamo's guards
+cut to the tensor guards or skipped altogether (torch.compiler's *_unsafe guard filters; the
+update is always called with the same tensors, so nothing they guard could change), and
+inductor's C++ wrapper (the graph's ~100 kernel calls made from C++ instead of Python). The
+variants are timed in turns, round after round, so that a shared machine's load falls on all of
+them alike; process CPU seconds, one thread. Prints the median and the best round per update.
+"""
+
+import functools
+import statistics
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import gymnasium as gym
+import torch
+import tyro
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from bench_sac import build_learner, random_buffer  # noqa: E402
+
+import humanoid_envs  # noqa: E402, F401  (registers the h1hand tasks)
+from compiled import make_train_step  # noqa: E402
+from sac_standard import learner_tensors, sac_update  # noqa: E402
+
+VARIANTS = {
+    "scripts' compile (default guards)": {},
+    "tensor guards only": {"guard_filter_fn": torch.compiler.keep_tensor_guards_unsafe},
+    "no guards": {"guard_filter_fn": torch.compiler.skip_all_guards_unsafe},
+    "C++ wrapper": {"cpp_wrapper": True},
+}
+
+
+@dataclass
+class Args:
+    env_id: str = "Hopper-v5"
+    """the task whose dimensions the update has"""
+    rounds: int = 15
+    """timing rounds; each times every variant once"""
+    updates: int = 200
+    """updates per variant per round"""
+    batch_size: int = 64
+    """the paper's batch"""
+
+
+def train_step(env: gym.Env, rb, options: dict, batch_size: int):
+    """A fresh learner's update, compiled whole with these torch.compile options."""
+    actor, qf, qf_target, log_alpha, optimizers = build_learner(env)
+    tensors = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
+    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=0.99, tau=0.005,
+                               target_entropy=-rb.action_dim / 2)
+    compiled = torch.compile(update, fullgraph=True, options=options or None)
+    return make_train_step(rb, lambda batch, noise: compiled(tensors, batch, noise), batch_size,
+                           torch.device("cpu"), False, ())
+
+
+def main(args: Args) -> None:
+    torch.set_num_threads(1)
+    env = gym.make(args.env_id)
+    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
+    rb = random_buffer(1, 20_000, obs_dim, action_dim, torch.device("cpu"))
+    steps = {}
+    for name, options in VARIANTS.items():
+        torch._dynamo.reset()  # each variant compiles its own graph
+        steps[name] = train_step(env, rb, options, args.batch_size)
+        for _ in range(20):  # compile, then warm up
+            steps[name]()
+    ms = {name: [] for name in VARIANTS}
+    for _ in range(args.rounds):
+        for name, step in steps.items():
+            start = time.process_time()
+            for _ in range(args.updates):
+                step()
+            ms[name].append((time.process_time() - start) / args.updates * 1e3)
+    print(f"{args.env_id}: ms per update (sampling included), {args.rounds} rounds of "
+          f"{args.updates}")
+    for name, times in ms.items():
+        print(f"  {name:36s} median {statistics.median(times):.3f}  best {min(times):.3f}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
