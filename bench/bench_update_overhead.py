@@ -6,7 +6,8 @@ Times the scripts' compiled update (batch sampling included, make_train_step), b
 way, against the same update compiled with less per-call work around the graph: Dynamo's guards
 cut to the tensor guards or skipped altogether (torch.compiler's *_unsafe guard filters; the
 update is always called with the same tensors, so nothing they guard could change), and
-inductor's C++ wrapper (the graph's ~100 kernel calls made from C++ instead of Python). The
+inductor's C++ wrapper (the graph's ~100 kernel calls made from C++ instead of Python); and
+inductor's max-autotune, whose C++ GEMM template may replace ATen's matmuls. The
 variants are timed in turns, round after round, so that a shared machine's load falls on all of
 them alike; process CPU seconds, one thread. Prints the median and the best round per update.
 """
@@ -36,6 +37,8 @@ VARIANTS = {
     "tensor guards only": {"guard_filter_fn": torch.compiler.keep_tensor_guards_unsafe},
     "no guards": {"guard_filter_fn": torch.compiler.skip_all_guards_unsafe},
     "C++ wrapper": {"cpp_wrapper": True},
+    # Inductor's own C++ GEMM template, autotuned against ATen's matmuls at the first call.
+    "max-autotune": {"max_autotune": True, "max_autotune_gemm_backends": "CPP,ATEN"},
 }
 
 
