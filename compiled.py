@@ -1,6 +1,6 @@
 """What makes the SAC scripts fast, kept out of them: torch.compile at start-up, CUDA graphs, and
 the pieces that let the update compile whole (Adam as foreach ops, a ReLU whose backward inductor
-runs fast).
+runs fast) and still run fast uncompiled (the gradient).
 
 Both scripts import these; none of it is the algorithm (docs/speed.md).
 """
@@ -10,6 +10,7 @@ from collections.abc import Callable
 
 import torch
 import torch.nn as nn
+import torch.utils._pytree as pytree
 
 from run_folder import fail
 
@@ -34,11 +35,29 @@ class ReLUFromOutput(torch.autograd.Function):
 
 
 class ReLU(nn.Module):
-    """torch.relu, as ReLUFromOutput when compiled (the same gradient; eager, under torch.func
-    the custom backward costs more than it saves)."""
+    """torch.relu, as ReLUFromOutput when compiled (the same gradient; eager, plain torch.relu)."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return ReLUFromOutput.apply(x) if torch.compiler.is_compiling() else torch.relu(x)
+
+
+def grad(f: Callable) -> Callable:
+    """torch.func.grad(f, has_aux=True): a function that returns the gradient of f's first output
+    with respect to f's first argument (a pytree of tensors), and f's second output, detached.
+    Compiled, it is torch.func's (torch.autograd.grad would break the graph in two); eager, it is
+    torch.autograd's, which computes the same numbers ~1.3x faster on a CPU core, as torch.func
+    wraps each of the update's ~300 small ops in its own dispatch."""
+    if torch.compiler.is_compiling():
+        return torch.func.grad(f, has_aux=True)
+
+    def autograd_grad(params, *args) -> tuple:
+        with torch.enable_grad():
+            total, aux = f(params, *args)
+            leaves, spec = pytree.tree_flatten(params)
+            grads = pytree.tree_unflatten(list(torch.autograd.grad(total, leaves)), spec)
+        return grads, pytree.tree_map(torch.Tensor.detach, aux)
+
+    return autograd_grad
 
 
 def adam_step(params: list[torch.Tensor], grads: list[torch.Tensor], state: dict) -> None:

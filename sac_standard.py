@@ -34,6 +34,7 @@ from compiled import (
     compile_at_start,
     compile_update,
     cuda_graph,
+    grad,
     make_train_step,
 )
 from eval_runner import EvalPool, Round, default_workers, eval_columns, eval_seeds, round_row
@@ -371,7 +372,7 @@ def sac_losses(params: tuple[dict, dict, torch.Tensor], qf_target_params: dict,
     summed too: each seed's gradients are its own. noise: (2, K, batch, A), the next action's and
     the action's. Also returns what train.csv logs, per seed."""
     # The networks stay nn.Modules, defined as usual; functional_call runs one on the parameters
-    # given here, which is what torch.func.grad differentiates.
+    # given here, which is what grad differentiates.
     actor_params, qf_params, log_alpha = params
 
     def policy(obs: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -397,7 +398,7 @@ def sac_losses(params: tuple[dict, dict, torch.Tensor], qf_target_params: dict,
     return total, (qf_losses, qf_values, actor_losses, alpha, alpha_losses, log_pi)
 
 
-# torch.func.grad ignores an outer no_grad; nothing else here needs autograd's records (and,
+# grad turns gradients on for the losses alone; nothing else here needs autograd's records (and,
 # compiled, AOTAutograd then makes an inference graph: no autograd wrapper around each call).
 @torch.no_grad()
 def sac_update(learner: dict, batch: tuple[torch.Tensor, ...], noise: torch.Tensor,
@@ -411,8 +412,9 @@ def sac_update(learner: dict, batch: tuple[torch.Tensor, ...], noise: torch.Tens
     (the actor is scored by the pre-update critic), and the target moves towards that critic.
     Returns the tensors that train.csv logs, per seed."""
     params = (learner["actor"], learner["qf"], learner["log_alpha"])
-    grads, logs = torch.func.grad(sac_losses, has_aux=True)(
-        params, learner["qf_target"], batch, noise, actor, qf, gamma, target_entropy)
+    # grad: torch.func.grad's (compiled.py: torch.autograd's when not compiled, the same numbers).
+    grads, logs = grad(sac_losses)(params, learner["qf_target"], batch, noise, actor, qf, gamma,
+                                   target_entropy)
     torch._foreach_lerp_(list(learner["qf_target"].values()), list(learner["qf"].values()), tau)
     for p, g, state in zip(params, grads, learner["adam"], strict=True):
         if isinstance(p, dict):

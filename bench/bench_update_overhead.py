@@ -10,6 +10,11 @@ inductor's C++ wrapper (the graph's ~100 kernel calls made from C++ instead of P
 inductor's max-autotune, whose C++ GEMM template may replace ATen's matmuls. The
 variants are timed in turns, round after round, so that a shared machine's load falls on all of
 them alike; process CPU seconds, one thread. Prints the median and the best round per update.
+
+With --eager, nothing is compiled: the scripts' sac_update (its gradient from torch.autograd, as
+compiled.grad takes it uncompiled) against the same update with torch.func.grad's gradient (what
+the compiled graph is traced from), and the largest difference of their logged losses over the
+first 30 updates from one seed.
 """
 
 import functools
@@ -29,8 +34,8 @@ sys.path.insert(0, str(ROOT))
 from bench_sac import build_learner, random_buffer  # noqa: E402
 
 import humanoid_envs  # noqa: E402, F401  (registers the h1hand tasks)
-from compiled import make_train_step  # noqa: E402
-from sac_standard import learner_tensors, sac_update  # noqa: E402
+from compiled import adam_step, make_train_step  # noqa: E402
+from sac_standard import learner_tensors, sac_losses, sac_update  # noqa: E402
 
 VARIANTS = {
     "scripts' compile (default guards)": {},
@@ -52,16 +57,35 @@ class Args:
     """updates per variant per round"""
     batch_size: int = 64
     """the paper's batch"""
+    eager: bool = False
+    """time the uncompiled update's two gradients instead (see above)"""
 
 
-def train_step(env: gym.Env, rb, options: dict, batch_size: int):
-    """A fresh learner's update, compiled whole with these torch.compile options."""
+@torch.no_grad()
+def update_with_func_grad(learner: dict, batch: tuple, noise: torch.Tensor, actor, qf,
+                          gamma: float, tau: float, target_entropy: float) -> tuple:
+    """sac_update with torch.func.grad's gradient, also when not compiled."""
+    params = (learner["actor"], learner["qf"], learner["log_alpha"])
+    grads, logs = torch.func.grad(sac_losses, has_aux=True)(
+        params, learner["qf_target"], batch, noise, actor, qf, gamma, target_entropy)
+    torch._foreach_lerp_(list(learner["qf_target"].values()), list(learner["qf"].values()), tau)
+    for p, g, state in zip(params, grads, learner["adam"], strict=True):
+        p, g = (list(p.values()), list(g.values())) if isinstance(p, dict) else ([p], [g])
+        adam_step(p, g, state)
+    return logs
+
+
+def train_step(env: gym.Env, rb, options: dict | None, batch_size: int, update_fn=sac_update):
+    """A fresh learner's update (seed 0), compiled whole with these torch.compile options
+    (None: not compiled)."""
+    torch.manual_seed(0)
     actor, qf, qf_target, log_alpha, optimizers = build_learner(env)
     tensors = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
-    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=0.99, tau=0.005,
+    update = functools.partial(update_fn, actor=actor, qf=qf, gamma=0.99, tau=0.005,
                                target_entropy=-rb.action_dim / 2)
-    compiled = torch.compile(update, fullgraph=True, options=options or None)
-    return make_train_step(rb, lambda batch, noise: compiled(tensors, batch, noise), batch_size,
+    if options is not None:
+        update = torch.compile(update, fullgraph=True, options=options or None)
+    return make_train_step(rb, lambda batch, noise: update(tensors, batch, noise), batch_size,
                            torch.device("cpu"), False, ())
 
 
@@ -71,12 +95,23 @@ def main(args: Args) -> None:
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
     rb = random_buffer(1, 20_000, obs_dim, action_dim, torch.device("cpu"))
     steps = {}
-    for name, options in VARIANTS.items():
+    if args.eager:
+        for name, update_fn in (("eager, the scripts' (torch.autograd)", sac_update),
+                                ("eager, torch.func.grad", update_with_func_grad)):
+            steps[name] = train_step(env, rb, None, args.batch_size, update_fn)
+        logs = []
+        for step in steps.values():
+            torch.manual_seed(1)  # the same batches and noise for both
+            logs.append([torch.stack([t.float().mean() for t in step()]) for _ in range(30)])
+        print("largest difference of the logged losses over 30 updates: "
+              f"{max((a - b).abs().max().item() for a, b in zip(*logs, strict=True)):.2e}")
+    for name, options in ({} if args.eager else VARIANTS).items():
         torch._dynamo.reset()  # each variant compiles its own graph
         steps[name] = train_step(env, rb, options, args.batch_size)
+    for step in steps.values():
         for _ in range(20):  # compile, then warm up
-            steps[name]()
-    ms = {name: [] for name in VARIANTS}
+            step()
+    ms = {name: [] for name in steps}
     for _ in range(args.rounds):
         for name, step in steps.items():
             start = time.process_time()
