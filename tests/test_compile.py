@@ -219,3 +219,33 @@ def test_without_a_cpp_compiler_the_run_names_the_fix_in_one_line(tmp_path):
     last = result.stderr.strip().splitlines()[-1]
     assert "compiling " in last and " failed (" in last
     assert "apt-get install g++ python3-dev" in last and "--no-compile" in last
+
+
+def test_the_eager_gradient_is_torch_funcs():
+    """Uncompiled, compiled.grad takes sac_losses's gradient from torch.autograd (faster eager);
+    the graph is traced from torch.func.grad. Both give the same gradient and the same logs, and
+    neither leaves the logs attached to an autograd graph."""
+    from compiled import grad
+    from sac_standard import learner_tensors, sac_losses
+
+    actor, qf, qf_target, log_alpha, optimizers = small_learner(seed=3)
+    learner = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
+    torch.manual_seed(4)
+    batch = (torch.randn(2, 32, 11), torch.rand(2, 32, 3) * 2 - 1, torch.randn(2, 32),
+             torch.randn(2, 32, 11), (torch.rand(2, 32) > 0.1).float())
+    noise = torch.randn(2, 2, 32, 3)
+    params = (learner["actor"], learner["qf"], learner["log_alpha"])
+    args = (params, learner["qf_target"], batch, noise, actor, qf, 0.99, -1.5)
+    with torch.no_grad():  # as sac_update calls it
+        ours, our_logs = grad(sac_losses)(*args)
+        reference, reference_logs = torch.func.grad(sac_losses, has_aux=True)(*args)
+    for mine, theirs in zip(ours[:2], reference[:2], strict=True):
+        assert mine.keys() == theirs.keys()
+        for name in theirs:
+            torch.testing.assert_close(mine[name], theirs[name], rtol=1e-6, atol=1e-7, msg=name)
+            assert mine[name].abs().sum() > 0, name  # every parameter gets a gradient
+    torch.testing.assert_close(ours[2], reference[2], rtol=1e-6, atol=1e-7)
+    for mine, theirs in zip(our_logs, reference_logs, strict=True):
+        torch.testing.assert_close(mine, theirs, rtol=1e-6, atol=1e-7)
+        assert not mine.requires_grad
+    assert all(not p.grad_fn for p in ours[0].values())
