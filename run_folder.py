@@ -1,8 +1,9 @@
 """A run folder's files, for sac_standard.py and sac_corrected.py: config.json, the CSV logs
 (written row by row), TensorBoard and W&B, checkpoints (written atomically, a batch's in two
-phases), the folder's lock, the random states, the graceful stop on a signal, and what an
-exact resume needs: the episode under way (EpisodeRecord) and each seed's part of the batch's
-networks and optimisers.
+phases; what each seed's holds: seed_checkpoint), the folder's lock, the random states, the
+graceful stop on a signal, and what an exact resume needs: the episode under way (EpisodeRecord)
+and each seed's part of the batch's networks and optimisers. Also the training loop's
+bookkeeping: the episodes and statistics train.csv reports, the progress line.
 
 None of it is the algorithm: the two scripts hold that, top to bottom. The layout of a run folder
 is described in docs/scripts.md ("The run folder").
