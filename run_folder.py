@@ -486,7 +486,7 @@ def open_logs(args, dirs: list[Path], eval_header: list[str], train_header: list
         tb = SummaryWriter(run_dir, purge_step=global_step + 1 if resumed else None)
         if not resumed:
             tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
-                f"|{k}|{v}|" for k, v in dataclasses.asdict(args).items()))
+                f"|{name}|{value}|" for name, value in dataclasses.asdict(args).items()))
         logs.append({"eval": open_csv(run_dir / "eval.csv", eval_header, keep),
                      "train": open_csv(run_dir / "train.csv", train_header, keep), "tb": tb,
                      "tracker": start_tracking(dataclasses.replace(args, seed=args.seed + k),

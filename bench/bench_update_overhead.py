@@ -23,6 +23,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from unittest import mock
 
 import gymnasium as gym
 import torch
@@ -34,8 +35,9 @@ sys.path.insert(0, str(ROOT))
 from bench_sac import build_learner, random_buffer  # noqa: E402
 
 import humanoid_envs  # noqa: E402, F401  (registers the h1hand tasks)
-from compiled import adam_step, make_train_step  # noqa: E402
-from sac_standard import learner_tensors, sac_losses, sac_update  # noqa: E402
+import sac_standard  # noqa: E402
+from compiled import make_train_step  # noqa: E402
+from sac_standard import learner_tensors, sac_update  # noqa: E402
 
 VARIANTS = {
     "scripts' compile (default guards)": {},
@@ -61,18 +63,10 @@ class Args:
     """time the uncompiled update's two gradients instead (see above)"""
 
 
-@torch.no_grad()
-def update_with_func_grad(learner: dict, batch: tuple, noise: torch.Tensor, actor, qf,
-                          gamma: float, tau: float, target_entropy: float) -> tuple:
-    """sac_update with torch.func.grad's gradient, also when not compiled."""
-    params = (learner["actor"], learner["qf"], learner["log_alpha"])
-    grads, logs = torch.func.grad(sac_losses, has_aux=True)(
-        params, learner["qf_target"], batch, noise, actor, qf, gamma, target_entropy)
-    torch._foreach_lerp_(list(learner["qf_target"].values()), list(learner["qf"].values()), tau)
-    for p, g, state in zip(params, grads, learner["adam"], strict=True):
-        p, g = (list(p.values()), list(g.values())) if isinstance(p, dict) else ([p], [g])
-        adam_step(p, g, state)
-    return logs
+def update_with_func_grad(*args, **kwargs) -> tuple:
+    """The scripts' sac_update, its gradient taken by torch.func.grad also when not compiled."""
+    with mock.patch.object(sac_standard, "grad", lambda f: torch.func.grad(f, has_aux=True)):
+        return sac_update(*args, **kwargs)
 
 
 def train_step(env: gym.Env, rb, options: dict | None, batch_size: int, update_fn=sac_update):
