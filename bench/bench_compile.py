@@ -76,12 +76,12 @@ def main() -> None:
           "call")
     for name, corrections in (("bias corrections stacked (the scripts')",
                                compiled.bias_corrections),
-                              ("bias corrections inlined", inlined)):
+                              ("bias corrections inlined", inlined_bias_corrections)):
         with mock.patch.object(compiled, "bias_corrections", corrections):
             print(f"{name:38s} {adam_step_us(args.repeats // 10):7.1f}")
 
 
-def inlined(step: torch.Tensor, lr: float, beta1: float, beta2: float) -> tuple:
+def inlined_bias_corrections(step: torch.Tensor, lr: float, beta1: float, beta2: float) -> tuple:
     """compiled.bias_corrections' two values, each its own 0-d formula of the step."""
     return lr / (1 - beta1**step), (1 - beta2**step).sqrt()
 
