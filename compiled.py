@@ -69,22 +69,14 @@ def adam_step(params: list[torch.Tensor], grads: list[torch.Tensor], state: dict
     torch._foreach_lerp_(state["exp_avgs"], grads, 1 - beta1)
     torch._foreach_mul_(state["exp_avg_sqs"], beta2)
     torch._foreach_addcmul_(state["exp_avg_sqs"], grads, grads, 1 - beta2)
-    step_size, bias_correction2_sqrt = bias_corrections(state["steps"][0], state["lr"], beta1,
-                                                        beta2)
+    step = state["steps"][0]  # every parameter's count is the same
+    bias_correction1, bias_correction2 = 1 - beta1**step, 1 - beta2**step
     denominators = torch._foreach_div(torch._foreach_sqrt(state["exp_avg_sqs"]),
-                                      bias_correction2_sqrt)
+                                      bias_correction2.sqrt())
     torch._foreach_add_(denominators, state["eps"])
     steps = torch._foreach_div(state["exp_avgs"], denominators)
-    torch._foreach_mul_(steps, step_size)
+    torch._foreach_mul_(steps, state["lr"] / bias_correction1)
     torch._foreach_sub_(params, steps)
-
-
-def bias_corrections(step: torch.Tensor, lr: float, beta1: float, beta2: float) -> torch.Tensor:
-    """Adam's bias-corrected step size lr / (1 - beta1^step) and sqrt(1 - beta2^step), stacked
-    into one tensor (every parameter's step count is the same). Compiled, inductor computes a
-    stacked tensor once, where it would inline a scalar's formula into the loop over every
-    parameter's elements: the Adam step ran 2x slower so (bench/bench_compile.py)."""
-    return torch.stack([lr / (1 - beta1**step), (1 - beta2**step).sqrt()])
 
 
 def adam_state(optimizer: torch.optim.Optimizer) -> dict:

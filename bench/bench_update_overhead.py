@@ -7,9 +7,7 @@ way, against the same update compiled with less per-call work around the graph: 
 cut to the tensor guards or skipped altogether (torch.compiler's *_unsafe guard filters; the
 update is always called with the same tensors, so nothing they guard could change), and
 inductor's C++ wrapper (the graph's ~100 kernel calls made from C++ instead of Python); and
-inductor's max-autotune, whose C++ GEMM template may replace ATen's matmuls; and the update with
-Adam's bias corrections as two scalar formulas (before ed4ef2f), which inductor inlines into
-every parameter's element loop, where compiled.bias_corrections stacks them into one tensor. The
+inductor's max-autotune, whose C++ GEMM template may replace ATen's matmuls. The
 variants are timed in turns, round after round, so that a shared machine's load falls on all of
 them alike; process CPU seconds, one thread. Prints the median and the best round per update.
 
@@ -34,10 +32,8 @@ import tyro
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bench_compile import inlined_bias_corrections  # noqa: E402
 from bench_sac import build_learner, random_buffer  # noqa: E402
 
-import compiled  # noqa: E402
 import humanoid_envs  # noqa: E402, F401  (registers the h1hand tasks)
 import sac_standard  # noqa: E402
 from compiled import make_train_step  # noqa: E402
@@ -106,11 +102,6 @@ def main(args: Args) -> None:
     for name, options in ({} if args.eager else VARIANTS).items():
         torch._dynamo.reset()  # each variant compiles its own graph
         steps[name] = train_step(env, rb, options, args.batch_size)
-    if not args.eager:
-        torch._dynamo.reset()
-        steps["Adam's bias corrections inlined"] = train_step(env, rb, {}, args.batch_size)
-        with mock.patch.object(compiled, "bias_corrections", inlined_bias_corrections):
-            steps["Adam's bias corrections inlined"]()  # compiles it so
     for step in steps.values():
         for _ in range(20):  # compile, then warm up
             step()
