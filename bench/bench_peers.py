@@ -20,7 +20,8 @@ seconds it prints are taken out of its runs' times, as they vary from run to run
 --repeats; with the defaults, roughly 10 to 15 minutes on one idle core (--cores 0 1: about half).
 Each row gives the speed-up over Stable-Baselines3 and over SBX, and the compute floor as a
 share of it: the matmul FLOPs of one update at batch 64 (from the task's observation and action
-sizes) over this core's float32 matmul rate (torch, one thread, 64x256 @ 256x256).
+sizes) over this core's float32 matmul rate (torch, one thread, 64x256 @ 256x256), with XLA's
+rate for the same product beside it when SBX is timed.
 
 CleanRL's script is written for gymnasium 0.29; on gymnasium 1.x its vector env reports no
 "final_observation", so the runner adds it (the returned observation, which is the final one
@@ -150,20 +151,33 @@ def run_cleanrl(env_id: str, total_timesteps: str, checkout: str) -> None:
     runpy.run_path(script, run_name="__main__")
 
 
-def print_matmul_gflops(calls: str = "4000", repeats: str = "7") -> None:
+def print_matmul_gflops(library: str = "torch", calls: str = "4000", repeats: str = "7") -> None:
     """Prints this core's float32 matmul rate in GFLOP/s: a 64x256 @ 256x256 product (a hidden
-    layer's forward at batch 64), torch, one thread; the best of the repeats, as a floor asks."""
-    import torch
+    layer's forward at batch 64), one thread, with torch (ours, SB3's) or "jax" (XLA's, SBX's);
+    the best of the repeats, as a floor asks."""
+    if library == "jax":
+        import jax
+        import jax.numpy as jnp
 
-    torch.set_num_threads(1)
-    x, w, out = torch.randn(BATCH_SIZE, 256), torch.randn(256, 256), torch.empty(BATCH_SIZE, 256)
+        x, w = jnp.ones((BATCH_SIZE, 256)), jnp.ones((256, 256))
+        product = jax.jit(jnp.matmul)
+        def matmul() -> None:
+            product(x, w).block_until_ready()
+    else:
+        import torch
+
+        torch.set_num_threads(1)
+        x, w = torch.randn(BATCH_SIZE, 256), torch.randn(256, 256)
+        out = torch.empty(BATCH_SIZE, 256)
+        def matmul() -> None:
+            torch.mm(x, w, out=out)
     for _ in range(500):
-        torch.mm(x, w, out=out)
+        matmul()
     best = float("inf")
     for _ in range(int(repeats)):
         start = time.perf_counter()
         for _ in range(int(calls)):
-            torch.mm(x, w, out=out)
+            matmul()
         best = min(best, (time.perf_counter() - start) / int(calls))
     print(2 * BATCH_SIZE * 256 * 256 / best / 1e9)
 
@@ -283,10 +297,10 @@ def update_flops(obs_dim: int, action_dim: int) -> int:
     return target + critic_loss + actor_loss
 
 
-def matmul_gflops(core: int) -> float:
+def matmul_gflops(core: int, library: str = "torch") -> float:
     """This core's float32 matmul rate (print_matmul_gflops in a pinned, one-thread process)."""
     result = subprocess.run(["taskset", "-c", str(core), sys.executable, str(SCRIPT), "--run-peer",
-                             "matmul-gflops"], env=os.environ | ONE_THREAD_ENV,
+                             "matmul-gflops", library], env=os.environ | ONE_THREAD_ENV,
                             capture_output=True, text=True, check=True)
     return float(result.stdout.split()[-1])
 
@@ -332,7 +346,7 @@ def speed_up(reference: float | None, ms: float) -> str:
 
 
 def print_report(args: Args, impls: Sequence[str], ms: dict, floors: dict, gflops: float,
-                 updates: dict) -> None:
+                 jax_gflops: float | None, updates: dict) -> None:
     """The markdown report: setup, one row per task and implementation, the floor per task."""
     clock = "CPU seconds" if args.cpu_time else "wall clock"
     print(f"### SAC on one CPU core: ms per env step ({date.today().isoformat()})\n")
@@ -361,7 +375,9 @@ def print_report(args: Args, impls: Sequence[str], ms: dict, floors: dict, gflop
                   f"{speed_up(sbx, value)} | {100 * floors[env_id][2] / value:.0f}% |")
     print(f"\nCompute floor: one update's matmul FLOPs at batch {BATCH_SIZE} over {gflops:.1f} "
           f"GFLOP/s (float32 {BATCH_SIZE}x256 @ 256x256, torch, one thread, core {args.cores[0]}; "
-          "the best of 7 timings).\n")
+          "the best of 7 timings"
+          + (f"; XLA, SBX's, runs the same product at {jax_gflops:.1f} GFLOP/s" if jax_gflops
+             else "") + ").\n")
     print("| task | obs | actions | MFLOP / update | floor ms | our update alone, compiled / "
           "eager (ms) | floor / compiled |")
     print("|---|---:|---:|---:|---:|---:|---:|")
@@ -384,6 +400,8 @@ def main(args: Args) -> None:
     if not 0 < args.short < args.long:
         sys.exit("--short and --long: 0 < short < long")
     gflops = matmul_gflops(args.cores[0])
+    # XLA's rate too: whether SBX's lead could come from its matmuls.
+    jax_gflops = matmul_gflops(args.cores[0], "jax") if "sbx" in impls else None
     floors = {}
     for env_id in args.env_ids:
         obs_dim, action_dim = task_dims(env_id)
@@ -419,7 +437,7 @@ def main(args: Args) -> None:
     # The update alone (no env), on an otherwise idle set of cores.
     updates = {env_id: tuple(update_ms(env_id, path, args.cores[0])
                              for path in ("compiled", "eager")) for env_id in args.env_ids}
-    print_report(args, impls, ms, floors, gflops, updates)
+    print_report(args, impls, ms, floors, gflops, jax_gflops, updates)
 
 
 if __name__ == "__main__":
