@@ -77,6 +77,10 @@ class Round:
     critic: nn.Module | None = None
     """a CPU copy, for q_best: (obs, env action) -> Q1 and Q2, shape (2, batch)"""
     mode_solver: str = "exact"
+    reset_noise: float | None = None
+    """the half-width of the uniform noise on qpos at each reset (h1hand's reset option
+    qpos_noise; None: the task's own), so that a task that resets without noise can be evaluated
+    from distinct starts; episode k of every action still starts from the same state"""
     shift_of: str | None = None
     """the prefix whose visited states give the mode-vs-tanh(mu) shift statistics"""
     videos: dict[str, Path] = field(default_factory=dict)
@@ -186,8 +190,9 @@ def _run_round(round_: Round) -> dict:
     renders = cached_envs(round_.env_id, len(round_.videos), render=True)
     for p, env in zip(round_.videos, renders, strict=True):  # first episodes that are filmed
         episodes[p] = [env, *episodes[p][1:]]
-    obs = {p: np.stack([env.reset(seed=s)[0] for env, s in zip(episodes[p], round_.seeds,
-                                                                strict=True)])
+    options = None if round_.reset_noise is None else {"qpos_noise": round_.reset_noise}
+    obs = {p: np.stack([env.reset(seed=s, options=options)[0]
+                        for env, s in zip(episodes[p], round_.seeds, strict=True)])
            for p in prefixes}
     # Each episode follows the first with its start state (every action resets its episodes
     # with the same seeds); a "sample" action's noise differs per episode, so none of its

@@ -20,9 +20,9 @@ from run_folder import fail, read_run_config
 
 # Flags that may differ when resuming: they change where and how fast, not what is computed.
 TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
-RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "print_interval",
-                  "cuda", "compile", "cudagraphs", "gpu_buffer", "torch_threads", "capture_video",
-                  "eval_workers", *TRACKING_FIELDS)
+RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "snapshot_interval",
+                  "print_interval", "cuda", "compile", "cudagraphs", "gpu_buffer", "torch_threads",
+                  "capture_video", "eval_workers", *TRACKING_FIELDS)
 # Of those, what a resume keeps unless told otherwise: a tracked run goes on being tracked, to
 # the same W&B run; a compiled run stays compiled and an eager one eager (they round apart).
 KEPT_FIELDS = (*TRACKING_FIELDS, "compile")
@@ -99,6 +99,9 @@ def check_args(args, eval_actions: Callable) -> None:
          "evaluation)"),
         ("eval_episodes", args.eval_episodes >= 1, "at least 1 (to skip evaluation, set "
          "--eval-interval above --total-timesteps)"),
+        ("eval_reset_noise", args.eval_reset_noise is None
+         or (finite(args.eval_reset_noise) and args.eval_reset_noise >= 0),
+         "a finite number >= 0 (HumanoidBench's is 0.01); leave it out for the task's own"),
         ("eval_selectors", len(set(eval_actions(args).values())) == len(eval_actions(args)),
          f"evaluation actions other than this script's own ({', '.join(own_actions)}), each once"),
         ("eval_workers", args.eval_workers is None or args.eval_workers >= 0,
@@ -106,6 +109,7 @@ def check_args(args, eval_actions: Callable) -> None:
         ("log_interval", args.log_interval >= 1, "at least 1"),
         ("print_interval", args.print_interval >= 1, "at least 1"),
         ("checkpoint_interval", args.checkpoint_interval >= 0, "0 (off) or more"),
+        ("snapshot_interval", args.snapshot_interval >= 0, "0 (off) or more"),
         ("torch_threads", args.torch_threads >= 1, "at least 1"),
         ("run_name", args.run_name is None or (args.run_name not in ("", ".", "..")
                                                and "/" not in args.run_name
@@ -145,6 +149,15 @@ def registered_env_id(env_id: str) -> str:
         ours = sorted(k for k in gym.registry if k.startswith("h1hand-"))
         fail(f"unknown env id {env_id!r}; close matches: {close}; our tasks: {ours}")
     return env_id
+
+
+def check_reset_noise(env: gym.Env, env_id: str, reset_noise: float | None) -> None:
+    """A reset noise is an option of our h1hand tasks only; other envs would ignore it."""
+    from humanoid_envs.base import H1HandEnv
+
+    if reset_noise is not None and not isinstance(env.unwrapped, H1HandEnv):
+        fail(f"--eval-reset-noise {reset_noise}: {env_id} is not an h1hand task, which alone take "
+             "it (gymnasium's MuJoCo envs set theirs with reset_noise_scale); leave it out")
 
 
 def check_spaces(env: gym.Env, env_id: str) -> gym.Env:

@@ -572,6 +572,20 @@ def finish_runs(dirs: list[Path], logs: list[dict], final_models: list[dict], gl
             {"global_step": global_step, "wall_time": wall_time})))
 
 
+def snapshot_path(run_dir: Path, global_step: int) -> Path:
+    return run_dir / "snapshots" / f"step{global_step}.pt"
+
+
+def save_snapshots(dirs: list[Path], models: list[dict], global_step: int) -> None:
+    """Each seed's weights at this step, as final_model.pt holds them. Written atomically, so a
+    run killed mid-write leaves the last whole one; a resumed run rewrites the snapshots after its
+    checkpoint with the same numbers."""
+    for run_dir, model in zip(dirs, models, strict=True):
+        path = snapshot_path(run_dir, global_step)
+        path.parent.mkdir(exist_ok=True)
+        atomic_write(path, lambda tmp, m=model: torch.save(on_cpu(m), tmp))
+
+
 def check_finite(x: np.ndarray, what: str) -> None:
     if not np.isfinite(x).all():
         raise SystemExit(f"non-finite {what} (NaN/inf): training diverged; try lower learning "

@@ -85,6 +85,11 @@ class Args:
     """evaluate every this many environment steps"""
     eval_episodes: int = 10
     """episodes per evaluation round"""
+    eval_reset_noise: float | None = None
+    """half-width of the uniform noise on every qpos entry at each evaluation reset (h1hand
+    tasks; default: the task's own, the paper's protocol). 0.01 is HumanoidBench's, which it turns
+    off on bookshelf and cube, whose evaluation is then one deterministic episode per action:
+    with it, every episode starts elsewhere (episode k of every action from the same state)"""
     eval_selectors: tuple[Literal["mode", "tanh_mu", "mean", "q_best"], ...] = ()
     """more evaluation actions, each paired (same start states) with the script's own: "mean"
     (E[tanh(u)]), "q_best" (the critic's pick of tanh(mu), mode and mean at each state), "mode",
@@ -109,6 +114,9 @@ class Args:
     stored arguments"""
     checkpoint_interval: int = 100_000
     """checkpoint every this many steps (0: off)"""
+    snapshot_interval: int = 0
+    """keep the actor and critic every this many steps as snapshots/step<N>.pt (final_model.pt's
+    format, ~2 MB on h1hand), for evaluate.py to evaluate the run at several depths (0: off)"""
     cuda: bool = True
     """use a CUDA GPU if there is one"""
     compile: bool = True
@@ -446,10 +454,18 @@ def evaluation_round(args: Args, seed_actor: Actor, seed_qf: TwinQ, actions: dic
         videos[""].parent.mkdir(exist_ok=True)
     return Round(args.env_id, eval_seeds(seed, eval_round, args.eval_episodes), actions,
                  seed_actor, seed_qf if "q_best" in actions.values() else None,
-                 mode_solver=args.mode_solver, shift_of=SHIFT_OF, videos=videos,
+                 mode_solver=args.mode_solver, reset_noise=args.eval_reset_noise,
+                 shift_of=SHIFT_OF, videos=videos,
                  label=f"evaluation of seed {seed} at step {global_step}",
                  info={"seed_index": k, "global_step": global_step, "wall_time": wall_time,
                        "eval_round": eval_round})
+
+
+def policy_weights(args: Args, actor: Actor, qf: TwinQ, k: int) -> dict:
+    """Seed k's actor and critic alone, and what rebuilds them: final_model.pt and snapshots."""
+    return {"actor": run_folder.seed_slice(actor, k).state_dict(),
+            "qf": run_folder.seed_slice(qf, k).state_dict(),
+            "config": {f: getattr(args, f) for f in MODEL_FIELDS}}
 
 
 def ends_without_bootstrap(terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
@@ -484,7 +500,9 @@ if __name__ == "__main__":
     print(f"device: {device}" + (" (no CUDA GPU found)" if args.cuda and device.type == "cpu"
                                  else ""), flush=True)
 
-    space = make_env(args.env_id).action_space  # checks the id and the spaces
+    env = make_env(args.env_id)  # checks the id and the spaces
+    flags.check_reset_noise(env, args.env_id, args.eval_reset_noise)
+    space = env.action_space
     spaces = [copy.deepcopy(space) for _ in seeds]  # the random start actions: one per seed
     for space, seed in zip(spaces, seeds, strict=True):
         space.seed(seed)
@@ -631,6 +649,10 @@ if __name__ == "__main__":
                                            elapsed + time.time() - session_start, progress),
                   flush=True)
 
+        if args.snapshot_interval > 0 and global_step % args.snapshot_interval == 0:
+            run_folder.save_snapshots(dirs, [policy_weights(args, actor, qf, k)
+                                             for k in range(args.num_seeds)], global_step)
+
         if stop.requested or (args.checkpoint_interval > 0
                               and global_step % args.checkpoint_interval == 0):
             # A stop checkpoints at once, recording the rounds still running (the resumed run
@@ -652,10 +674,7 @@ if __name__ == "__main__":
     eval_pool.drain()
     eval_pool.close()
     wall_time = elapsed + time.time() - session_start
-    final_models = [{"actor": run_folder.seed_slice(actor, k).state_dict(),
-                     "qf": run_folder.seed_slice(qf, k).state_dict(),
-                     "config": {f: getattr(args, f) for f in MODEL_FIELDS}}
-                    for k in range(args.num_seeds)]
+    final_models = [policy_weights(args, actor, qf, k) for k in range(args.num_seeds)]
     run_folder.finish_runs(dirs, logs, final_models, global_step, wall_time)
     print(f"finished {global_step} steps in {wall_time:.0f} s: "
           f"{', '.join(map(str, dirs))}", flush=True)

@@ -17,8 +17,9 @@ from gymnasium import spaces
 
 from humanoid_envs.robot import ACTUATOR_NAMES, KEYFRAME_QPOS, N_SUBSTEPS, H1Hand, robot_spec
 
-# Half-width of the uniform reset noise on qpos (HumanoidBench's powerlift).
-_QPOS_NOISE = 0.01
+# HumanoidBench's reset noise on qpos (its env.py's DEFAULT_RANDOMNESS): the half-width of a
+# uniform draw added to every entry, quaternions included (MuJoCo normalises them).
+HUMANOIDBENCH_QPOS_NOISE = 0.01
 
 # MuJoCo's default contact parameters, which every HumanoidBench task object uses; set
 # explicitly so the robot's default classes can never leak into the objects.
@@ -45,6 +46,11 @@ class Task:
     """Name of the camera (added in `add_objects`) that `render()` shows."""
     object_qpos: tuple[float, ...] = ()
     """qpos of the task's free objects in the keyframe, appended to the robot's."""
+    qpos_noise: float = 0.0
+    """Half-width of the uniform noise added to every qpos entry at reset, before
+    `initialize_episode` (HumanoidBench's order). HumanoidBench uses 0.01 on every task but
+    bookshelf, cube and kitchen, where it sets 0; `reset(options={"qpos_noise": x})` overrides
+    it for one episode (evaluation from distinct starts)."""
 
     def add_objects(self, spec: mujoco.MjSpec) -> None:
         """Add the task's bodies, sites and camera to the robot's spec (before compiling)."""
@@ -60,11 +66,6 @@ class Task:
         """What the episode's future depends on beyond MuJoCo's integration state: whatever
         `initialize_episode` drew into the task or the model (a goal, an object order)."""
         return ()
-
-    def add_qpos_noise(self, np_random: np.random.Generator) -> None:
-        """HumanoidBench's powerlift reset noise: uniform on every qpos entry (quaternions
-        included; MuJoCo normalises them)."""
-        self.data.qpos += np_random.uniform(-_QPOS_NOISE, _QPOS_NOISE, self.model.nq)
 
     def get_observation(self) -> np.ndarray:
         return np.concatenate((self.data.qpos, self.data.qvel))
@@ -196,10 +197,25 @@ class H1HandEnv(gym.Env):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         self._reset_to_keyframe()
+        noise = self._qpos_noise(options)
+        if noise > 0:  # no draw at all without noise: the task's random stream is unchanged
+            self.data.qpos += self.np_random.uniform(-noise, noise, self.model.nq)
         self.task.initialize_episode(self.np_random)
         mujoco.mj_forward(self.model, self.data)
         self._last_obs = self.task.get_observation()
         return self._last_obs, {}
+
+    def _qpos_noise(self, options: dict[str, Any] | None) -> float:
+        """The reset noise of this episode: options["qpos_noise"] if given, else the task's."""
+        unknown = set(options or {}) - {"qpos_noise"}
+        if unknown:
+            raise ValueError(f"unknown reset options {sorted(unknown)}; the only one is "
+                             "'qpos_noise' (half-width of the uniform noise on qpos)")
+        noise = (options or {}).get("qpos_noise", self.task.qpos_noise)
+        if not (isinstance(noise, int | float) and math.isfinite(noise) and noise >= 0):
+            raise ValueError(f"reset option qpos_noise must be a finite number >= 0 (0: the "
+                             f"keyframe exactly; HumanoidBench's noise is 0.01), got {noise!r}")
+        return float(noise)
 
     def start_state(self) -> bytes:
         """The state after `reset`, as bytes: MuJoCo's whole integration state plus the task's

@@ -3,10 +3,16 @@
 from typing import Any
 
 import mujoco
-import numpy as np
 
 from humanoid_envs import rewards
-from humanoid_envs.base import H1HandEnv, Task, add_free_object, add_look_at_camera, add_solid
+from humanoid_envs.base import (
+    HUMANOIDBENCH_QPOS_NOISE,
+    H1HandEnv,
+    Task,
+    add_free_object,
+    add_look_at_camera,
+    add_solid,
+)
 
 # The dumbbell is lifted when its centre is in this height band (m).
 _LIFTED_HEIGHT = (1.9, 2.1)
@@ -26,6 +32,7 @@ class Powerlift(Task):
     episode_steps = 1000
     success_bar = 800.0
     camera = "powerlift_view"
+    qpos_noise = HUMANOIDBENCH_QPOS_NOISE
     object_qpos = _DUMBBELL_QPOS
 
     def add_objects(self, spec: mujoco.MjSpec) -> None:
@@ -48,9 +55,6 @@ class Powerlift(Task):
     def bind(self, model, data, robot) -> None:
         super().bind(model, data, robot)
         self._dumbbell = model.body("dumbbell").id
-
-    def initialize_episode(self, np_random: np.random.Generator) -> None:
-        self.add_qpos_noise(np_random)
 
     def dumbbell_height(self) -> float:
         return float(self.data.xpos[self._dumbbell, 2])

@@ -2,10 +2,8 @@
 
 from typing import Any
 
-import numpy as np
-
 from humanoid_envs import rewards
-from humanoid_envs.base import H1HandEnv, Task, add_look_at_camera
+from humanoid_envs.base import HUMANOIDBENCH_QPOS_NOISE, H1HandEnv, Task, add_look_at_camera
 
 # Below this pelvis height the robot has fallen: the episode ends.
 _FALLEN_PELVIS_HEIGHT = 0.2
@@ -18,12 +16,10 @@ class Stand(Task):
     episode_steps = 1000
     success_bar = 800.0
     camera = "stand_view"
+    qpos_noise = HUMANOIDBENCH_QPOS_NOISE
 
     def add_objects(self, spec) -> None:
         add_look_at_camera(spec, self.camera, pos=(2.5, -2.5, 1.6), target=(0.0, 0.0, 1.0))
-
-    def initialize_episode(self, np_random: np.random.Generator) -> None:
-        self.add_qpos_noise(np_random)
 
     def get_reward(self) -> tuple[float, dict[str, Any]]:
         robot = self.robot
