@@ -24,8 +24,10 @@ RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "sn
                   "print_interval", "cuda", "compile", "cudagraphs", "gpu_buffer", "torch_threads",
                   "capture_video", "eval_workers", *TRACKING_FIELDS)
 # Of those, what a resume keeps unless told otherwise: a tracked run goes on being tracked, to
-# the same W&B run; a compiled run stays compiled and an eager one eager (they round apart).
-KEPT_FIELDS = (*TRACKING_FIELDS, "compile")
+# the same W&B run; a compiled run stays compiled and an eager one eager (they round apart); a
+# run keeps its checkpoints and snapshots as often as it was started with (sweep.py resumes
+# with --resume alone).
+KEPT_FIELDS = (*TRACKING_FIELDS, "compile", "checkpoint_interval", "snapshot_interval")
 
 
 def parse_args(args_class: type, algorithm: str, eval_actions: Callable) -> object:

@@ -2,6 +2,7 @@
 actions, physics blow-ups, rendering and gymnasium's checker."""
 
 import math
+import re
 import subprocess
 import sys
 import warnings
@@ -522,3 +523,32 @@ def test_start_state_sees_the_task_state_beyond_physics() -> None:
     first = env.unwrapped.start_state()
     env.unwrapped.task.subtask = 1  # physics untouched
     assert env.unwrapped.start_state() != first
+
+
+def test_reset_option_qpos_noise_sets_the_episodes_reset_noise() -> None:
+    env = make("h1hand-bookshelf_simple-v0")
+    keyframe = env.unwrapped.model.key_qpos[0]
+    starts = [env.reset(seed=s, options={"qpos_noise": 0.01})[0] for s in (1, 2, 1)]
+    assert not np.array_equal(starts[0], starts[1]) and np.array_equal(starts[0], starts[2])
+    qpos = env.unwrapped.data.qpos
+    # Every entry moved, by at most the half-width (the free joints' quaternions renormalised).
+    offsets = np.abs(qpos - keyframe)
+    assert (offsets > 0).all() and offsets.max() < 0.011
+    # Without the option, the task's own: bookshelf none, powerlift HumanoidBench's 0.01.
+    assert np.array_equal(env.reset(seed=1)[0], env.reset(seed=2)[0])
+    powerlift = make("h1hand-powerlift-v0")
+    default = powerlift.reset(seed=3)[0]
+    assert np.array_equal(default, powerlift.reset(seed=3, options={"qpos_noise": 0.01})[0])
+    powerlift.reset(seed=3, options={"qpos_noise": 0.0})
+    assert np.array_equal(powerlift.unwrapped.data.qpos, powerlift.unwrapped.model.key_qpos[0])
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [({"qpos_noise": -0.1}, "qpos_noise must be a finite number >= 0"),
+     ({"qpos_noise": float("nan")}, "qpos_noise must be a finite number >= 0"),
+     ({"noise": 0.01}, "unknown reset options ['noise']")],
+)
+def test_bad_reset_options_raise_clear_errors(options: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=re.escape(message)):
+        make("h1hand-cube-v0").reset(seed=0, options=options)

@@ -284,6 +284,22 @@ def test_starts_with_reset_noise_are_all_stepped(monkeypatch):
     assert steps == all_steps == sum(sum(deduped[p]["lengths"]) for p in round_.actions)
 
 
+def test_reset_noise_makes_every_start_distinct_and_keeps_the_actions_paired(monkeypatch):
+    round_ = _h1hand_round("h1hand-bookshelf_simple-v0", eval_seeds(0, 1, 3))
+    round_.reset_noise = 0.01
+    result, steps = _stepped_round(monkeypatch, round_, dedupe=True)
+    assert result["distinct_episodes"] == 3
+    assert steps == sum(sum(result[p]["lengths"]) for p in round_.actions)
+    assert len(set(result["tanh_mu_"]["returns"])) == 3
+    # Paired: episode k of every action starts from the same state (an action's first step is
+    # taken from it), so tanh(mu) run alone from these seeds gives its rows again.
+    alone = copy.deepcopy(round_)
+    alone.actions, alone.shift_of = {"tanh_mu_": "tanh_mu"}, None
+    assert run_round(alone)["tanh_mu_"] == result["tanh_mu_"]
+    # The same command, the same rows.
+    assert _stepped_round(monkeypatch, round_, dedupe=True)[0] == result
+
+
 def test_repeated_reset_seeds_are_stepped_once_on_any_env_that_can_tell(monkeypatch):
     # Hopper's starts draw noise, so equal seeds give equal starts; it cannot tell its start
     # state (no start_state), so each episode runs.

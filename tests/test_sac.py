@@ -216,11 +216,40 @@ def test_replay_buffer_state_round_trip():
     (["--env-id", "Pendulum-v1", "--batch-size", "128", "--buffer-size", "100"],
      "--batch-size 128: must be between 1 and --buffer-size (100)"),
     (["--resume", "tests"], "is not a run folder"),
+    (["--env-id", "Pendulum-v1", "--eval-reset-noise", "0.01"],
+     "Pendulum-v1 is not an h1hand task, which alone take it"),
 ])
 def test_bad_input_fails_with_one_clear_line(args, message, tmp_path):
     result = run("sac_standard.py", *args, "--output-dir", str(tmp_path), check=False)
     assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
+
+
+def test_snapshots_keep_the_policy_at_each_interval_and_survive_a_resume(tmp_path):
+    args = [*SHORT, "--snapshot-interval", "500", "--checkpoint-interval", "600",
+            "--output-dir", str(tmp_path), "--run-name", "snap"]
+    run_dir = tmp_path / "snap"
+    process = subprocess.Popen(command("sac_corrected.py", *args), cwd=ROOT,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wait_for(lambda: (run_dir / "checkpoint.pt").exists())  # at step 600, past snapshot 500
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    run("sac_corrected.py", "--resume", str(run_dir))
+    snapshots = {p.name: torch.load(p, weights_only=True)
+                 for p in sorted((run_dir / "snapshots").iterdir())}
+    assert set(snapshots) == {"step500.pt", "step1000.pt", "step1500.pt"}
+    final = torch.load(run_dir / "final_model.pt", weights_only=True)
+    uninterrupted = run("sac_corrected.py", *args[:-1], "whole")  # the same run, not killed
+    for name, snapshot in snapshots.items():
+        assert set(snapshot) == {"actor", "qf", "config"}
+        whole = torch.load(tmp_path / "whole" / "snapshots" / name, weights_only=True)
+        same_as_final = True
+        for part in ("actor", "qf"):
+            for key, value in snapshot[part].items():
+                assert torch.equal(value, whole[part][key]), (name, key)
+                same_as_final &= torch.equal(value, final[part][key])
+        assert same_as_final is (name == "step1500.pt"), name  # training moved the weights
+    assert uninterrupted.returncode == 0
 
 
 def test_bad_resumes_fail_clearly(standard_run, tmp_path):
