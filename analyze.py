@@ -68,8 +68,11 @@ Q_BEST_SHARE_COLUMNS = ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_sha
 SHIFT_COLUMNS = ("mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
 # Over training: the shift per action dimension, which tasks of any dimension share an axis on.
 OVER_TRAINING_SHIFT_COLUMNS = ("mode_shift_abs_mean", "sigma_mean", "bimodal_fraction")
+# Optional: how many distinct episodes an evaluation round held. A task that resets without
+# noise plays one episode however many the round asks for, which the figures must say.
+EPISODES_COLUMN = "distinct_episodes"
 OPTIONAL_COLUMNS = (*SELECTOR_RETURN_COLUMNS, *Q_BEST_SHARE_COLUMNS,
-                    *dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS))
+                    *dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS), EPISODES_COLUMN)
 # The dimension study: paired differences at these fractions of each task's shared steps.
 TRAINING_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
 
@@ -111,6 +114,17 @@ NORMALIZATIONS = {
 }
 AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
 CONFIDENCE = 0.95
+# Up to this many seeds a percentile bootstrap of the mean is narrower than the data allow: it
+# only resamples the few values seen, so summary.md puts a Student-t interval beside it.
+FEW_SEEDS = 5
+# Over training: each seed's paired difference averaged over its last evaluation rounds, since
+# one round of a noisy task is one draw of that noise.
+LAST_ROUNDS = (20, 50)
+# The over-training figure's rolling mean, over this many rounds (drawn with twice as many).
+ROLLING_ROUNDS = 10
+# A success bar further above the returns than this factor would squash them into the floor of
+# the reward-curve axes: it is then named in the title instead of drawn.
+SUCCESS_BAR_DRAWN_WITHIN = 1.5
 
 
 @dataclasses.dataclass
@@ -152,6 +166,7 @@ class Curve:
     shift: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # SHIFT_COLUMNS
     shares: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # Q_BEST_SHARE_COLUMNS
     budget: int | None = None  # config.json's total_timesteps, where it has one
+    episodes: np.ndarray | None = None  # EPISODES_COLUMN per step, where the run logged it
 
 
 # task -> group -> curves sorted by seed; a group is an algorithm or a paired evaluation
@@ -265,15 +280,17 @@ def load_runs(root: Path) -> tuple[Runs, list[str]]:
         budget = budget if isinstance(budget, int) and budget > 0 else None
         shift = {c: columns[c] for c in dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS)
                  if c in columns}
+        episodes = columns.get(EPISODES_COLUMN)
         _add_curve(runs, task, algorithm, Curve(run_dir, seed, steps, columns[RETURN_COLUMN],
-                                                action_dim, shift, budget=budget))
+                                                action_dim, shift, budget=budget,
+                                                episodes=episodes))
         for prefix, suffix in SELECTOR_PREFIXES.items():
             paired = columns.get(prefix + RETURN_COLUMN)
             if paired is not None and np.isfinite(paired).all():
                 shares = {c: columns[c] for c in Q_BEST_SHARE_COLUMNS
                           if prefix == "q_best_" and c in columns}
                 curve = Curve(run_dir, seed, steps, paired, action_dim, shares=shares,
-                              budget=budget)
+                              budget=budget, episodes=episodes)
                 _add_curve(runs, task, algorithm + suffix, curve)
             elif paired is not None:
                 notes.append(f"{run_dir}: {prefix + RETURN_COLUMN} has empty cells; "

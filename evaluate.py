@@ -4,12 +4,21 @@ actions (selectors), paired: every selector starts its episode k from the same s
     python evaluate.py runs/h1hand-cube-v0__corrected__seed0__20261122-120000
     python evaluate.py final_model.pt --env-id Hopper-v5 --episodes 100 --selectors mode mean
     python evaluate.py sb3_sac_hopper.zip --env-id Hopper-v5 --selectors mode tanh_mu q_best sample
+    python evaluate.py campaign/ --out robust/ --reset-noise 0.01 --episodes 100 \
+        --selectors mode tanh_mu mean q_best          # every run of a campaign, every snapshot
 
 SOURCE is a run folder of ours (its final_model.pt, else its checkpoint.pt), one of our
 final_model.pt or checkpoint.pt files, or a Stable-Baselines3 SAC .zip (gSDE ones too). Our
 weight files are loaded with torch.load(weights_only=True): they cannot run code. An SB3 .zip
 is unpickled by SB3 itself and must come from a source you trust. `q_best` also needs the
 critic: our files' "qf", or the critic inside the SB3 .zip.
+
+SOURCE may also be a folder of run folders (a campaign): then every run's final_model.pt and
+snapshots/step<N>.pt (or those at --steps) are evaluated, each from the same --episodes starts
+of its run's seed, and --out receives one episodes.csv per run and the campaign's summary
+(summary.md, per_seed.csv, across_seeds.csv, paired_difference.png; see
+`summarize_campaign`). Given that --out folder as SOURCE, the summary is rewritten from its
+CSVs without running an episode.
 
 The episodes run through eval_runner.py, the training runs' own evaluation: split into jobs of
 JOB_EPISODES episodes, each job stepping all its episodes of every selector in lockstep, the
@@ -24,6 +33,7 @@ import contextlib
 import csv
 import io
 import json
+import math
 import os
 import sys
 import time
@@ -39,7 +49,15 @@ import torch.nn as nn
 import tyro
 
 import sac_corrected as sac
-from eval_runner import ACTIONS, Q_BEST_CANDIDATES, SHIFT_COLUMNS, EvalPool, Round, eval_seeds
+from eval_runner import (
+    ACTIONS,
+    Q_BEST_CANDIDATES,
+    SHIFT_COLUMNS,
+    EvalPool,
+    Round,
+    eval_seeds,
+    start_key,
+)
 from run_folder import fail, read_config_json
 
 SELECTORS = ACTIONS
@@ -64,6 +82,13 @@ class Args:
     N-th evaluation (0, the default, is a round no training run evaluates)"""
     solver: Literal["exact", "grid"] = "exact"
     """how to find the mode (mode_search.py)"""
+    reset_noise: float | None = None
+    """half-width of the uniform noise on every qpos entry at each reset (h1hand tasks; default:
+    the task's own). bookshelf and cube reset without noise, so their episodes from one policy
+    are one episode: 0.01 (HumanoidBench's own elsewhere) gives distinct starts"""
+    steps: tuple[int, ...] = ()
+    """with a folder of runs: evaluate the snapshots (or final weights) at these steps only
+    (default: every snapshot and the final weights)"""
     selectors: tuple[Literal["mode", "tanh_mu", "mean", "q_best", "sample"], ...] = (
         "mode", "tanh_mu")
     """evaluation actions: the mode, tanh(mu), the mean E[tanh(u)], the critic's pick of those
@@ -110,6 +135,10 @@ def check_args(args: Args) -> None:
         ("eval_round", args.eval_round >= 0, "0 or more"),
         ("selectors", len(args.selectors) >= 1, f"one or more of {', '.join(SELECTORS)}"),
         ("reps", args.reps >= 1, "at least 1"),
+        ("reset_noise", args.reset_noise is None
+         or (np.isfinite(args.reset_noise) and args.reset_noise >= 0),
+         "a finite number >= 0 (HumanoidBench's is 0.01); leave it out for the task's own"),
+        ("steps", all(s >= 0 for s in args.steps), "steps of the runs' snapshots (>= 0)"),
         ("workers", args.workers is None or args.workers >= 0, "0 (in-process) or more"),
     )
     for name, ok, allowed in rules:
@@ -322,7 +351,7 @@ def load_sb3(path: Path, env_id: str | None) -> tuple[nn.Module, str, dict]:
 
 # ----------------------------------------------------------------------------- evaluate
 def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: list[int],
-              selectors: list[str], args: Args) -> list[Round]:
+              selectors: list[str], args: Args, label: str = "") -> list[Round]:
     """The episodes as rounds of JOB_EPISODES, each with every selector (eval.csv prefix =
     selector name); the first one films each selector's first episode."""
     shift_of = "mode" if "mode" in selectors else selectors[0]
@@ -332,8 +361,9 @@ def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: li
         videos = {s: args.video / f"{s}.mp4" for s in selectors} if args.video and start == 0 \
             else {}
         jobs.append(Round(env_id, part, {s: s for s in selectors}, actor, critic,
-                          mode_solver=args.solver, shift_of=shift_of, videos=videos,
-                          label=f"episodes {start}-{start + len(part) - 1}"))
+                          mode_solver=args.solver, reset_noise=args.reset_noise,
+                          shift_of=shift_of, videos=videos,
+                          label=f"{label}episodes {start}-{start + len(part) - 1}"))
     return jobs
 
 
@@ -416,9 +446,25 @@ def mean_with_ci(values: np.ndarray, reps: int, seed: int) -> tuple[float, float
     return float(point["x"][0]), float(interval["x"][0, 0]), float(interval["x"][1, 0])
 
 
-def summarise(results: dict, shift: dict, args: Args, info: dict, env_id: str) -> dict:
+def distinct_starts(env_id: str, seeds: list[int], reset_noise: float | None) -> int | None:
+    """How many distinct start states these reset seeds give (None: the env cannot tell)."""
+    env = sac.make_env(env_id)
+    options = None if reset_noise is None else {"qpos_noise": reset_noise}
+    keys = set()
+    for seed in seeds:
+        env.reset(seed=seed, options=options)
+        key = start_key(env)
+        if key is None:
+            return None
+        keys.add(key)
+    return len(keys)
+
+
+def summarise(results: dict, shift: dict, args: Args, info: dict, env_id: str,
+              starts: int | None) -> dict:
     summary = {**info, "env_id": env_id, "episodes": args.episodes, "seed": args.seed,
-               "eval_round": args.eval_round, "solver": args.solver,
+               "eval_round": args.eval_round, "reset_noise": args.reset_noise,
+               "distinct_starts": starts, "solver": args.solver,
                "episodes_per_job": JOB_EPISODES, "selectors": {}}
     for selector, episodes in results.items():
         mean, low, high = mean_with_ci(np.array(episodes["returns"]), args.reps, args.seed)
@@ -452,16 +498,29 @@ def print_summary(summary: dict) -> None:
     print(f"\n{summary['source']} on {summary['env_id']}: {summary['episodes']} episodes per "
           f"selector, the same start states for each (seed {summary['seed']}, round "
           f"{summary['eval_round']})\n")
+    # A task that resets without noise gives every episode one start: the "episodes" of a
+    # deterministic selector are one episode repeated, and a CI over them means nothing.
+    one = summary["distinct_starts"] == 1 and summary["episodes"] > 1
+    if one:
+        print(f"All {summary['episodes']} episodes start from the same state ({summary['env_id']} "
+              "resets without noise): each deterministic selector ran one episode, so there is "
+              "no CI. For distinct starts, evaluate with --reset-noise 0.01 (HumanoidBench's "
+              "reset noise on its other tasks).\n")
     print(f"{'selector':<10} {'mean return':>12}  {'95% CI':>23}  {'std':>9}  {'length':>7}")
     for name, s in summary["selectors"].items():
-        print(f"{name:<10} {s['return_mean']:12.2f}  [{s['ci_low']:10.2f}, {s['ci_high']:10.2f}]"
-              f"  {s['return_std']:9.2f}  {s['length_mean']:7.1f}")
+        ci = f"[{s['ci_low']:10.2f}, {s['ci_high']:10.2f}]" if not one or name == "sample" \
+            else f"{'(one episode)':>24}"
+        print(f"{name:<10} {s['return_mean']:12.2f}  {ci}  {s['return_std']:9.2f}  "
+              f"{s['length_mean']:7.1f}")
     for name, s in summary["selectors"].items():
         if "choice_shares" in s:
             shares = ", ".join(f"{c} {100 * v:.1f}%" for c, v in s["choice_shares"].items())
             print(f"{name} chose, over its visited states: {shares}")
     print()
     for name, paired in summary.get("paired_difference_minus_tanh_mu", {}).items():
+        if one and name != "sample":
+            print(f"{name} - tanh_mu, one paired episode: {paired['mean']:.2f}")
+            continue
         print(f"{name} - tanh_mu, paired: {paired['mean']:.2f} [{paired['ci_low']:.2f}, "
               f"{paired['ci_high']:.2f}]; {name} did better in "
               f"{100 * paired['share_better']:.0f}% of episodes "
@@ -493,9 +552,339 @@ def write_files(out: Path, results: dict, seeds: list[int], summary: dict) -> No
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
 
 
+# ----------------------------------------------------------------------------- a campaign
+CAMPAIGN_FILE = "evaluation.json"
+# The per-seed precision asked of a campaign's evaluation: the paired difference's standard
+# error below this share of tanh(mu)'s mean return.
+PRECISION = 0.10
+
+
+@dataclass
+class Policy:
+    """One weights file of a campaign: a run's snapshot or its final weights."""
+
+    run: str
+    seed: int
+    env_id: str
+    step: int
+    path: Path
+    config: dict
+
+
+def is_campaign(source: Path) -> bool:
+    """A folder that is no run itself but holds run folders (config.json below it)."""
+    return source.is_dir() and not (source / "config.json").exists() \
+        and next(source.rglob("config.json"), None) is not None
+
+
+def campaign_policies(root: Path, steps: tuple[int, ...]) -> list[Policy]:
+    """Every run's snapshots and final weights under root (at --steps only, if given); the final
+    weights stand for a snapshot at the same step."""
+    policies, missing = [], []
+    for run_dir in sorted(p.parent for p in root.rglob("config.json")):
+        config = read_config(run_dir)
+        files = {int(p.stem.removeprefix("step")): p
+                 for p in (run_dir / "snapshots").glob("step*.pt")
+                 if p.stem.removeprefix("step").isdigit()}
+        if (run_dir / "final_model.pt").is_file():
+            done = run_dir / "done.json"
+            final = json.loads(done.read_text())["global_step"] if done.is_file() \
+                else config.get("total_timesteps")
+            files[int(final)] = run_dir / "final_model.pt"
+        missing += [f"{run_dir.name} step {s}" for s in steps if s not in files]
+        policies += [Policy(run_dir.name, int(config["seed"]), config["env_id"], step, path, config)
+                     for step, path in sorted(files.items()) if not steps or step in steps]
+    if missing:
+        print(f"not there yet, skipped: {', '.join(missing)}", file=sys.stderr)
+    if not policies:
+        fail(f"{root}: no run under it holds final_model.pt or snapshots"
+             f"{' at --steps ' + ' '.join(map(str, steps)) if steps else ''}; train with "
+             "--snapshot-interval, or give a run folder")
+    if len({p.run for p in policies}) != len({p.path.parent.parent if p.path.parent.name ==
+                                               "snapshots" else p.path.parent for p in policies}):
+        fail(f"{root}: two run folders share a name; evaluate them separately")
+    return policies
+
+
+def evaluate_campaign(args: Args) -> None:
+    """Every policy of the campaign from the same --episodes starts of its run's seed, all jobs
+    in one pool; one episodes.csv and shift.csv per run under --out, then the summary."""
+    if args.out is None or args.video is not None:
+        fail(f"{args.source} is a folder of runs: give --out (where each run's episodes.csv and "
+             "the summary go), and no --video")
+    policies = campaign_policies(args.source, args.steps)
+    for env_id in sorted({p.env_id for p in policies}):
+        check_reset_noise(env_id, args.reset_noise)
+    selectors = list(dict.fromkeys(args.selectors))
+    jobs, owners = [], []
+    for policy in policies:
+        state = load_weights(policy.path)
+        actor = build_actor(state["actor"], policy.env_id, policy.config, policy.path).eval()
+        critic = build_critic(state, actor, policy.path) if "q_best" in selectors else None
+        seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
+        for job in make_jobs(actor, critic, policy.env_id, seeds, selectors, args,
+                             label=f"{policy.run} step {policy.step}: "):
+            jobs.append(job)
+            owners.append(policy)
+    workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
+    start = time.perf_counter()
+    results = run_jobs(jobs, workers, progress_bar(
+        f"{len(policies)} policies x {' '.join(selectors)}", len(policies) * args.episodes))
+    elapsed = time.perf_counter() - start
+    try:
+        write_campaign(args, policies, selectors, jobs, owners, results, elapsed)
+    except OSError as error:
+        fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable folder")
+    summarize_campaign(args.out, args.reps, args.seed)
+
+
+def write_campaign(args: Args, policies: list[Policy], selectors: list[str], jobs: list[Round],
+                   owners: list[Policy], results: list[dict], elapsed: float) -> None:
+    args.out.mkdir(parents=True, exist_ok=True)
+    for run in dict.fromkeys(p.run for p in policies):
+        (args.out / run).mkdir(exist_ok=True)
+        episodes = open(args.out / run / "episodes.csv", "w", newline="")
+        shifts = open(args.out / run / "shift.csv", "w", newline="")
+        with episodes, shifts:
+            rows, shift_rows = csv.writer(episodes), csv.writer(shifts)
+            rows.writerow(["step", "selector", "episode", "reset_seed", "return", "length",
+                           "success"])
+            shift_rows.writerow(["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}"
+                                                            for c in Q_BEST_CANDIDATES)])
+            for policy in (p for p in policies if p.run == run):
+                mine = [r for r, o in zip(results, owners, strict=True) if o is policy]
+                seeds = [s for j, o in zip(jobs, owners, strict=True) if o is policy
+                         for s in j.seeds]
+                merged, shift = merge(mine, selectors)
+                for selector, ep in merged.items():
+                    for k, seed in enumerate(seeds):
+                        success = ep["successes"][k]
+                        rows.writerow([policy.step, selector, k, seed, repr(ep["returns"][k]),
+                                       ep["lengths"][k], "" if success is None else success])
+                shares = merged.get("q_best", {}).get("shares", {})
+                shift_rows.writerow([policy.step, *(repr(shift[c]) for c in SHIFT_COLUMNS),
+                                     *(repr(shares[c]) if shares else "" for c in
+                                       Q_BEST_CANDIDATES)])
+    settings = {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
+                "episodes": args.episodes, "eval_round": args.eval_round,
+                "reset_noise": args.reset_noise, "selectors": selectors, "solver": args.solver,
+                "seconds": round(elapsed, 1), "workers": args.workers,
+                "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
+    (args.out / CAMPAIGN_FILE).write_text(json.dumps(settings, indent=2) + "\n")
+
+
+def read_campaign(out: Path) -> tuple[dict, dict]:
+    """evaluation.json, and the returns by (run, step, selector), in episode order."""
+    settings = json.loads((out / CAMPAIGN_FILE).read_text())
+    returns: dict[tuple[str, int, str], list[float]] = {}
+    for run in settings["runs"]:
+        path = out / run / "episodes.csv"
+        if not path.is_file():
+            fail(f"{path} is missing: {out} is incomplete; evaluate the campaign again")
+        with open(path, newline="") as f:
+            for row in csv.DictReader(f):
+                returns.setdefault((run, int(row["step"]), row["selector"]), []).append(
+                    float(row["return"]))
+    return settings, returns
+
+
+def t_interval(values: np.ndarray) -> tuple[float, float]:
+    """Student's t 95% interval of the mean (NaN with fewer than two values)."""
+    from scipy import stats
+
+    if len(values) < 2:
+        return math.nan, math.nan
+    half = stats.t.ppf(0.5 + CONFIDENCE / 2, len(values) - 1) * values.std(ddof=1) \
+        / math.sqrt(len(values))
+    return float(values.mean() - half), float(values.mean() + half)
+
+
+def standard_error(values: np.ndarray) -> float:
+    return float(values.std(ddof=1) / math.sqrt(len(values))) if len(values) > 1 else math.nan
+
+
+def per_seed_rows(settings: dict, returns: dict) -> list[dict]:
+    """Per run, step and selector: the mean return and its standard error over the episodes,
+    and the paired difference against tanh(mu) from the same starts with its standard error."""
+    rows, order = [], {s: i for i, s in enumerate(settings["selectors"])}
+    for (run, step, selector), values in sorted(returns.items(),
+                                                key=lambda kv: (*kv[0][:2], order[kv[0][2]])):
+        values = np.array(values)
+        row = {"env_id": settings["runs"][run]["env_id"], "run": run,
+               "seed": settings["runs"][run]["seed"], "step": step, "selector": selector,
+               "episodes": len(values), "return_mean": values.mean(),
+               "return_se": standard_error(values)}
+        baseline = returns.get((run, step, "tanh_mu"))
+        if selector != "tanh_mu" and baseline is not None:
+            diffs = values - np.array(baseline)
+            row |= {"tanh_mu_return_mean": float(np.mean(baseline)),
+                    "difference_mean": diffs.mean(), "difference_se": standard_error(diffs),
+                    "share_better": float(np.mean(diffs > 0))}
+        rows.append(row)
+    return rows
+
+
+def across_seed_rows(per_seed: list[dict], reps: int, seed: int) -> list[dict]:
+    """Per task, step and selector, over seeds: the mean return, and the mean paired difference
+    with a t-interval and, labelled apart, rliable's percentile bootstrap over seeds (with five
+    seeds or fewer the bootstrap is narrower than the data allows: read the t-interval)."""
+    groups: dict[tuple[str, int, str], list[dict]] = {}
+    for row in per_seed:
+        groups.setdefault((row["env_id"], row["step"], row["selector"]), []).append(row)
+    rows = []
+    for (env_id, step, selector), group in groups.items():  # per_seed's order
+        row = {"env_id": env_id, "step": step, "selector": selector, "seeds": len(group),
+               "return_mean": float(np.mean([r["return_mean"] for r in group]))}
+        if "difference_mean" in group[0]:
+            diffs = np.array([r["difference_mean"] for r in group])
+            _, boot_low, boot_high = mean_with_ci(diffs, reps, seed)
+            row |= {"difference_mean": float(diffs.mean()),
+                    **dict(zip(("t_low", "t_high"), t_interval(diffs), strict=True)),
+                    "bootstrap_low": boot_low, "bootstrap_high": boot_high,
+                    "seeds_won": int((diffs > 0).sum())}
+        rows.append(row)
+    return rows
+
+
+def write_rows(path: Path, rows: list[dict]) -> None:
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, columns)
+        writer.writeheader()
+        writer.writerows({k: repr(v) if isinstance(v, float) else v for k, v in row.items()}
+                         for row in rows)
+
+
+def summarize_campaign(out: Path, reps: int, seed: int) -> None:
+    """From the CSVs under out: per_seed.csv, across_seeds.csv, summary.md (printed) and
+    paired_difference.png. The precision check: each seed's paired difference should have a
+    standard error below PRECISION of tanh(mu)'s mean return."""
+    settings, returns = read_campaign(out)
+    per_seed = per_seed_rows(settings, returns)
+    across = across_seed_rows(per_seed, reps, seed)
+    write_rows(out / "per_seed.csv", per_seed)
+    write_rows(out / "across_seeds.csv", across)
+    text = campaign_markdown(settings, per_seed, across, reps)
+    (out / "summary.md").write_text(text)
+    plot_campaign(settings, per_seed, across).savefig(out / "paired_difference.png", dpi=120)
+    print(text, end="")
+    print(f"wrote {out / 'summary.md'}, per_seed.csv, across_seeds.csv, paired_difference.png")
+
+
+def _num(x: float, digits: int = 1) -> str:
+    return "n/a" if x is None or math.isnan(x) else f"{x:+.{digits}f}"
+
+
+def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
+                      reps: int) -> str:
+    noise = settings["reset_noise"]
+    lines = [f"# Evaluation of {len(settings['runs'])} runs from `{settings['source']}`", "",
+             f"`{' '.join(settings['command'])}`", "",
+             f"Each policy (a run's snapshot or final weights) acted with "
+             f"{', '.join(settings['selectors'])} for {settings['episodes']} episodes; episode k "
+             f"of every action and every step of a run starts from the same state (reset seeds "
+             f"from the run's seed, round {settings['eval_round']}; reset noise on qpos: "
+             f"{'the task' + chr(39) + 's own' if noise is None else f'+-{noise}'}). "
+             f"{settings['seconds']:.0f} s of evaluation.", "",
+             "## Across seeds", "",
+             "Mean over seeds of each seed's paired difference against tanh(mu) (its mean over "
+             "the episodes), a Student-t 95% interval over seeds, and rliable's percentile "
+             f"bootstrap over seeds ({reps} replications), which with five seeds or fewer is "
+             "narrower than the data allows; won: seeds whose difference is above zero.", "",
+             "| task | step | action | seeds | return | minus tanh(mu) | t-interval | bootstrap "
+             "| won |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in across:
+        if "difference_mean" not in r:
+            lines.append(f"| {r['env_id']} | {r['step']} | {r['selector']} | {r['seeds']} | "
+                         f"{r['return_mean']:.1f} | | | | |")
+            continue
+        lines.append(f"| {r['env_id']} | {r['step']} | {r['selector']} | {r['seeds']} | "
+                     f"{r['return_mean']:.1f} | {_num(r['difference_mean'])} | "
+                     f"[{_num(r['t_low'])}, {_num(r['t_high'])}] | "
+                     f"[{_num(r['bootstrap_low'])}, {_num(r['bootstrap_high'])}] | "
+                     f"{r['seeds_won']} of {r['seeds']} |")
+    lines += ["", "## Per seed", "",
+              "Paired difference against tanh(mu) with its standard error over the episodes; "
+              f"precision: that standard error as a share of tanh(mu)'s mean return (asked: below "
+              f"{PRECISION:.0%}).", "",
+              "| task | seed | step | action | return | tanh(mu) | minus tanh(mu) | SE | "
+              "precision | better in |", "|---|---|---|---|---|---|---|---|---|---|"]
+    failed = []
+    for r in per_seed:
+        if "difference_mean" not in r:
+            continue
+        share = r["difference_se"] / abs(r["tanh_mu_return_mean"]) \
+            if r["tanh_mu_return_mean"] else math.inf
+        if not share < PRECISION:
+            failed.append(f"seed {r['seed']} step {r['step']} {r['selector']}")
+        lines.append(f"| {r['env_id']} | {r['seed']} | {r['step']} | {r['selector']} | "
+                     f"{r['return_mean']:.1f} | {r['tanh_mu_return_mean']:.1f} | "
+                     f"{_num(r['difference_mean'])} | {r['difference_se']:.1f} | "
+                     f"{share:.1%} | {r['share_better']:.0%} |")
+    lines += ["", f"Precision check: {'every' if not failed else 'not every'} seed's paired "
+              f"difference has a standard error below {PRECISION:.0%} of tanh(mu)'s mean return"
+              + (f"; above it: {', '.join(failed)} (more --episodes would narrow it)."
+                 if failed else "."), ""]
+    return "\n".join(lines)
+
+
+def plot_campaign(settings: dict, per_seed: list[dict], across: list[dict]):
+    """Per task and action, the paired difference against step: each seed (with its standard
+    error) and the mean over seeds with its t-interval."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = sorted({r["env_id"] for r in across})
+    actions = [s for s in settings["selectors"] if s != "tanh_mu"]
+    fig, axes = plt.subplots(len(tasks), len(actions), squeeze=False, sharex=True,
+                             figsize=(4.2 * len(actions), 3.2 * len(tasks)), layout="constrained")
+    for i, task in enumerate(tasks):
+        for j, action in enumerate(actions):
+            ax = axes[i, j]
+            mine = [r for r in per_seed if r["env_id"] == task and r["selector"] == action]
+            for seed in sorted({r["seed"] for r in mine}):
+                rows = [r for r in mine if r["seed"] == seed]
+                ax.errorbar([r["step"] for r in rows], [r["difference_mean"] for r in rows],
+                            [r["difference_se"] for r in rows], marker="o", ms=3, lw=0.8,
+                            alpha=0.6, capsize=2, label=f"seed {seed}")
+            mean = [r for r in across if r["env_id"] == task and r["selector"] == action]
+            steps = [r["step"] for r in mean]
+            ax.plot(steps, [r["difference_mean"] for r in mean], "k-", lw=2, label="mean")
+            if all(not math.isnan(r["t_low"]) for r in mean):
+                ax.fill_between(steps, [r["t_low"] for r in mean], [r["t_high"] for r in mean],
+                                color="k", alpha=0.12, label="95% t-interval")
+            ax.axhline(0, color="grey", lw=0.8, ls=":")
+            seeds = max((r["seeds"] for r in mean), default=0)
+            ax.set_title(f"{task}\n{action} minus tanh(mu), n = {seeds} seeds", fontsize=9)
+            ax.set_xlabel("training step")
+            ax.set_ylabel("return difference")
+            if i == j == 0:
+                ax.legend(fontsize=7)
+    fig.suptitle(f"Paired difference, {settings['episodes']} starts per seed and step "
+                 f"(reset noise {settings['reset_noise']}); bars: standard error over episodes",
+                 fontsize=10)
+    return fig
+
+
+def check_reset_noise(env_id: str, reset_noise: float | None) -> None:
+    from humanoid_envs.base import H1HandEnv
+
+    if reset_noise is not None and not isinstance(sac.make_env(env_id).unwrapped, H1HandEnv):
+        fail(f"--reset-noise {reset_noise}: {env_id} is not an h1hand task, which alone take it "
+             "(gymnasium's MuJoCo envs draw their own reset noise); leave it out")
+
+
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     check_args(args)
+    if (args.source / CAMPAIGN_FILE).is_file():
+        summarize_campaign(args.source, args.reps, args.seed)
+        return
+    if is_campaign(args.source):
+        evaluate_campaign(args)
+        return
     actor, critic, env_id, info = load_policy(args)
     actor = actor.eval()
     if args.video:
@@ -505,12 +894,14 @@ def main(argv: list[str] | None = None) -> None:
             fail(f"--video {args.video}: cannot create it ({error.strerror}); give a "
                  "writable folder")
     seeds = eval_seeds(args.seed, args.eval_round, args.episodes)
+    check_reset_noise(env_id, args.reset_noise)
     selectors = list(dict.fromkeys(args.selectors))
     workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
     jobs = make_jobs(actor, critic, env_id, seeds, selectors, args)
     results, shift = merge(run_jobs(jobs, workers, progress_bar(" ".join(selectors), len(seeds))),
                            selectors)
-    summary = summarise(results, shift, args, info, env_id)
+    summary = summarise(results, shift, args, info, env_id,
+                        distinct_starts(env_id, seeds, args.reset_noise))
     print_summary(summary)
     if args.out:
         write_outputs(args.out, results, seeds, summary)
