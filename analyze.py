@@ -619,6 +619,39 @@ def per_task_mean(scores: np.ndarray) -> np.ndarray:
     return np.mean(scores, axis=0)
 
 
+def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
+    """(mean, low, high) of one value per seed: mean +- t_{n-1} * sd / sqrt(n).
+
+    Unlike a percentile bootstrap, Student's interval widens as the seeds get few, which is what
+    five seeds allow. NaN bounds with one seed, where no spread is seen.
+    """
+    values = np.asarray(values, dtype=float)
+    mean = float(values.mean())
+    if values.size < 2:
+        return mean, math.nan, math.nan
+    quantile = scipy.stats.t.ppf(0.5 + confidence / 2, values.size - 1)
+    half = float(quantile * values.std(ddof=1) / math.sqrt(values.size))
+    return mean, mean - half, mean + half
+
+
+def stratified_t_interval(per_task: Sequence[np.ndarray], confidence: float = CONFIDENCE
+                          ) -> tuple[float, float, float]:
+    """(mean, low, high) of the mean over tasks of each task's mean over seeds: Welch's interval
+    with Satterthwaite's degrees of freedom, each task's seeds independent of the others' (as
+    rliable's stratified bootstrap draws them). NaN bounds when a task has one seed."""
+    mean = float(np.mean([np.mean(v) for v in per_task]))
+    if any(np.size(v) < 2 for v in per_task):
+        return mean, math.nan, math.nan
+    terms = np.array([np.var(v, ddof=1) / np.size(v) for v in per_task])
+    total = float(terms.sum())
+    if total == 0:
+        return mean, mean, mean
+    df = total**2 / sum(term**2 / (np.size(v) - 1) for term, v in zip(terms, per_task,
+                                                                       strict=True))
+    half = scipy.stats.t.ppf(0.5 + confidence / 2, df) * math.sqrt(total) / len(per_task)
+    return mean, mean - half, mean + half
+
+
 @dataclasses.dataclass
 class Aggregate:
     """Normalised scores of the groups compared across tasks, as rliable wants them."""
@@ -747,10 +780,27 @@ def paired_differences(tasks: dict[str, Task], derived: Sequence[str] = ()
 
 
 # ----------------------------------------------------------------------------- plot
+# Each group's colour in seaborn's colorblind palette, fixed so that colours stay put between
+# reports. The order of GROUP_ORDER would give the mode (orange) and the mean (vermillion) two
+# shades that are hard to tell apart, so the actions of one algorithm get distant hues.
+GROUP_COLOR_INDEX = {
+    STANDARD: 0,  # blue
+    CORRECTED: 1,  # orange
+    PAIRED_CORRECTED: 9,  # sky blue: tanh(mu), as the standard runs
+    CORRECTED + " (mean eval)": 2,  # green
+    CORRECTED + " (q_best eval)": 4,  # pink
+    STANDARD + " (mode eval)": 3,  # vermillion
+    STANDARD + " (mean eval)": 5,  # brown
+    STANDARD + " (q_best eval)": 6,  # light pink
+}
+
+
 def group_colors(groups: list[str]) -> dict[str, tuple]:
-    palette = sns.color_palette("colorblind", n_colors=max(len(GROUP_ORDER) + len(groups), 10))
-    extra = iter(palette[len(GROUP_ORDER) :])
-    return {g: palette[GROUP_ORDER.index(g)] if g in GROUP_ORDER else next(extra) for g in groups}
+    palette = sns.color_palette("colorblind", n_colors=10)
+    extra = iter(c for i, c in enumerate(palette) if i not in GROUP_COLOR_INDEX.values())
+    cycle = iter(sns.color_palette("dark", n_colors=max(len(groups), 1)))
+    return {g: palette[GROUP_COLOR_INDEX[g]] if g in GROUP_COLOR_INDEX
+            else next(extra, None) or next(cycle) for g in groups}
 
 
 def label(group: str) -> str:
@@ -767,50 +817,83 @@ def _steps_axis(max_step: float) -> tuple[float, str]:
     return 1.0, "Environment steps"
 
 
+def success_bar_drawn(bar: float, top: float) -> bool:
+    """Whether a task's success bar is drawn on its reward-curve axes: only where it is within
+    SUCCESS_BAR_DRAWN_WITHIN of the returns' top, so that returns a fraction of it keep the
+    axes; otherwise the title names it."""
+    return top > 0 and bar <= SUCCESS_BAR_DRAWN_WITHIN * top
+
+
 def plot_reward_curves(
     tasks: dict[str, Task], curves: dict, colors: dict, groups: list[str]
 ) -> plt.Figure:
     """Figure 5: mean evaluation return per task with its 95% CI over seeds."""
     ncols = math.ceil(math.sqrt(len(tasks)))
     nrows = math.ceil(len(tasks) / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.8 * nrows), squeeze=False)
+    # At least 9 inches wide, so that the legend below fits in a few rows beside one panel.
+    width = max(5.6 * ncols, 9.0)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(width, 4.0 * nrows + 0.9), squeeze=False)
     for ax in axes.flat[len(tasks) :]:
         ax.set_visible(False)
     for ax, (task, data) in zip(axes.flat, tasks.items(), strict=False):
         unit, xlabel = _steps_axis(data.steps[-1])
-        width = 1.8 if data.steps.size <= 200 else 1.0  # dense curves: thin lines show the CIs
+        width_line = 1.8 if data.steps.size <= 200 else 1.0  # dense curves: thin lines show CIs
+        top = -math.inf
         for group in [g for g in groups if g in data.returns]:
             mean, (low, high) = curves[task][group]
             style = "-" if is_algorithm(group) else "--"
-            ax.plot(data.steps / unit, mean, style, color=colors[group], lw=width,
+            ax.plot(data.steps / unit, mean, style, color=colors[group], lw=width_line,
                     label=label(group))
             ax.fill_between(data.steps / unit, low, high, color=colors[group], alpha=0.2, lw=0)
+            top = max(top, float(np.max(high)))
+        title = task
         if task in SUCCESS_BARS:
-            ax.axhline(SUCCESS_BARS[task], color="0.4", ls=":", lw=1.2, label="success bar")
-        ax.set_title(task)
+            bar = SUCCESS_BARS[task]
+            if success_bar_drawn(bar, top):
+                ax.axhline(bar, color="0.4", ls=":", lw=1.2, label="success bar")
+            else:
+                title += f"\nsuccess bar {bar:g} (above)"
+        ax.set_title(title)
         ax.set_xlabel(xlabel)
         ax.set_ylabel("Evaluation return")
         ax.grid(alpha=0.25)
     handles = {h.get_label(): h for ax in axes.flat for h in ax.get_lines()}
-    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=len(handles),
-               bbox_to_anchor=(0.5, -0.02), frameon=False)
+    ncol = max(1, min(len(handles), int(width // 3.0)))
+    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=ncol,
+               frameon=False)
+    legend_rows = math.ceil(len(handles) / ncol)
     fig.suptitle("Mean evaluation return over seeds, 95% bootstrap CI")
-    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    fig.tight_layout(rect=(0, (0.27 * legend_rows + 0.05) / fig.get_figheight(), 1, 1))
     return fig
 
 
-def plot_aggregate(point: dict, interval: dict, names: Sequence[str], colors: dict, xlabel: str):
-    """Figure 6: aggregate metrics with their stratified-bootstrap CIs (rliable's own plot)."""
-    fig, _ = plot_utils.plot_interval_estimates(
+def plot_aggregate(point: dict, interval: dict, names: Sequence[str], colors: dict, xlabel: str,
+                   note: str = "") -> plt.Figure:
+    """Figure 6: aggregate metrics with their stratified-bootstrap CIs (rliable's own plot), and
+    `note` under it."""
+    # rliable's defaults (4 ticks at xx-large on 3.4-inch panels, its x label a fixed share of
+    # the height below) make tick labels collide with each other and, with two groups, with the
+    # label: wider panels, smaller ticks, a figure at least 2.2 inches high, the label placed
+    # in inches.
+    height = max(0.55 * len(point), 2.2)
+    fig, axes = plot_utils.plot_interval_estimates(
         {label(g): v for g, v in point.items()},
         {label(g): v for g, v in interval.items()},
         metric_names=list(names),
         algorithms=[label(g) for g in point],
         colors={label(g): colors[g] for g in point},
         xlabel=xlabel,
-        row_height=0.55,
-        xlabel_y_coordinate=-0.25,
+        row_height=height / len(point),
+        xlabel_y_coordinate=-0.6 / height,
+        max_ticks=4,
+        subfigure_width=4.0,
+        wspace=0.2,
     )
+    for ax in np.atleast_1d(axes):
+        ax.tick_params(axis="x", labelsize="x-large")
+    if note:
+        fig.text(0.4, -1.0 / height, note, ha="center", va="top", fontsize="x-large",
+                 color="0.3")
     return fig
 
 
@@ -868,36 +951,73 @@ def plot_improvement(probability: float, ci: np.ndarray, x: str, y: str, color: 
     )
     ax.set_xlim(0, 1)
     ax.axvline(0.5, color="0.5", ls=":", lw=1)
+    ax.text(0.5, -0.72, "Mann-Whitney: every run of X against every run of Y. It ignores the "
+            "pairing\n(the same seed's actors, the same start states); the paired comparison is "
+            "paired_difference.", transform=ax.transAxes, ha="center", va="top",
+            fontsize="medium", color="0.3")
     return fig
 
 
-def plot_paired(differences: dict, estimates: dict, norms: dict, colors: dict, xlabel: str):
-    """Per-seed difference mode minus tanh(mu) of the same actor, per task, with its mean's CI."""
-    rows = [(task, algorithm) for task in differences for algorithm in differences[task]]
-    fig, ax = plt.subplots(figsize=(7, 0.7 * len(rows) + 1.2))
-    rng = np.random.default_rng(0)  # vertical jitter of the dots only
+@dataclasses.dataclass
+class PairedPanel:
+    """One reading of the paired differences for plot_paired: its title, and per (task, group)
+    the per-seed values and their bootstrap (mean, low, high)."""
+
+    title: str
+    values: dict[tuple[str, str], np.ndarray]
+    estimates: dict[tuple[str, str], tuple[float, float, float]]
+    missing: str = ""  # said in a row the panel has no values for
+
+
+def plot_paired(panels: Sequence[PairedPanel], row_labels: dict[tuple[str, str], str],
+                norms: dict, colors: dict, xlabel: str) -> plt.Figure:
+    """Per (task, evaluation action), each seed's difference from tanh(mu) of the same actor
+    (dots), their mean (tick), its bootstrap CI (bar) and t-interval (whisker); a panel per
+    reading (the scored step, each seed's mean over its last rounds), rows and x axis shared so
+    that the readings' spreads compare."""
+    rows = list(row_labels)
+    fig, axes = plt.subplots(1, len(panels), figsize=(1.5 + 5.6 * len(panels),
+                                                       0.8 * len(rows) + 1.7),
+                             squeeze=False, sharey=True)
     extent = [0.0]
-    for i, (task, algorithm) in enumerate(rows):
-        scale = norms[task][1]
-        point, low, high = (v / scale for v in estimates[task, algorithm])
-        dots = differences[task][algorithm] / scale
-        color = colors[algorithm]
-        ax.barh(i, high - low, left=low, height=0.5, color=color, alpha=0.35)
-        ax.vlines(point, i - 0.25, i + 0.25, color="k")
-        ax.scatter(dots, i + rng.uniform(-0.15, 0.15, dots.size), s=14, color=color, zorder=3)
-        extent += [low, high, *dots]
-    ax.axvline(0, color="0.4", ls=":", lw=1)
+    for ax, panel in zip(axes[0], panels, strict=True):
+        rng = np.random.default_rng(0)  # vertical jitter of the dots only
+        for i, key in enumerate(rows):
+            if key not in panel.values:
+                ax.text(0, i, panel.missing, ha="center", va="center", color="0.4",
+                        fontsize="small")
+                continue
+            scale = norms[key[0]][1]
+            point, low, high = (v / scale for v in panel.estimates[key])
+            dots = panel.values[key] / scale
+            color = colors[key[1]]
+            ax.barh(i, high - low, left=low, height=0.5, color=color, alpha=0.35)
+            ax.vlines(point, i - 0.25, i + 0.25, color="k")
+            ax.scatter(dots, i + rng.uniform(-0.15, 0.15, dots.size), s=14, color=color,
+                       zorder=3)
+            extent += [low, high, *dots]
+            if dots.size > 2:  # two seeds: their range is the bar, a t-interval says nothing
+                _, t_low, t_high = t_interval(dots)
+                ax.errorbar(point, i + 0.34, xerr=[[point - t_low], [t_high - point]],
+                            color="k", lw=1, capsize=3)
+                extent += [t_low, t_high]
+        ax.axvline(0, color="0.4", ls=":", lw=1)
+        ax.set_xlabel(xlabel)
+        ax.set_title(panel.title, fontsize="medium")
+        ax.grid(axis="x", alpha=0.25)
     # Bars pin the autoscaled limits to their edges; pad so the outermost seeds stay visible.
     pad = 0.05 * (max(extent) - min(extent)) or 0.01
-    ax.set_xlim(min(extent) - pad, max(extent) + pad)
-    ax.set_yticks(range(len(rows)))
-    ax.set_yticklabels([f"{t}\n{label(algorithm_of(g))}: {selector_of(g)}"
-                        if len(differences[t]) > 1 else t for t, g in rows])
-    ax.invert_yaxis()
-    ax.set_xlabel(xlabel)
-    ax.set_title("Evaluation action minus tanh(mu): same actor, same start states\n"
-                 "dots: seeds; bar: 95% bootstrap CI of the mean; tick: mean", fontsize="medium")
-    ax.grid(axis="x", alpha=0.25)
+    for ax in axes[0]:
+        ax.set_xlim(min(extent) - pad, max(extent) + pad)
+    axes[0, 0].set_yticks(range(len(rows)))
+    axes[0, 0].set_yticklabels(list(row_labels.values()))
+    axes[0, 0].set_ylim(len(rows) - 0.5, -0.5)  # first row on top
+    pairs = any(v.size <= 2 for panel in panels for v in panel.values.values())
+    fig.suptitle("Evaluation action minus tanh(mu): same actor, same start states\n"
+                 "dots: seeds; tick: mean; bar: 95% bootstrap CI; whisker: 95% t-interval"
+                 + (" (none for two seeds: the bar spans them)" if pairs else ""),
+                 fontsize="medium")
+    fig.tight_layout()
     return fig
 
 
@@ -914,6 +1034,21 @@ def _fmt(step: int | float) -> str:
 
 def _ci(point: float, low: float, high: float, digits: int = 3) -> str:
     return f"{point:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+
+
+def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
+               ) -> tuple[str, str]:
+    """summary.md's cells for the mean of one value per seed: (mean with its bootstrap CI,
+    t-interval). With one or two seeds an interval says less than the values themselves, so
+    the cells give those ("two seeds: a to b")."""
+    point = estimate[0]
+    if values.size == 1:
+        return f"{point:.{digits}f} (one seed)", "-"
+    if values.size == 2:
+        a, b = sorted(float(v) for v in values)
+        return f"{point:.{digits}f} (two seeds: {a:.{digits}f} to {b:.{digits}f})", "-"
+    _, low, high = t_interval(values)
+    return _ci(*estimate, digits=digits), f"[{low:.{digits}f}, {high:.{digits}f}]"
 
 
 def markdown_table(header: Sequence[str], rows: Sequence[Sequence]) -> str:
@@ -1033,7 +1168,7 @@ def analyze(args: Args) -> Report:
         report.section("Where the standard numbers come from", *pairing_lines(pairing))
     differences = paired_differences(tasks, pairing.derived)
     if differences:  # the headline: paired data, paired statistics
-        report_paired(report, args, tasks, differences, norms, colors)
+        report_paired(report, args, runs, tasks, differences, norms, colors, pairing.derived)
     else:
         report.notes.append(f"no run carries the paired evaluation ({PAIRED_RETURN_COLUMN}): "
                             "paired differences skipped")
@@ -1049,7 +1184,8 @@ def analyze(args: Args) -> Report:
         + normalization_line(args.normalize, norms),
         f"Intervals: 95% stratified bootstrap (rliable), {args.reps:,} replications for point "
         f"estimates, {args.curve_reps:,} for curves, profiles and probability of improvement; "
-        f"NumPy seed {args.seed}.", "", found, "",
+        f"NumPy seed {args.seed}. Paired differences also get a Student-t 95% interval over "
+        "seeds (t-interval), labelled as such.", "", found, "",
     ])
     return report
 
@@ -1084,7 +1220,9 @@ def report_aggregate(report: Report, args: Args, agg: Aggregate, colors: dict) -
     gap = args.normalize != "none"  # the optimality gap's threshold 1 needs normalised scores
     point, interval = interval_estimates(
         agg.final, functools.partial(aggregate_metrics, gap=gap), args.reps, args.seed)
-    report.figure(plot_aggregate(point, interval, names, colors, score_name), "aggregate_metrics")
+    note = few_runs_note(agg)
+    report.figure(plot_aggregate(point, interval, names, colors, score_name, note),
+                  "aggregate_metrics")
     table = []
     for g in agg.groups:
         runs = agg.final[g].shape[0]
@@ -1093,17 +1231,25 @@ def report_aggregate(report: Report, args: Args, agg: Aggregate, colors: dict) -
         table.append([label(g), runs, *[_ci(point[g][i], *interval[g][:, i])
                                         for i in range(len(names))]])
     report.section(f"Aggregate metrics over {len(agg.tasks)} task(s)",
-                   f"{score_name}s at each task's scored step; tasks: {', '.join(agg.tasks)}.",
+                   f"{score_name}s at each task's scored step; tasks: {', '.join(agg.tasks)}."
+                   + (f" {note}." if note else ""),
                    "", markdown_table(["group", "runs per task", *names], table))
 
     print(f"performance profiles and sample-efficiency curves ({args.curve_reps:,} reps) ...")
     everything = np.concatenate([s.ravel() for s in agg.final.values()])
-    top = max(everything.max(), 1.0) if args.normalize != "none" else everything.max()
-    taus = np.linspace(min(everything.min(), 0.0), top, 101)
+    # The scores' own range (from 0 where all are positive), not the bar's: scores that are a
+    # fraction of the bar would otherwise crowd the left of the axis.
+    low, high = min(everything.min(), 0.0), everything.max()
+    taus = np.linspace(low, high + (0.05 * (high - low) or 0.05), 101)
     seed_bootstrap(args.seed)
     profiles, cis = rly.create_performance_profile(agg.final, taus, reps=args.curve_reps)
     report.figure(plot_profiles(taus, profiles, cis, colors, score_name), "performance_profiles")
-    if agg.frames.size:
+    if agg.frames.size == 1:
+        where = f"{agg.frames[0]:g} of the budget" if agg.by_fraction else _fmt(agg.frames[0])
+        report.notes.append(
+            "sample-efficiency curve left out: the aggregated tasks share one evaluation point "
+            f"({where}), so its axis would hold a single step")
+    elif agg.frames.size:
         point, interval = interval_estimates(agg.curves, iqm_per_step, args.curve_reps, args.seed)
         report.figure(plot_sample_efficiency(agg.frames, point, interval, colors,
                                              f"IQM {score_name.lower()}", agg.by_fraction),
@@ -1127,42 +1273,185 @@ def report_aggregate(report: Report, args: Args, agg: Aggregate, colors: dict) -
     report.section("Probability of improvement",
                    f"P({label(x)} > {label(y)}) = {_ci(point[pair], low, high)}: the chance that "
                    f"a run of {label(x)} scores higher than a run of {label(y)} on a task drawn "
-                   "at random (Mann-Whitney per task, averaged over tasks).")
+                   "at random (Mann-Whitney per task, averaged over tasks). It compares every "
+                   "run of one with every run of the other and so ignores the pairing (the same "
+                   "seed's actors from the same start states); the paired comparison is the "
+                   "headline's.")
 
 
-def report_paired(report: Report, args: Args, tasks: dict[str, Task], differences: dict,
-                  norms: dict, colors: dict) -> None:
+def few_runs_note(agg: Aggregate) -> str:
+    """With one task and few runs, what IQM is: a 25% trimmed mean keeps the middle runs only."""
+    if len(agg.tasks) > 1:
+        return ""
+    runs = sorted({scores.shape[0] for scores in agg.final.values()})
+    if max(runs) > FEW_SEEDS:
+        return ""
+    kept = ", ".join(f"the middle {n - 2 * int(0.25 * n)} of {n}" for n in runs)
+    return f"One task and {' or '.join(map(str, runs))} runs: IQM is the mean of {kept} runs"
+
+
+def report_paired(report: Report, args: Args, runs: Runs, tasks: dict[str, Task],
+                  differences: dict, norms: dict, colors: dict, derived: Sequence[str]) -> None:
     """The headline: each evaluation action (the mode, the mean, q_best) minus tanh(mu) of the
     same actors from the same start states (paired), per task and over tasks, with the share of
-    seeds where that action won."""
+    seeds where that action won; at the scored step and averaged over the last rounds."""
     print(f"paired differences ({args.reps:,} reps) ...")
     estimates = seed_mean_estimates({(t, g): d for t, by_group in differences.items()
                                      for g, d in by_group.items()}, args.reps, args.seed)
-    table = []
+    table, row_labels, one_episode = [], {}, []
     for task, by_group in differences.items():
+        step, scale = tasks[task].scored_step, norms[task][1]
+        single = one_episode_per_seed([c for cs in runs[task].values() for c in cs],
+                                      np.array([step]))
+        if single:
+            one_episode.append(task)
         for group, diffs in by_group.items():
             values = estimates[task, group]
-            runs, step = diffs.size, tasks[task].scored_step
-            scaled = [v / norms[task][1] for v in values]
+            n = diffs.size
+            scaled = [v / scale for v in values]
+            t_values = t_interval(diffs)
             won = int((diffs > 0).sum())
-            report.row("paired_difference", task, group, "return", step, runs, *values)
-            report.row("paired_difference", task, group, "score", step, runs, *scaled)
-            report.row("paired_difference", task, group, "share_won", step, runs, won / runs,
+            report.row("paired_difference", task, group, "return", step, n, *values)
+            report.row("paired_difference", task, group, "return_t", step, n, *t_values)
+            report.row("paired_difference", task, group, "score", step, n, *scaled)
+            report.row("paired_difference", task, group, "score_t", step, n,
+                       *(v / scale for v in t_values))
+            report.row("paired_difference", task, group, "share_won", step, n, won / n,
                        math.nan, math.nan)
-            table.append([task, _fmt(step), label(algorithm_of(group)), selector_of(group),
-                          runs, _ci(*values, 1), _ci(*scaled), f"{won} of {runs}"])
+            table.append([task, _fmt(step), label(algorithm_of(group)), selector_of(group), n,
+                          *seed_cells(diffs, values, 1), seed_cells(diffs / scale, scaled)[0],
+                          f"{won} of {n}"])
+            name = f"{label(algorithm_of(group))}: {selector_of(group)}, " \
+                if len(by_group) > 1 else ""
+            row_labels[task, group] = (f"{task}, {_fmt(step)}\n{name}n = {n} seeds"
+                                       + (", one episode per seed" if single else ""))
+    seeds = [d.size for by_group in differences.values() for d in by_group.values()]
     lines = ["Per seed, at each task's scored step: the return of an evaluation action minus "
              "that of tanh(mu), same actor, same start states: the mode (Corrected SAC's own "
              "action; a standard run's `mode_` columns), the mean of the squashed policy, and "
              "q_best, the one of mode / tanh(mu) / mean the critic prefers. Mean over seeds with "
-             "a 95% bootstrap CI; 'won': seeds where the difference is positive.", "",
-             markdown_table(["task", "step", "algorithm", "action", "seeds",
-                             "return difference", "score difference", "won"], table)]
+             "rliable's 95% bootstrap CI and, beside it, the 95% t-interval (mean +- "
+             "t_{n-1, 0.975} sd / sqrt(n)); with two seeds, the two values. 'won': seeds where "
+             "the difference is positive. A CI that includes zero does not tell the actions "
+             "apart."]
+    if min(seeds) <= FEW_SEEDS:
+        lines += ["", f"With {FEW_SEEDS} seeds or fewer a percentile bootstrap CI is narrower "
+                  "than the data allow (it resamples only the few values seen): read the "
+                  "t-interval (with two seeds, the two values)."]
+    for task in one_episode:
+        lines += ["", f"{task}: each seed's evaluation at {_fmt(tasks[task].scored_step)} is "
+                  "one episode (eval.csv's `distinct_episodes` = 1: the task resets without "
+                  "noise), so each seed's difference is one draw of that episode's noise."]
+    lines += ["", markdown_table(["task", "step", "algorithm", "action", "seeds",
+                                  "return difference (bootstrap CI)", "t-interval",
+                                  "score difference (bootstrap CI)", "won"], table)]
     lines += paired_aggregate_lines(report, args, differences, norms)
+    steps = {tasks[t].scored_step for t in differences}
+    title = f"At {_fmt(steps.pop())}" if len(steps) == 1 else "At each task's scored step"
+    flat = {(t, g): d for t, by_group in differences.items() for g, d in by_group.items()}
+    panels = [PairedPanel(title, flat, estimates)]
+    panels += report_last_rounds(report, args, runs, tasks, derived, estimates, lines)
     xlabel = f"Difference in {SCORE_NAMES[args.normalize].lower()}"
-    report.figure(plot_paired(differences, estimates, norms, colors, xlabel), "paired_difference")
+    report.figure(plot_paired(panels, row_labels, norms, colors, xlabel), "paired_difference")
     report.section("Headline: paired difference, each evaluation action minus tanh(mu) of the "
                    "same actors", *lines)
+
+
+def one_episode_per_seed(curves: Sequence[Curve], steps: np.ndarray) -> bool:
+    """Whether every run logged one distinct episode (eval.csv's distinct_episodes) at each of
+    `steps`, which all of them share: its return there is one draw of the episode's noise."""
+    for curve in curves:
+        if curve.episodes is None:
+            return False
+        if not np.all(curve.episodes[np.searchsorted(curve.steps, steps)] == 1):
+            return False
+    return bool(curves)
+
+
+def last_rounds_averages(tasks: dict[str, Task], curves: dict[str, dict[str, np.ndarray]]
+                         ) -> tuple[dict[tuple[str, str, int], np.ndarray],
+                                    dict[tuple[str, int], np.ndarray], list[str]]:
+    """Per seed, each paired difference averaged over the last k shared evaluation steps up to
+    the scored step, for each k of LAST_ROUNDS: (task, group, k) -> per-seed averages, (task, k)
+    -> the window's steps, and notes on the tasks with fewer steps than k."""
+    averages, windows, short = {}, {}, {}
+    for task, by_group in curves.items():
+        data = tasks[task]
+        rounds = int(np.searchsorted(data.steps, data.scored_step, side="right"))
+        if rounds < max(LAST_ROUNDS):
+            short[task] = rounds
+        for k in LAST_ROUNDS:
+            if k > rounds:
+                continue
+            windows[task, k] = data.steps[rounds - k:rounds]
+            for group, diffs in by_group.items():
+                averages[task, group, k] = diffs[:, rounds - k:rounds].mean(axis=1)
+    notes = [f"averages over the last {' / '.join(map(str, LAST_ROUNDS))} evaluation rounds left "
+             "out where a task has fewer shared rounds up to its scored step: "
+             + ", ".join(f"{task} ({rounds} rounds)" for task, rounds in short.items())
+             ] if short else []
+    return averages, windows, notes
+
+
+def report_last_rounds(report: Report, args: Args, runs: Runs, tasks: dict[str, Task],
+                       derived: Sequence[str], scored: dict, lines: list[str]
+                       ) -> list[PairedPanel]:
+    """Beside the scored step, each seed's paired difference averaged over its last 20 and 50
+    evaluation rounds: one round of a noisy task is one draw of its noise, and a headline read
+    at one step can be the extreme of its neighbours. `scored`: the scored step's bootstrap
+    estimates, (task, group) -> (mean, low, high). Appends summary.md's table to `lines`;
+    returns the figure's panel of the last LAST_ROUNDS[0] rounds, if any task has them."""
+    curves = paired_difference_curves(tasks, derived)
+    averages, windows, notes = last_rounds_averages(tasks, curves)
+    report.notes.extend(notes)
+    if not averages:
+        return []
+    estimates = seed_mean_estimates({(f"{t}|{k}", g): v for (t, g, k), v in averages.items()},
+                                    args.reps, args.seed)
+    table = []
+    for task, by_group in curves.items():
+        step = tasks[task].scored_step
+        for group, diffs in by_group.items():
+            last = diffs[:, np.searchsorted(tasks[task].steps, step)]
+            cells = seed_cells(last, scored[task, group], 1)
+            table.append([task, label(algorithm_of(group)), selector_of(group), last.size,
+                          f"last ({_fmt(step)})", *cells, f"{int((last > 0).sum())} of "
+                          f"{last.size}"])
+            for k in LAST_ROUNDS:
+                if (task, group, k) not in averages:
+                    continue
+                values, window = averages[task, group, k], windows[task, k]
+                estimate = estimates[f"{task}|{k}", group]
+                won = int((values > 0).sum())
+                report.row("paired_last_rounds", task, group, f"return_last{k}", step,
+                           values.size, *estimate)
+                report.row("paired_last_rounds", task, group, f"return_last{k}_t", step,
+                           values.size, *t_interval(values))
+                report.row("paired_last_rounds", task, group, f"share_won_last{k}", step,
+                           values.size, won / values.size, math.nan, math.nan)
+                episodes = one_episode_per_seed(
+                    [c for cs in runs[task].values() for c in cs], window)
+                rounds = f"last {k} ({_fmt(window[0])}-{_fmt(window[-1])})" + \
+                    (", one episode each" if episodes else "")
+                table.append([task, label(algorithm_of(group)), selector_of(group),
+                              values.size, rounds, *seed_cells(values, estimate, 1),
+                              f"{won} of {values.size}"])
+    lines += ["", "Averaged over the last rounds: per seed, the difference averaged over the "
+              "last " + " and the last ".join(map(str, LAST_ROUNDS)) + " shared evaluation "
+              "rounds up to the scored step, then the mean over seeds (bootstrap CI and "
+              "t-interval as above); 'won': seeds whose average is positive. Beside it, the "
+              "scored step's own difference.", "",
+              markdown_table(["task", "algorithm", "action", "seeds", "rounds",
+                              "return difference (bootstrap CI)", "t-interval", "won"], table)]
+    k = LAST_ROUNDS[0]
+    values = {(t, g): v for (t, g, kk), v in averages.items() if kk == k}
+    if not values:
+        return []
+    spans = {(int(w[0]), int(w[-1])) for (_, kk), w in windows.items() if kk == k}
+    span = f" ({_fmt(min(spans)[0])}-{_fmt(min(spans)[1])})" if len(spans) == 1 else ""
+    return [PairedPanel(f"Per seed, mean over the last {k} rounds{span}", values,
+                        {(t, g): estimates[f"{t}|{k}", g] for t, g in values},
+                        missing=f"fewer than {k} rounds")]
 
 
 def report_q_best_shares(report: Report, args: Args, runs: Runs, tasks: dict[str, Task]) -> None:
@@ -1215,16 +1504,19 @@ def paired_aggregate_lines(report: Report, args: Args, differences: dict, norms:
         low, high = interval[algorithm].ravel()
         won = sum(int((d > 0).sum()) for d in per_task.values())
         pairs = sum(d.size for d in per_task.values())
+        t_values = stratified_t_interval(list(scores.T))
         report.row("paired_difference", "all", algorithm, "mean_score", "", seeds,
                    point[algorithm], low, high)
+        report.row("paired_difference", "all", algorithm, "mean_score_t", "", seeds, *t_values)
         report.row("paired_difference", "all", algorithm, "share_won", "", pairs, won / pairs,
                    math.nan, math.nan)
         action = selector_of(algorithm)
         lines += ["", f"Over {len(per_task)} tasks, {label(algorithm_of(algorithm))}, {action} "
                   f"minus tanh(mu): mean {SCORE_NAMES[args.normalize].lower()} difference "
                   f"{_ci(float(point[algorithm]), low, high)} ({seeds} seeds per task, "
-                  f"stratified bootstrap); the {action} won in {won} of {pairs} (task, seed) "
-                  "pairs."]
+                  f"stratified bootstrap CI), t-interval [{t_values[1]:.3f}, "
+                  f"{t_values[2]:.3f}] (Welch, the tasks' seeds independent); the {action} won "
+                  f"in {won} of {pairs} (task, seed) pairs."]
     return lines
 
 
@@ -1262,40 +1554,58 @@ def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.n
 
 def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dict,
                        shifts: dict, colors: dict) -> plt.Figure:
-    """Per task, top: each evaluation action minus tanh(mu) over training (mean over seeds, 95%
-    CI, thin lines: seeds); bottom: the measured shift and sigma over training."""
-    fig, axes = plt.subplots(2, len(tasks), figsize=(6.0 * len(tasks), 7.0), squeeze=False,
-                             sharex="col")
-    for (top, bottom), (task, data) in zip(axes.T, tasks.items(), strict=True):
+    """A row per task. Left: each evaluation action minus tanh(mu) over training; with many
+    rounds each round's mean over seeds (thin) and its rolling mean (thick), with few the mean,
+    its 95% CI and each seed. Right, each on its own axes: the measured shift, sigma and the
+    two-mode share (mean over the corrected runs, band: their range)."""
+    shown = [t for t in tasks if t in differences or t in shifts]
+    titles = ("|mode - tanh(mu)|\nmean over dimensions", "sigma\nmean over dimensions",
+              "two-mode share: dimensions\nwith 2 sigma^2 > 1")
+    fig, axes = plt.subplots(len(shown), 4, figsize=(15.0, 3.4 * len(shown) + 0.6),
+                             squeeze=False, gridspec_kw={"width_ratios": (2.3, 1, 1, 1)},
+                             layout="constrained")
+    for row, task in zip(axes, shown, strict=True):
+        data = tasks[task]
         unit, xlabel = _steps_axis(data.steps[-1])
         x = data.steps / unit
+        ax = row[0]
+        rolling = x.size >= 2 * ROLLING_ROUNDS
+        seeds = set()
         for group, diffs in differences.get(task, {}).items():
             mean, (low, high) = estimates[task][group]
+            seeds.add(diffs.shape[0])
             name = f"{selector_of(group)} ({label(algorithm_of(group))})"
-            top.plot(x, mean, color=colors[group], lw=1.8, label=name)
-            top.fill_between(x, low, high, color=colors[group], alpha=0.2, lw=0)
-            top.plot(x, diffs.T, color=colors[group], lw=0.5, alpha=0.35)
-        top.axhline(0, color="0.4", ls=":", lw=1)
-        top.set_title(task)
-        top.set_ylabel("Return minus tanh(mu)'s")
-        top.legend(fontsize="small", frameon=False)
-        top.grid(alpha=0.25)
-        names = ("|mode - tanh(mu)|, mean over dimensions", "sigma, mean over dimensions",
-                 "share of dimensions with 2 sigma^2 > 1")
-        for column, name, style in zip(OVER_TRAINING_SHIFT_COLUMNS, names, ("-", "--", ":"),
-                                       strict=True):
-            if column in shifts.get(task, {}):
-                values = shifts[task][column]
-                bottom.plot(x, values.mean(0), style, color="k", label=name)
-                bottom.fill_between(x, values.min(0), values.max(0), color="0.5", alpha=0.2,
-                                    lw=0)
-        bottom.set_xlabel(xlabel)
-        bottom.set_ylabel("Shift, sigma (mean over seeds; band: range)")
-        bottom.legend(fontsize="small", frameon=False)
-        bottom.grid(alpha=0.25)
-    fig.suptitle("Over training: each evaluation action minus tanh(mu) of the same actors "
-                 "(95% bootstrap CI), and the distribution shift")
-    fig.tight_layout()
+            if rolling:  # a round is one draw of the evaluation noise: the trend needs a window
+                ax.plot(x, mean, color=colors[group], lw=0.7, alpha=0.45)
+                window = np.convolve(mean, np.ones(ROLLING_ROUNDS) / ROLLING_ROUNDS, "valid")
+                ax.plot(x[ROLLING_ROUNDS - 1:], window, color=colors[group], lw=2.2,
+                        label=name)
+            else:
+                ax.plot(x, mean, "o-", color=colors[group], lw=1.8, ms=4, label=name)
+                ax.fill_between(x, low, high, color=colors[group], alpha=0.2, lw=0)
+                ax.plot(x, diffs.T, color=colors[group], lw=0.5, alpha=0.35)
+        ax.axhline(0, color="0.4", ls=":", lw=1)
+        n = " or ".join(map(str, sorted(seeds)))
+        how = (f"thin: each round's mean over seeds; thick: mean of the last {ROLLING_ROUNDS} "
+               "rounds" if rolling else "mean over seeds, 95% bootstrap CI; thin: each seed")
+        ax.set_title(f"{task}, n = {n} seeds\n{how}", fontsize="medium")
+        ax.set_ylabel("Return minus tanh(mu)'s")
+        ax.legend(fontsize="small", frameon=False)
+        for ax, column, title in zip(row[1:], OVER_TRAINING_SHIFT_COLUMNS, titles, strict=True):
+            values = shifts.get(task, {}).get(column)
+            if values is None:
+                ax.text(0.5, 0.5, "not logged", ha="center", va="center",
+                        transform=ax.transAxes, color="0.4")
+            else:
+                ax.plot(x, values.mean(0), color="k", lw=1.4)
+                ax.fill_between(x, values.min(0), values.max(0), color="0.5", alpha=0.25, lw=0)
+            ax.set_title(title, fontsize="medium")
+        row[3].set_ylim(-0.02, 1.02)  # a share
+        for ax in row:
+            ax.set_xlabel(xlabel)
+            ax.grid(alpha=0.25)
+    fig.suptitle("Over training: each evaluation action minus tanh(mu) of the same actors, and "
+                 "the distribution shift (mean over the corrected runs; band: their range)")
     return fig
 
 
@@ -1317,7 +1627,8 @@ def report_over_training(report: Report, args: Args, runs: Runs, tasks: dict[str
                   "over_training")
     lines = ["Per seed, at every step all runs of a task share: each evaluation action's return "
              "minus tanh(mu)'s, same actor, same start states; mean over seeds with a 95% "
-             f"bootstrap CI ({args.curve_reps:,} replications); then the measured shift over the "
+             f"bootstrap CI ({args.curve_reps:,} replications) and the 95% t-interval (with two "
+             "seeds, the two values); then the measured shift over the "
              "states the mode policy visited (mean over runs). Every step is in summary.csv "
              "(sections `paired_over_training`, `shift_over_training`); the table shows "
              f"{OVER_TRAINING_TABLE_STEPS} of them, evenly spaced.", ""]
@@ -1333,7 +1644,9 @@ def report_over_training(report: Report, args: Args, runs: Runs, tasks: dict[str
                 mean, (low, high) = estimates[task][group]
                 report.row("paired_over_training", task, group, "return", int(step),
                            diffs.shape[0], mean[i], low[i], high[i])
-                cells.append(_ci(mean[i], low[i], high[i], 1))
+                report.row("paired_over_training", task, group, "return_t", int(step),
+                           diffs.shape[0], *t_interval(diffs[:, i]))
+                cells += seed_cells(diffs[:, i], (mean[i], low[i], high[i]), 1)
             for column, values in task_shift.items():
                 report.row("shift_over_training", task, CORRECTED, column, int(step),
                            values.shape[0], values[:, i].mean(), values[:, i].min(),
@@ -1341,7 +1654,8 @@ def report_over_training(report: Report, args: Args, runs: Runs, tasks: dict[str
                 cells.append(f"{values[:, i].mean():.3f}")
             if i in shown:
                 table.append([_fmt(step), *cells])
-        header = ["step", *(f"{selector_of(g)} minus tanh(mu)" for g in by_group),
+        header = ["step", *(name for g in by_group
+                            for name in (f"{selector_of(g)} minus tanh(mu)", "t-interval")),
                   *task_shift]
         lines += [f"**{task}**", "", markdown_table(header, table), ""]
     report.section("Over training: paired differences and the measured shift", *lines)
@@ -1504,6 +1818,8 @@ def plot_dimensions(study: dict[str, Dimension], estimates: dict, colors: list):
     for ax in axes.flat:
         ax.grid(alpha=0.25)
     ax_shift.legend(fontsize=7, loc="upper left")
+    fig.suptitle("Each point is a different task (its own body, reward and action dimension), "
+                 "not one task swept over the dimension", fontsize="large")
     fig.tight_layout()
     return fig
 
@@ -1549,10 +1865,16 @@ def report_dimensions(report: Report, args: Args, runs: Runs, tasks: dict[str, T
                            runs_n, point, low, high)
                 report.row("dimension", task, group, f"raw_difference@{f:g}", step, runs_n,
                            *(v * d.scale for v in (point, low, high)))
+                t_values = t_interval(diffs)
+                report.row("dimension", task, group, f"normalised_difference_t@{f:g}", step,
+                           runs_n, *(v / d.scale for v in t_values))
+                report.row("dimension", task, group, f"raw_difference_t@{f:g}", step, runs_n,
+                           *t_values)
+                raw, t_cell = seed_cells(diffs, [v * d.scale for v in (point, low, high)], 1)
                 table.append([task, d.action_dim, label(algorithm_of(group)), selector_of(group),
-                              runs_n, f"{f:g} ({_fmt(step)})",
-                              _ci(point * d.scale, low * d.scale, high * d.scale, 1),
-                              _ci(point, low, high), f"{int((diffs > 0).sum())} of {runs_n}"])
+                              runs_n, f"{f:g} ({_fmt(step)})", raw, t_cell,
+                              seed_cells(diffs / d.scale, (point, low, high))[0],
+                              f"{int((diffs > 0).sum())} of {runs_n}"])
         for column, values in d.shift.items():
             report.row("dimension_shift", task, CORRECTED, column, d.steps[1.0], values.size,
                        *estimates[task, column])
@@ -1565,10 +1887,13 @@ def report_dimensions(report: Report, args: Args, runs: Runs, tasks: dict[str, T
         "Each evaluation action (the mode, and where logged the mean and q_best) minus tanh(mu) "
         "of the same actors, per seed, at fractions of each task's shared steps; normalised by "
         "the range of the task's tanh(mu) returns in this folder (all seeds and steps), so that "
-        "tasks compare; mean over seeds with a 95% bootstrap CI. Raw numbers are in summary.csv "
-        "(section `dimension`).", "",
+        "tasks compare; mean over seeds with a 95% bootstrap CI, and the raw difference's "
+        "t-interval. Raw numbers are in summary.csv (section `dimension`). Each dimension is a "
+        "different task, with its own body and reward: the points compare tasks, they are not "
+        "one task swept over its action dimension.", "",
         markdown_table(["task", "action dims", "algorithm", "action", "seeds", "fraction (step)",
-                        "raw difference", "normalised difference", "won"], table), "",
+                        "raw difference (bootstrap CI)", "t-interval", "normalised difference",
+                        "won"], table), "",
         "Measured shift at the final step (eval.csv, over the states the mode policy visited; "
         "mean over seeds with a 95% bootstrap CI), beside the theory curve of mode_search.py "
         "(figure, last row):", "",

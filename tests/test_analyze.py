@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import scipy.stats
 
 import analyze
 
@@ -455,11 +456,11 @@ def exact_bootstrap_quantiles(values: np.ndarray, qs: tuple[float, ...]) -> np.n
 
 
 def set_columns(run_dir: Path, **columns: float) -> None:
-    """Overwrite whole eval.csv columns with one value each (the shift columns)."""
+    """Overwrite (or add) whole eval.csv columns with one value each (the shift columns)."""
     with (run_dir / "eval.csv").open(newline="") as file:
         rows = list(csv.DictReader(file))
     with (run_dir / "eval.csv").open("w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+        writer = csv.DictWriter(file, fieldnames=list({**rows[0], **columns}))
         writer.writeheader()
         writer.writerows({**row, **columns} for row in rows)
 
@@ -697,12 +698,21 @@ def test_over_training_recovers_known_paired_offsets_and_shift_at_every_step(tmp
     assert (tmp_path / "out" / "over_training.png").stat().st_size > 10_000
     with (tmp_path / "out" / "summary.csv").open() as file:
         rows = list(csv.DictReader(file))
-    paired = [r for r in rows if r["section"] == "paired_over_training"]
+    paired = [r for r in rows if r["section"] == "paired_over_training"
+              and r["metric"] == "return"]
     assert [int(r["step"]) for r in paired] == list(steps)
     for k, row in enumerate(paired):
         assert row["group"] == "corrected" and int(row["n_runs"]) == 4
         assert np.isclose(float(row["estimate"]), 10.0 * k)
         assert float(row["ci_low"]) < float(row["estimate"]) < float(row["ci_high"])
+    # Beside each step's bootstrap CI, the t-interval of the four seeds' offsets (spread 2).
+    t_rows = [r for r in rows if r["section"] == "paired_over_training"
+              and r["metric"] == "return_t"]
+    assert [int(r["step"]) for r in t_rows] == list(steps)
+    half = scipy.stats.t.ppf(0.975, 3) * np.std(2.0 * (seeds - 1.5), ddof=1) / 2
+    for k, row in enumerate(t_rows):
+        assert np.allclose([float(row[c]) for c in ("estimate", "ci_low", "ci_high")],
+                           [10.0 * k, 10.0 * k - half, 10.0 * k + half])
     shift = [r for r in rows if r["section"] == "shift_over_training"
              and r["metric"] == "mode_shift_abs_mean"]
     assert [int(r["step"]) for r in shift] == list(steps)
@@ -725,3 +735,103 @@ def test_found_counts_run_folders_not_groups(tmp_path):
     assert run_analysis(tmp_path / "runs", tmp_path / "out", *FAST) == 0
     assert f"Found 3 runs under {tmp_path / 'runs'}:" in (tmp_path / "out" /
                                                           "summary.md").read_text()
+
+
+def test_t_interval_is_students_and_welchs():
+    values = np.array([-414.3, -169.0, -0.8, 125.9, -559.3])
+    mean, low, high = analyze.t_interval(values)
+    expected = scipy.stats.t.interval(0.95, values.size - 1, loc=values.mean(),
+                                      scale=scipy.stats.sem(values))
+    assert np.isclose(mean, values.mean()) and np.allclose((low, high), expected)
+    assert np.allclose((low, high), (-555.7, 148.7), atol=0.05)  # bookshelf_simple at 1M
+    assert np.isnan(analyze.t_interval(np.array([3.0]))[1:]).all()
+    assert analyze.t_interval(np.full(4, 2.0)) == (2.0, 2.0, 2.0)
+    # Over tasks: one task is Student's interval; two are Welch's, Satterthwaite's df.
+    assert np.allclose(analyze.stratified_t_interval([values]), (mean, low, high))
+    other = np.array([0.1, 0.4, 0.2])
+    v1, v2 = values.var(ddof=1) / 5, other.var(ddof=1) / 3
+    df = (v1 + v2) ** 2 / (v1**2 / 4 + v2**2 / 2)
+    half = scipy.stats.t.ppf(0.975, df) * np.sqrt(v1 + v2) / 2
+    centre = (values.mean() + other.mean()) / 2
+    assert np.allclose(analyze.stratified_t_interval([values, other]),
+                       (centre, centre - half, centre + half))
+
+
+def write_alternating_folder(root: Path, offsets: list[float], rounds: int = 60,
+                             episodes: int | None = 1) -> np.ndarray:
+    """Corrected runs whose mode minus tanh(mu) at round k is offset + 100 (-1)^k: an even
+    window of rounds averages to the seed's offset, the last (odd) round is offset - 100."""
+    steps = 10_000 * np.arange(1, rounds + 1)
+    swing = 100.0 * (-1.0) ** np.arange(rounds)
+    for seed, offset in enumerate(offsets):
+        tanh_mu = 200.0 + 10.0 * seed + steps / 1e4
+        run_dir = write_run(root, TASKS[2], "corrected", seed, steps, tanh_mu + offset + swing,
+                            tanh_mu)
+        if episodes is not None:
+            set_columns(run_dir, distinct_episodes=episodes)
+    return steps
+
+
+def test_last_rounds_average_with_t_interval_and_seeds_won(tmp_path):
+    offsets = [-30.0, -10.0, 5.0, 20.0, 40.0]
+    write_alternating_folder(tmp_path / "runs", offsets)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    summary = read_summary(tmp_path / "out")
+    last = np.array(offsets) - 100.0
+    key = ("paired_difference", TASKS[2], "corrected")
+    assert np.allclose(estimate(summary, *key, "return_t"), analyze.t_interval(last))
+    assert np.allclose(estimate(summary, *key, "score_t"),
+                       np.array(analyze.t_interval(last)) / 2000)
+    for k in (20, 50):
+        key = ("paired_last_rounds", TASKS[2], "corrected")
+        point, low, high = estimate(summary, *key, f"return_last{k}")
+        assert np.isclose(point, np.mean(offsets)) and low < point < high
+        assert np.allclose(estimate(summary, *key, f"return_last{k}_t")[1:],
+                           scipy.stats.t.interval(0.95, 4, loc=np.mean(offsets),
+                                                  scale=scipy.stats.sem(offsets)))
+        assert estimate(summary, *key, f"share_won_last{k}")[0] == 0.6
+        assert summary[(*key, f"return_last{k}")]["step"] == "600000"
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert "With 5 seeds or fewer a percentile bootstrap CI is narrower" in text
+    assert "each seed's evaluation at 600k is one episode" in text
+    t_low, t_high = analyze.t_interval(np.array(offsets))[1:]
+    assert ("| last 20 (410k-600k), one episode each | 5.0 [" in text
+            and f"| [{t_low:.1f}, {t_high:.1f}] | 3 of 5 |" in text)
+    assert "| last 50 (110k-600k), one episode each | 5.0 [" in text
+    assert "| last (600k) | -95.0 [" in text
+    assert "over the last 20 / 50" not in text  # no task was short of rounds
+    assert (tmp_path / "out" / "paired_difference.png").exists()
+
+
+def test_last_rounds_need_the_rounds_and_two_seeds_are_a_range(tmp_path):
+    write_alternating_folder(tmp_path / "runs", [-30.0, 12.0], rounds=30, episodes=None)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    summary = read_summary(tmp_path / "out")
+    assert ("paired_last_rounds", TASKS[2], "corrected", "return_last20") in summary
+    assert ("paired_last_rounds", TASKS[2], "corrected", "return_last50") not in summary
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert (f"averages over the last 20 / 50 evaluation rounds left out where a task has fewer "
+            f"shared rounds up to its scored step: {TASKS[2]} (30 rounds)") in text
+    # Two seeds: the two values, not an interval; no t-interval in the table.
+    assert "| last 20 (110k-300k) | -9.0 (two seeds: -30.0 to 12.0) | - | 1 of 2 |" in text
+    assert "-109.0 (two seeds: -130.0 to -88.0) | - |" in text  # the last round
+    assert "one episode" not in text  # the runs did not log distinct_episodes
+
+
+def test_one_shared_step_leaves_the_sample_efficiency_curve_out(tmp_path):
+    """Tasks evaluated every 25k and every 20k steps of 100k share only the last step."""
+    for task, interval in ((TASKS[0], 25_000), (TASKS[1], 20_000)):
+        steps = np.arange(interval, 100_001, interval)
+        for seed in range(3):
+            mode = steps / 1e3 + seed
+            write_run(tmp_path / "runs", task, "corrected", seed, steps, mode, mode - 5)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    assert not (tmp_path / "out" / "sample_efficiency.png").exists()
+    assert ("sample-efficiency curve left out: the aggregated tasks share one evaluation point "
+            "(100k)" in (tmp_path / "out" / "summary.md").read_text())
+
+
+def test_success_bar_is_drawn_only_near_the_returns():
+    assert analyze.success_bar_drawn(800.0, 600.0)
+    assert not analyze.success_bar_drawn(2000.0, 650.0)  # bookshelf_simple at 1M: named instead
+    assert not analyze.success_bar_drawn(800.0, -5.0)
