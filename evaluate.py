@@ -594,12 +594,12 @@ def campaign_policies(root: Path, steps: tuple[int, ...]) -> list[Policy]:
         missing += [f"{run_dir.name} step {s}" for s in steps if s not in files]
         policies += [Policy(run_dir.name, int(config["seed"]), config["env_id"], step, path, config)
                      for step, path in sorted(files.items()) if not steps or step in steps]
-    if missing:
-        print(f"not there yet, skipped: {', '.join(missing)}", file=sys.stderr)
     if not policies:
         fail(f"{root}: no run under it holds final_model.pt or snapshots"
              f"{' at --steps ' + ' '.join(map(str, steps)) if steps else ''}; train with "
              "--snapshot-interval, or give a run folder")
+    if missing:
+        print(f"not there yet, skipped: {', '.join(missing)}", file=sys.stderr)
     if len({p.run for p in policies}) != len({p.path.parent.parent if p.path.parent.name ==
                                                "snapshots" else p.path.parent for p in policies}):
         fail(f"{root}: two run folders share a name; evaluate them separately")
@@ -751,7 +751,7 @@ def write_rows(path: Path, rows: list[dict]) -> None:
     with open(path, "w", newline="") as f:
         writer = csv.DictWriter(f, columns)
         writer.writeheader()
-        writer.writerows({k: repr(v) if isinstance(v, float) else v for k, v in row.items()}
+        writer.writerows({k: repr(float(v)) if isinstance(v, float) else v for k, v in row.items()}
                          for row in rows)
 
 
@@ -829,8 +829,9 @@ def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
 
 
 def plot_campaign(settings: dict, per_seed: list[dict], across: list[dict]):
-    """Per task and action, the paired difference against step: each seed (with its standard
-    error) and the mean over seeds with its t-interval."""
+    """Per task and action, the paired difference: each seed (with its standard error) and the
+    mean over seeds with its t-interval; against the training step when several were
+    evaluated, else side by side at the one step."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -838,33 +839,44 @@ def plot_campaign(settings: dict, per_seed: list[dict], across: list[dict]):
 
     tasks = sorted({r["env_id"] for r in across})
     actions = [s for s in settings["selectors"] if s != "tanh_mu"]
-    fig, axes = plt.subplots(len(tasks), len(actions), squeeze=False, sharex=True,
+    fig, axes = plt.subplots(len(tasks), len(actions), squeeze=False,
                              figsize=(4.2 * len(actions), 3.2 * len(tasks)), layout="constrained")
     for i, task in enumerate(tasks):
         for j, action in enumerate(actions):
             ax = axes[i, j]
             mine = [r for r in per_seed if r["env_id"] == task and r["selector"] == action]
-            for seed in sorted({r["seed"] for r in mine}):
-                rows = [r for r in mine if r["seed"] == seed]
-                ax.errorbar([r["step"] for r in rows], [r["difference_mean"] for r in rows],
-                            [r["difference_se"] for r in rows], marker="o", ms=3, lw=0.8,
-                            alpha=0.6, capsize=2, label=f"seed {seed}")
             mean = [r for r in across if r["env_id"] == task and r["selector"] == action]
-            steps = [r["step"] for r in mean]
-            ax.plot(steps, [r["difference_mean"] for r in mean], "k-", lw=2, label="mean")
-            if all(not math.isnan(r["t_low"]) for r in mean):
-                ax.fill_between(steps, [r["t_low"] for r in mean], [r["t_high"] for r in mean],
-                                color="k", alpha=0.12, label="95% t-interval")
+            seeds = sorted({r["seed"] for r in mine})
+            one_step = len(mean) == 1
+            for k, seed in enumerate(seeds):
+                rows = [r for r in mine if r["seed"] == seed]
+                x = [k] if one_step else [r["step"] / 1e6 for r in rows]
+                ax.errorbar(x, [r["difference_mean"] for r in rows],
+                            [r["difference_se"] for r in rows], marker="o", ms=4, lw=0.8,
+                            alpha=0.7, capsize=3, label=f"seed {seed}")
+            x = [len(seeds) + 0.5] if one_step else [r["step"] / 1e6 for r in mean]
+            y = np.array([r["difference_mean"] for r in mean])
+            low, high = (np.array([r[k] for r in mean]) for k in ("t_low", "t_high"))
+            if one_step:
+                ax.errorbar(x, y, [y - low, high - y] if not np.isnan(low).any() else None,
+                            fmt="ks", ms=7, capsize=5, lw=2, label="mean, 95% t-interval")
+                ax.set_xticks([*range(len(seeds)), x[0]],
+                              [*(f"seed {s}" for s in seeds), "mean"], fontsize=8)
+                ax.set_xlabel(f"at step {mean[0]['step']:,}")
+            else:
+                ax.plot(x, y, "k-", lw=2, label="mean")
+                if not np.isnan(low).any():
+                    ax.fill_between(x, low, high, color="k", alpha=0.12, label="95% t-interval")
+                ax.set_xlabel("training step (millions)")
             ax.axhline(0, color="grey", lw=0.8, ls=":")
-            seeds = max((r["seeds"] for r in mean), default=0)
-            ax.set_title(f"{task}\n{action} minus tanh(mu), n = {seeds} seeds", fontsize=9)
-            ax.set_xlabel("training step")
+            n = max((r["seeds"] for r in mean), default=0)
+            ax.set_title(f"{task}\n{action} minus tanh(mu), n = {n} seeds", fontsize=9)
             ax.set_ylabel("return difference")
-            if i == j == 0:
+            if i == j == 0 and not one_step:
                 ax.legend(fontsize=7)
     fig.suptitle(f"Paired difference, {settings['episodes']} starts per seed and step "
-                 f"(reset noise {settings['reset_noise']}); bars: standard error over episodes",
-                 fontsize=10)
+                 f"(reset noise {settings['reset_noise']}); bars: standard error over the "
+                 "episodes, mean: 95% t-interval over seeds", fontsize=10)
     return fig
 
 

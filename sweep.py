@@ -9,6 +9,7 @@ checkpoints its run and is requeued, and the requeued job continues it with `--r
     python sweep.py --env-ids Pendulum-v1 --seeds 0 1 --output-dir runs -- --total-timesteps 2000
     python sweep.py --preset paper --launcher slurm --partition gpu --output-dir runs
     python sweep.py status runs
+    python sweep.py free runs      # finished runs' checkpoint.pt (their replay buffers) deleted
 """
 
 from __future__ import annotations
@@ -1122,6 +1123,29 @@ def print_status(output_dir: Path) -> None:
     print(", ".join(f"{n} {state}" for state, n in counts.items()))
 
 
+def free_checkpoints(output_dir: Path) -> None:
+    """Deletes checkpoint.pt of every finished run under output_dir: a finished run (done.json)
+    never resumes, and its final_model.pt and snapshots hold what evaluation needs, while its
+    checkpoint holds the replay buffer (2-3 GB at 1M steps on h1hand). Unfinished runs are left
+    alone."""
+    if not output_dir.is_dir():
+        raise SweepError(f"{output_dir} does not exist: give the --output-dir of a sweep")
+    freed = 0
+    for done in sorted(output_dir.rglob("done.json")):
+        run_dir = done.parent
+        checkpoint = run_dir / "checkpoint.pt"
+        if not checkpoint.exists():
+            continue
+        if not (run_dir / "final_model.pt").is_file():
+            print(f"{run_dir.name}: done.json but no final_model.pt: checkpoint.pt kept")
+            continue
+        size = checkpoint.stat().st_size
+        checkpoint.unlink()
+        freed += size
+        print(f"{run_dir.name}: deleted checkpoint.pt ({size / 2**30:.2f} GiB)")
+    print(f"freed {freed / 2**30:.2f} GiB")
+
+
 def run_analysis(output_dir: Path, report_dir: str, options: str) -> int:
     command = [sys.executable, str(ROOT / "analyze.py"), str(output_dir), "--out", report_dir,
                *shlex.split(options)]
@@ -1200,10 +1224,11 @@ def finish(runs: list[Run], args: Args) -> int:
 
 
 def main(argv: list[str]) -> int:
-    """`sweep.py status DIR` or `sweep.py [OPTIONS] [-- ARGS FOR EVERY RUN]`; the exit code."""
-    if argv[:1] == ["status"]:
-        status_args = tyro.cli(StatusArgs, args=argv[1:], prog="sweep.py status")
-        print_status(Path(status_args.output_dir))
+    """`sweep.py status DIR`, `sweep.py free DIR` or `sweep.py [OPTIONS] [-- ARGS FOR EVERY
+    RUN]`; the exit code."""
+    if argv[:1] in (["status"], ["free"]):
+        status_args = tyro.cli(StatusArgs, args=argv[1:], prog=f"sweep.py {argv[0]}")
+        (print_status if argv[0] == "status" else free_checkpoints)(Path(status_args.output_dir))
         return 0
     split = argv.index("--") if "--" in argv else len(argv)
     args = tyro.cli(Args, args=argv[:split], prog="sweep.py", description=__doc__)

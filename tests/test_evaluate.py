@@ -421,3 +421,128 @@ def test_command_line_refusals_are_one_line(sb3_models):
         lines = result.stderr.strip().splitlines()
         assert result.returncode == 2 and len(lines) == 1, result.stderr
         assert lines[0].startswith("evaluate.py: error: ") and fragment in lines[0]
+
+
+# --------------------------------------------------------------------------- a campaign
+@pytest.fixture(scope="module")
+def campaign(our_run, tmp_path_factory) -> Path:
+    """Two runs of one task (seeds 0 and 1), each with a snapshot at step 800 (the final weights
+    nudged, so that it acts otherwise) and its final weights at 1600."""
+    root = tmp_path_factory.mktemp("campaign")
+    final = torch.load(our_run / "final_model.pt", weights_only=True)
+    config = json.loads((our_run / "config.json").read_text())
+    for seed in (0, 1):
+        run_dir = root / f"run{seed}"
+        (run_dir / "snapshots").mkdir(parents=True)
+        (run_dir / "config.json").write_text(json.dumps({**config, "seed": seed}))
+        shutil.copy(our_run / "done.json", run_dir / "done.json")
+        torch.save(final, run_dir / "final_model.pt")
+        nudged = {**final, "actor": {k: v + 0.05 * (k == "fc_mean.bias")
+                                     for k, v in final["actor"].items()}}
+        torch.save(nudged, run_dir / "snapshots" / "step800.pt")
+    return root
+
+
+def test_a_campaign_is_evaluated_per_seed_and_step_and_summarised(campaign, tmp_path, capsys):
+    from scipy import stats
+
+    out = tmp_path / "robust"
+    code, printed, err = run(capsys, str(campaign), "--out", str(out), "--episodes", "6",
+                             "--selectors", "mode", "tanh_mu", "mean", "--reps", "200")
+    assert code == 0, err
+    episodes = {}
+    for seed in (0, 1):
+        rows = read_rows(out / f"run{seed}" / "episodes.csv")
+        assert len(rows) == 2 * 3 * 6  # steps x selectors x episodes
+        for step in ("800", "1600"):
+            for selector in ("mode", "tanh_mu", "mean"):
+                mine = [r for r in rows if r["step"] == step and r["selector"] == selector]
+                # Every step and action of a run from the same starts: its seed's.
+                assert [int(r["reset_seed"]) for r in mine] == eval_seeds(seed, 0, 6)
+                episodes[seed, int(step), selector] = np.array([float(r["return"])
+                                                                for r in mine])
+    assert not np.array_equal(episodes[0, 800, "mode"], episodes[0, 1600, "mode"])
+    per_seed = read_rows(out / "per_seed.csv")
+    differences = {}
+    for row in per_seed:
+        if row["selector"] == "tanh_mu":
+            assert row["difference_mean"] == ""
+            continue
+        key = (int(row["seed"]), int(row["step"]), row["selector"])
+        diffs = episodes[key] - episodes[key[:2] + ("tanh_mu",)]
+        differences[key] = diffs.mean()
+        assert float(row["difference_mean"]) == pytest.approx(diffs.mean())
+        assert float(row["difference_se"]) == pytest.approx(stats.sem(diffs))
+        assert float(row["return_se"]) == pytest.approx(stats.sem(episodes[key]))
+    across = read_rows(out / "across_seeds.csv")
+    assert len(across) == 2 * 3
+    for row in across:
+        if row["selector"] == "tanh_mu":
+            continue
+        seeds = np.array([differences[s, int(row["step"]), row["selector"]] for s in (0, 1)])
+        low, high = stats.t.interval(0.95, 1, loc=seeds.mean(), scale=stats.sem(seeds))
+        assert (float(row["t_low"]), float(row["t_high"])) == pytest.approx((low, high))
+        assert float(row["bootstrap_low"]) >= seeds.min() - 1e-9  # a percentile bootstrap
+        assert int(row["seeds_won"]) == int((seeds > 0).sum())
+    summary = (out / "summary.md").read_text()
+    assert "t-interval" in summary and "bootstrap" in summary and "Precision check:" in summary
+    assert summary in printed
+    assert (out / "paired_difference.png").stat().st_size > 10_000
+    # The --out folder as the source: the summary again from its CSVs, nothing run.
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    code, printed, err = run(capsys, str(out), "--reps", "200")
+    assert code == 0, err
+    for name, content in before.items():
+        if name != "paired_difference.png":
+            assert (out / name).read_bytes() == content, name
+
+
+def test_a_campaigns_episodes_do_not_depend_on_workers(campaign, tmp_path, capsys):
+    for workers in ("0", "2"):
+        code, _, err = run(capsys, str(campaign), "--out", str(tmp_path / workers), "--episodes",
+                           "3", "--steps", "1600", "--reps", "50", "--workers", workers)
+        assert code == 0, err
+    for seed in (0, 1):
+        name = f"run{seed}/episodes.csv"
+        assert (tmp_path / "2" / name).read_text() == (tmp_path / "0" / name).read_text()
+        assert {r["step"] for r in read_rows(tmp_path / "0" / name)} == {"1600"}
+
+
+def test_a_campaign_refuses_what_it_cannot_evaluate(campaign, tmp_path, capsys):
+    refused(capsys, "is a folder of runs: give --out", str(campaign))
+    refused(capsys, "no run under it holds final_model.pt or snapshots at --steps 5",
+            str(campaign), "--out", str(tmp_path / "o"), "--steps", "5")
+    refused(capsys, "Pendulum-v1 is not an h1hand task", str(campaign), "--out",
+            str(tmp_path / "o"), "--reset-noise", "0.01")
+    refused(capsys, "--reset-noise -1.0: must be a finite number >= 0", str(campaign),
+            "--reset-noise", "-1")
+
+
+def _h1hand_weights(tmp_path: Path) -> Path:
+    """An untrained actor of ours for bookshelf_simple, as final_model.pt holds one."""
+    import sac_corrected as sac
+
+    env = gym.make("h1hand-bookshelf_simple-v0")
+    torch.manual_seed(0)
+    actor = sac.Actor(env.observation_space.shape[0], (16,), env.action_space, -10.0, 2.0)
+    path = tmp_path / "final_model.pt"
+    torch.save({"actor": actor.state_dict(), "config": {
+        "env_id": "h1hand-bookshelf_simple-v0", "hidden_sizes": (16,), "log_std_min": -10.0,
+        "log_std_max": 2.0}}, path)
+    return path
+
+
+def test_one_start_is_one_episode_and_reset_noise_gives_distinct_ones(tmp_path, capsys):
+    weights = _h1hand_weights(tmp_path)
+    code, out, err = run(capsys, str(weights), "--episodes", "3", "--reps", "50",
+                         "--out", str(tmp_path / "same"))
+    assert code == 0, err
+    assert "All 3 episodes start from the same state" in out and "--reset-noise 0.01" in out
+    assert "(one episode)" in out and "one paired episode" in out
+    assert json.loads((tmp_path / "same" / "summary.json").read_text())["distinct_starts"] == 1
+    code, out, err = run(capsys, str(weights), "--episodes", "3", "--reps", "50",
+                         "--reset-noise", "0.01", "--out", str(tmp_path / "noisy"))
+    assert code == 0, err
+    assert "same state" not in out and "mode - tanh_mu, paired:" in out
+    rows = read_rows(tmp_path / "noisy" / "episodes.csv")
+    assert len({r["return"] for r in rows if r["selector"] == "tanh_mu"}) == 3

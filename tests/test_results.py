@@ -116,3 +116,42 @@ def test_report_reproduces_from_the_committed_runs(campaign: Path, report: str,
 
     assert tasks_in("task_final", "return") == tasks
     assert tasks_in("paired_difference", "return") >= paired
+
+
+def robust_cases() -> list:
+    """Every committed robust evaluation (evaluate.py over a campaign's runs): its folder."""
+    return [pytest.param(folder.parent, id=str(folder.parent.relative_to(RESULTS)))
+            for folder in sorted(RESULTS.glob("*/robust*/evaluation.json"))]
+
+
+@pytest.mark.parametrize("folder", robust_cases())
+def test_robust_summary_reproduces_from_the_committed_episodes(folder: Path,
+                                                               tmp_path: Path) -> None:
+    """evaluate.py, given the folder of a campaign's evaluation, rewrites its summary from the
+    episodes CSVs alone: the same per_seed.csv, across_seeds.csv and summary.md."""
+    import shutil
+
+    copy = tmp_path / folder.name
+    shutil.copytree(folder, copy)
+    for name in ("per_seed.csv", "across_seeds.csv", "summary.md"):
+        (copy / name).unlink()
+    settings = json.loads((folder / "evaluation.json").read_text())
+    reps = settings["command"][settings["command"].index("--reps") + 1]
+    result = subprocess.run([sys.executable, str(ROOT / "evaluate.py"), str(copy), "--reps", reps],
+                            cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-3000:]
+    for name in ("per_seed.csv", "across_seeds.csv"):
+        header, committed = read_summary(folder / name)
+        fresh_header, fresh = read_summary(copy / name)
+        assert fresh_header == header and len(fresh) == len(committed), name
+        for new, old in zip(fresh, committed, strict=True):
+            for column in header:
+                try:
+                    assert np.isclose(float(new[column]), float(old[column]), rtol=RTOL,
+                                      equal_nan=True), (name, column, new, old)
+                except ValueError:  # a text column
+                    assert new[column] == old[column], (name, column)
+    assert (copy / "summary.md").read_text().replace(str(copy), str(folder)) == \
+        (folder / "summary.md").read_text()
+    readme = (folder.parent / "README.md").read_text()
+    assert " ".join(settings["command"][1:]) in readme, "the README must give the command"

@@ -190,6 +190,24 @@ def test_status_shows_state_progress_and_the_log_of_a_failed_run(reference, tmp_
     assert "failed" in table and "--no-such-flag" in table  # tyro's complaint, from the log
 
 
+def test_free_deletes_only_finished_runs_checkpoints(reference, tmp_path):
+    import shutil
+
+    copy = tmp_path / "runs"
+    shutil.copytree(reference, copy)
+    runs = run_dirs(copy)
+    unfinished = runs["standard", 1]
+    (unfinished / "done.json").unlink()  # as a run that is still under way
+    assert all((d / "checkpoint.pt").exists() for d in runs.values())
+    kept = {p: p.read_bytes() for p in copy.rglob("*") if p.is_file() and p.name != "checkpoint.pt"}
+    out = sweep("free", str(copy)).stdout
+    assert out.count("deleted checkpoint.pt") == len(runs) - 1 and "freed" in out
+    assert [d for d in runs.values() if (d / "checkpoint.pt").exists()] == [unfinished]
+    assert {p: p.read_bytes() for p in kept} == kept  # nothing else touched
+    assert "freed 0.00 GiB" in sweep("free", str(copy)).stdout  # twice is harmless
+    assert "does not exist" in sweep("free", str(tmp_path / "nowhere"), check=False).stderr
+
+
 def test_dimensions_preset_runs_and_analyzes_with_the_default_normalisation(tmp_path):
     """--preset dimensions mixes tasks with and without a HumanoidBench success bar: --analyze
     with analyze.py's defaults (no --normalize) gives a report once every run is done. Two of
