@@ -191,7 +191,7 @@ def make_train_step(rb, update: Callable, batch_size: int, device: torch.device,
     and fresh policy noise, as a function of nothing. With graphs and the buffer on the GPU,
     sampling is inside the graph; with the buffer in host memory, the batch is drawn there and
     copied into the graph's inputs."""
-    noise_shape = (2, len(rb.ptr), batch_size, rb.action_dim)  # the next action's, the action's
+    noise_shape = (2, batch_size, rb.action_dim)  # the next action's, the action's
 
     def update_with_noise(batch: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
         return update(batch, torch.randn(noise_shape, device=device))

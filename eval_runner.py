@@ -296,9 +296,9 @@ def eval_columns(actions: dict[str, str], shift: bool) -> list[str]:
 
 
 # --- the pool ---------------------------------------------------------------------------------
-def default_workers(training_processes: int = 1) -> int:
-    """The cores that training leaves free (at least one worker)."""
-    return max(1, len(os.sched_getaffinity(0)) - training_processes)
+def default_workers() -> int:
+    """The cores that training leaves free: all but one (at least one worker)."""
+    return max(1, len(os.sched_getaffinity(0)) - 1)
 
 
 def _init_worker() -> None:
@@ -316,17 +316,15 @@ def _init_worker() -> None:
 class EvalPool:
     """Rounds run by `workers` processes; `on_done(round, result)` is called in submission order.
 
-    At most `max_pending` rounds are in flight, by default two evaluation steps' worth per worker
-    (`rounds_per_step`: one round per seed of a --num-seeds batch): submitting one more first
-    waits for the oldest, so evaluation cannot fall behind training without limit, and K seeds'
-    rounds of one step never make training wait for each other. With 0 workers, submit runs the
-    round at once. A round that fails, for any reason, ends the run with one line naming the
-    round and the cause (SystemExit), the pool shut down."""
+    At most `max_pending` rounds are in flight, by default two per worker: submitting one more
+    first waits for the oldest, so evaluation cannot fall behind training without limit. With 0
+    workers, submit runs the round at once. A round that fails, for any reason, ends the run with
+    one line naming the round and the cause (SystemExit), the pool shut down."""
 
     def __init__(self, workers: int, on_done: Callable[[Round, dict], None],
-                 max_pending: int | None = None, rounds_per_step: int = 1):
+                 max_pending: int | None = None):
         self.workers, self.on_done = workers, on_done
-        self.max_pending = max_pending or 2 * max(workers, 1) * rounds_per_step
+        self.max_pending = max_pending or 2 * max(workers, 1)
         self.pending: collections.deque = collections.deque()
         self.executor = None if workers == 0 else concurrent.futures.ProcessPoolExecutor(
             workers, mp_context=multiprocessing.get_context("spawn"), initializer=_init_worker)

@@ -244,38 +244,49 @@ def load_weights(path: Path) -> dict:
     if broken:
         fail(f"{path}: the actor's {broken[0]} holds NaN/inf (training diverged); evaluate "
              "an earlier model")
-    return state
+    return in_scripts_layout(state)
 
 
-def with_seed_axis(weights: dict) -> dict:
-    """Weights in the scripts' layout, (1, in, out) with a leading seed axis of 1
-    (sac_standard.SeedLinear): files written before --num-seeds hold nn.Linear's (out, in)
-    weights and (out,) biases."""
+def in_scripts_layout(state: dict) -> dict:
+    """The file's actor and critic in the scripts' layout: (in, out) weights, (out,) biases.
+    Older files hold them otherwise: with a leading seed axis of 1 ((1, in, out) and (1, 1, out),
+    written with --num-seeds, which issue 37 removed), or as nn.Linear's (out, in) weights
+    (before --num-seeds), told apart from today's by the critic's one-output layer: (1, width),
+    not (width, 1). Every file of ours holds the critic."""
+    critic = state.get("qf")
+    if not isinstance(critic, dict) or not all(torch.is_tensor(v) for v in critic.values()):
+        critic = {}
+    layers = sorted((k for k in critic if k.startswith("qf1.") and k.endswith(".weight")),
+                    key=lambda k: int(k.split(".")[1]))
+    head = critic[layers[-1]] if layers else None
+    transposed = head is not None and head.dim() == 2 and head.shape[0] == 1 < head.shape[1]
+
     def fit(key: str, value: torch.Tensor) -> torch.Tensor:
-        if key.endswith(".weight") and value.dim() == 2:
-            return value.t()[None]
-        return value[None, None] if key.endswith(".bias") and value.dim() == 1 else value
+        if value.dim() == 3:  # the seed axis
+            return value[0] if key.endswith(".weight") else value[0, 0]
+        return value.t() if transposed and key.endswith(".weight") and value.dim() == 2 else value
 
-    return {k: fit(k, v) for k, v in weights.items()}
+    parts = ("actor", "qf") if critic else ("actor",)
+    return state | {part: {k: fit(k, v) for k, v in state[part].items()} for part in parts}
 
 
 def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Actor:
-    """Our Actor with the layer widths read off its weights, checked against the env."""
-    weights = with_seed_axis(weights)
+    """Our Actor with the layer widths read off its weights (in_scripts_layout), checked against
+    the env."""
     env = sac.make_env(env_id)
     obs_dim, action_dim = env.observation_space.shape[0], int(np.prod(env.action_space.shape))
     trunk = [weights[k] for k in sorted((k for k in weights if k.startswith("trunk.")
                                          and k.endswith(".weight")),
                                         key=lambda k: int(k.split(".")[1]))]
-    if not trunk or trunk[0].dim() != 3 or "fc_mean.weight" not in weights:
+    if not trunk or trunk[0].dim() != 2 or "fc_mean.weight" not in weights:
         fail(f"{path} holds no actor of sac_standard.py or sac_corrected.py (no trunk or "
              "fc_mean layers); give a final_model.pt or a run folder")
-    shapes = (trunk[0].shape[-2], weights["fc_mean.weight"].shape[-1])
+    shapes = (trunk[0].shape[0], weights["fc_mean.weight"].shape[1])
     if shapes != (obs_dim, action_dim):
         fail(f"{path} was trained on {shapes[0]}-dim observations and {shapes[1]}-dim "
              f"actions; {env_id} has {obs_dim} and {action_dim}: pass the --env-id it was "
              "trained on")
-    actor = sac.Actor(obs_dim, tuple(w.shape[-1] for w in trunk), env.action_space,
+    actor = sac.Actor(obs_dim, tuple(w.shape[1] for w in trunk), env.action_space,
                       config.get("log_std_min", sac.Args.log_std_min),
                       config.get("log_std_max", sac.Args.log_std_max))
     try:
@@ -294,17 +305,16 @@ def build_critic(state: dict, actor: sac.Actor, path: Path) -> sac.TwinQ:
             not all(torch.is_tensor(v) for v in weights.values()):
         fail(f"{path} holds no critic weights ('qf'), which q_best needs; give a "
              "final_model.pt or checkpoint.pt that holds them, or drop q_best from --selectors")
-    weights = with_seed_axis(weights)
     layers = [weights[k] for k in sorted((k for k in weights if k.startswith("qf1.")
                                           and k.endswith(".weight")),
                                          key=lambda k: int(k.split(".")[1]))]
-    obs_dim, action_dim = actor.trunk[0].weight.shape[-2], actor.fc_mean.weight.shape[-1]
-    if not layers or any(w.dim() != 3 for w in layers) or layers[-1].shape[-1] != 1 \
-            or layers[0].shape[-2] != obs_dim + action_dim:
+    obs_dim, action_dim = actor.trunk[0].weight.shape[0], actor.fc_mean.weight.shape[1]
+    if not layers or any(w.dim() != 2 for w in layers) or layers[-1].shape[1] != 1 \
+            or layers[0].shape[0] != obs_dim + action_dim:
         fail(f"{path}: its 'qf' is not a critic of sac_standard.py or sac_corrected.py for "
              f"{obs_dim}-dim observations and {action_dim}-dim actions; give the run's own "
              "final_model.pt, or drop q_best from --selectors")
-    critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[-1] for w in layers[:-1]))
+    critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[1] for w in layers[:-1]))
     try:
         critic.load_state_dict(weights)
     except RuntimeError as error:  # the second critic missing, or of other widths

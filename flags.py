@@ -39,12 +39,16 @@ def parse_args(args_class: type, algorithm: str, eval_actions: Callable) -> obje
         return args
     path = Path(args.resume) / "config.json"
     config = read_run_config(Path(args.resume), algorithm)
+    # Folders made with --num-seeds (removed by issue 37) record the seeds trained together.
+    batch = config["batch"] if isinstance(config.get("batch"), dict) else {}
+    if batch.get("num_seeds", 1) != 1:
+        fail(f"{args.resume} was trained in one process with {batch['num_seeds']} seeds "
+             "(--num-seeds, since removed); finish it with the commit that made it "
+             f"({config.get('git_commit')}, in config.json)")
     stored = {f.name: config[f.name] for f in dataclasses.fields(args_class)
               if f.name in config and f.name not in RUNTIME_FIELDS}
     for key in ("hidden_sizes", "eval_selectors"):  # JSON lists back to the flags' tuples
         stored[key] = tuple(stored.get(key, getattr(args, key)))
-    # A folder's config.json holds its own seed; the batch's arguments start at its first.
-    stored["seed"] = config.get("batch", {}).get("first_seed", stored.get("seed", args.seed))
     kept = {k: config[k] for k in KEPT_FIELDS if k in config}
     wrong = [k for k, v in (stored | kept).items() if not same_type(v, getattr(args, k))]
     if wrong:
@@ -78,7 +82,6 @@ def check_args(args, eval_actions: Callable) -> None:
     own_actions = eval_actions(dataclasses.replace(args, eval_selectors=())).values()
     rules = (
         ("seed", args.seed >= 0, "a non-negative integer"),
-        ("num_seeds", args.num_seeds >= 1, "at least 1"),
         ("total_timesteps", args.total_timesteps >= 1, "at least 1"),
         ("buffer_size", args.buffer_size >= 2, "at least 2 (a transition takes two slots)"),
         ("batch_size", 1 <= args.batch_size <= args.buffer_size,
@@ -114,10 +117,8 @@ def check_args(args, eval_actions: Callable) -> None:
         ("snapshot_interval", args.snapshot_interval >= 0, "0 (off) or more"),
         ("torch_threads", args.torch_threads >= 1, "at least 1"),
         ("run_name", args.run_name is None or (args.run_name not in ("", ".", "..")
-                                               and "/" not in args.run_name
-                                               and (args.num_seeds == 1
-                                                    or "{seed}" in args.run_name)),
-         "a folder name without '/' (with --num-seeds above 1, containing {seed})"),
+                                               and "/" not in args.run_name),
+         "a folder name without '/'"),
         ("wandb_project_name", bool(args.wandb_project_name), "a non-empty name"),
     )
     for name, ok, allowed in rules:
@@ -127,13 +128,13 @@ def check_args(args, eval_actions: Callable) -> None:
             fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
 
 
-def check_checkpoint_args(dirs: list[Path], ckpts: list[dict], args) -> None:
-    """A resume's checkpoints must have been made with the arguments config.json holds."""
+def check_checkpoint_args(run_dir: Path, ckpt: dict, args) -> None:
+    """A resume's checkpoint must have been made with the arguments config.json holds (those
+    the script still has: an older checkpoint's num_seeds, say, is no argument now)."""
     wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}
-    for run_dir, ckpt in zip(dirs, ckpts, strict=True):
-        if {k: v for k, v in ckpt["args"].items() if k not in RUNTIME_FIELDS} != wanted:
-            fail(f"{run_dir / 'checkpoint.pt'} was made with other arguments than "
-                 f"{run_dir / 'config.json'}; the run folder is inconsistent")
+    if {k: v for k, v in ckpt["args"].items() if k in wanted} != wanted:
+        fail(f"{run_dir / 'checkpoint.pt'} was made with other arguments than "
+             f"{run_dir / 'config.json'}; the run folder is inconsistent")
 
 
 def registered_env_id(env_id: str) -> str:

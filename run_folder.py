@@ -1,8 +1,7 @@
 """A run folder's files, for sac_standard.py and sac_corrected.py: config.json, the CSV logs
-(written row by row), TensorBoard and W&B, checkpoints (written atomically, a batch's in two
-phases; what each seed's holds: seed_checkpoint), the folder's lock, the random states, the
-graceful stop on a signal, and what an exact resume needs: the episode under way (EpisodeRecord)
-and each seed's part of the batch's networks and optimisers. Also the training loop's
+(written row by row), TensorBoard and W&B, checkpoints (written atomically; what one holds:
+checkpoint), the folder's lock, the random states, the graceful stop on a signal, and what an
+exact resume needs besides: the episode under way (EpisodeRecord). Also the training loop's
 bookkeeping: the episodes and statistics train.csv reports, the progress line.
 
 None of it is the algorithm: the two scripts hold that, top to bottom. The layout of a run folder
@@ -14,7 +13,6 @@ import csv
 import dataclasses
 import fcntl
 import json
-import multiprocessing
 import os
 import platform
 import random
@@ -98,33 +96,6 @@ def check_csv(path: Path, columns: list[str]) -> None:
                  "number; restore the file, or delete that line")
 
 
-def resume_batch_dirs(given: Path, algorithm: str) -> list[Path]:
-    """The folders of the batch that `given` belongs to, each checked before anything is written.
-
-    A run folder is found by where it is now, never by where it was made: a single-seed folder
-    is its own batch under any name and path (a copy resumes the copy); the K folders of a
-    --num-seeds batch resume together, found beside `given` by the names config.json records."""
-    config = read_run_config(given, algorithm)
-    batch = config.get("batch", {"first_seed": config.get("seed"), "run_dirs": [given.name]})
-    names = batch["run_dirs"]
-    if len(names) == 1:
-        return [given]
-    made_as = names[config["seed"] - batch["first_seed"]]
-    if given.name != made_as:
-        fail(f"{given} was made as {made_as}, one of a batch of {len(names)} seeds trained "
-             f"together ({', '.join(names)}); they resume together, side by side under their own "
-             "names: copy or move the whole batch, and resume any one of its folders")
-    dirs = [given.parent / name for name in names]
-    for run_dir in dirs:
-        if not (run_dir / "config.json").is_file():
-            fail(f"{run_dir} is missing: the batch of {given} ({len(names)} seeds) resumes only "
-                 "with all its folders side by side; put it back beside the others")
-        if read_run_config(run_dir, algorithm).get("batch") != batch:
-            fail(f"{run_dir} is not a run of the batch {given} belongs to (its config.json "
-                 "names another batch); restore the folder, or move it back where it was")
-    return dirs
-
-
 def read_checkpoint(path: Path) -> dict:
     """checkpoint.pt on the CPU (RNG states must stay there; load_state_dict moves the rest to
     the run's device), or one line saying it is damaged."""
@@ -180,9 +151,7 @@ def start_tracking(args, run_dir: Path, algorithm: str):
     id_file = run_dir / "wandb_run_id.txt"
     if not id_file.exists():
         atomic_write(id_file, lambda tmp: tmp.write_text(generate_id() + "\n"))
-    # create_new: the seeds of a batch are W&B runs side by side in one process.
-    tracker = wandb.init(reinit="create_new", project=args.wandb_project_name,
-                         entity=args.wandb_entity,
+    tracker = wandb.init(project=args.wandb_project_name, entity=args.wandb_entity,
                          group=args.wandb_group, name=run_dir.name, dir=run_dir,
                          id=id_file.read_text().strip(), resume="allow",
                          config=dataclasses.asdict(args) | {"algorithm": algorithm})
@@ -205,31 +174,27 @@ def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: st
             "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
 
 
-def lock_run_folders(dirs: list[Path]) -> list[int]:
-    """An exclusive OS lock on each run_dir/lock, held while this process lives: one writer per
-    run folder (a Slurm requeue racing a job that has not died yet, a sweep started twice). The
+def lock_run_folder(run_dir: Path) -> int:
+    """An exclusive OS lock on run_dir/lock, held while this process lives: one writer per run
+    folder (a Slurm requeue racing a job that has not died yet, a sweep started twice). The
     kernel drops it when the process dies, SIGKILL included, so it is never stale. Returns the
-    fds, for record_holder once the folders have been checked. A refusal changes nothing: the
-    folders and lock files made here for it are removed again."""
-    fds, made = [], []
-    for run_dir in dirs:
-        if not run_dir.exists():
-            made.append(run_dir)
-        run_dir.mkdir(parents=True, exist_ok=True)
-        fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-            for mine in made:
-                (mine / "lock").unlink(missing_ok=True)
-                mine.rmdir()
-            then = "then --resume" if (run_dir / "config.json").exists() else \
-                "or choose another --run-name"
-            fail(f"{run_dir} is in use by process {holder} (it holds {run_dir / 'lock'}); let it "
-                 f"finish or stop it, {then}")
-        fds.append(fd)
-    return fds
+    fd, for record_holder once the folder has been checked. A refusal changes nothing: a folder
+    and lock file made here for it are removed again."""
+    made = not run_dir.exists()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+        if made:
+            (run_dir / "lock").unlink(missing_ok=True)
+            run_dir.rmdir()
+        then = "then --resume" if (run_dir / "config.json").exists() else \
+            "or choose another --run-name"
+        fail(f"{run_dir} is in use by process {holder} (it holds {run_dir / 'lock'}); let it "
+             f"finish or stop it, {then}")
+    return fd
 
 
 def record_holder(lock_fd: int) -> None:
@@ -257,19 +222,11 @@ class StopRequest:
               flush=True)
 
 
-def ignore_stop_signals_in_worker() -> None:
-    """In an env worker process (not in the trainer): the signals that stop a run are left to
-    the trainer, which checkpoints and then stops its workers."""
-    if multiprocessing.parent_process() is not None:
-        for s in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1, signal.SIGUSR2):
-            signal.signal(s, signal.SIG_IGN)
-
-
 def rng_states(device: torch.device) -> dict:
-    """The process's random streams (the batch's): torch draws the actions and batches of every
-    seed. Nothing of ours uses the global numpy and python generators; libraries might. The CUDA
-    generators only for a run on CUDA: reading them elsewhere would create a CUDA context (and
-    fail on a GPU in exclusive-process mode that another process holds)."""
+    """The process's random streams: torch draws the actions and the batches. Nothing of ours
+    uses the global numpy and python generators; libraries might. The CUDA generators only for a
+    run on CUDA: reading them elsewhere would create a CUDA context (and fail on a GPU in
+    exclusive-process mode that another process holds)."""
     name, keys, pos, has_gauss, gauss = np.random.get_state()  # noqa: NPY002
     # Plain lists, not arrays: a checkpoint then loads with torch.load(weights_only=True).
     return {"python": random.getstate(), "numpy": (name, keys.tolist(), pos, has_gauss, gauss),
@@ -298,39 +255,17 @@ def on_cpu(tree):
     return tree
 
 
-def read_batch_checkpoints(dirs: list[Path]) -> list[dict] | None:
-    """Every seed's checkpoint.pt, all at one step; None where the batch has none yet.
-
-    A batch checkpoint is written in two phases (see save_batch_checkpoint): every seed's
-    checkpoint.pt.tmp first, then each is moved into place. A kill in the second phase leaves
-    some seeds at the new step and the others' complete .tmp files: those are moved in now."""
-    paths = [d / "checkpoint.pt" for d in dirs]
-    if not any(p.exists() for p in paths):
-        return None
-    steps = {p: read_checkpoint(p)["global_step"] if p.exists() else None for p in paths}
-    newest = max(s for s in steps.values() if s is not None)
-    for path, step in steps.items():
-        tmp = path.with_name(path.name + ".tmp")
-        if step != newest and tmp.exists() and read_checkpoint(tmp)["global_step"] == newest:
-            os.replace(tmp, path)
-        elif step != newest:
-            fail(f"{path} is {'missing' if step is None else f'at step {step}'} while the batch "
-                 f"it belongs to checkpointed at step {newest}; restore it, or delete the batch's "
-                 "checkpoint.pt files to restart it from step 0")
-    return [read_checkpoint(p) for p in paths]
+def find_checkpoint(run_dir: Path) -> dict | None:
+    """The run's checkpoint.pt, or None where it has none yet (it restarts from step 0)."""
+    path = run_dir / "checkpoint.pt"
+    return read_checkpoint(path) if path.exists() else None
 
 
-def save_batch_checkpoint(dirs: list[Path], states: list[dict]) -> None:
-    """Every seed's checkpoint.pt, in two phases so that a kill leaves the batch resumable: all
-    the .tmp files first, then the moves (read_batch_checkpoints finishes an interrupted one)."""
-    tmps = [d / "checkpoint.pt.tmp" for d in dirs]
-    for tmp, state in zip(tmps, states, strict=True):
-        torch.save(on_cpu(state), tmp)
-    for tmp in tmps:
-        os.replace(tmp, tmp.with_name("checkpoint.pt"))
+def save_checkpoint(run_dir: Path, state: dict) -> None:
+    atomic_write(run_dir / "checkpoint.pt", lambda tmp: torch.save(on_cpu(state), tmp))
 
 
-# Resuming exactly: the episode under way, and each seed's part of the batch's networks.
+# Resuming exactly: the episode under way.
 
 
 class EpisodeRecord(gym.Wrapper):
@@ -379,211 +314,168 @@ def pending_round_state(round_) -> dict:
             "qf": None if round_.critic is None else round_.critic.state_dict()}
 
 
-def seed_slice(module: nn.Module, k: int) -> nn.Module:
-    """Seed k's networks alone, as a K = 1 module that shares no tensor with the batch."""
-    memo = {id(p): nn.Parameter(p.detach()[k:k + 1].clone(), p.requires_grad)
-            for p in module.parameters()}
-    return copy.deepcopy(module, memo)
-
-
-def load_seed_states(module: nn.Module, states: list[dict]) -> None:
-    """The batch's parameters from each seed's K = 1 state dict (seed_slice's layout)."""
-    params = dict(module.named_parameters())
-    module.load_state_dict({n: torch.cat([s[n] for s in states]) if n in params else v
-                            for n, v in states[0].items()})
-
-
-def optimizer_seed_state(optimizer: torch.optim.Optimizer, k: int) -> dict:
-    """Seed k's part of an optimizer over stacked parameters (its step counts are shared)."""
-    state = optimizer.state_dict()
-    return {"state": {i: {n: (v if v.dim() == 0 else v[k:k + 1]).clone() for n, v in s.items()}
-                      for i, s in state["state"].items()},
-            "param_groups": state["param_groups"]}
-
-
-def load_optimizer_seed_states(optimizer: torch.optim.Optimizer, states: list[dict]) -> None:
-    optimizer.load_state_dict({
-        "state": {i: {n: v.clone() if v.dim() == 0
-                      else torch.cat([s["state"][i][n] for s in states])
-                      for n, v in state.items()} for i, state in states[0]["state"].items()},
-        "param_groups": states[0]["param_groups"]})
+def fit_shapes(state: dict, like: dict) -> dict:
+    """A checkpoint's tensors in the shapes of the run's own (`like`, by name): checkpoints
+    written between --num-seeds and its removal (issue 37) hold each with a leading seed axis of
+    1, and the same numbers."""
+    return {k: v.reshape(like[k].shape) if k in like else v for k, v in state.items()}
 
 
 # The scripts' run folders, from start to finish: named, written fresh or resumed, logged to,
 # checkpointed and finished.
 
 
-def run_dirs(args, algorithm: str) -> list[Path]:
-    """Each seed's run folder: --run-name with {seed} filled in, or the default name."""
-    name = args.run_name or (f"{args.env_id}__{algorithm}__seed{{seed}}__"
+def run_dir(args, algorithm: str) -> Path:
+    """With --resume, the folder given (wherever it is now: a copy resumes the copy); else a
+    fresh one, --run-name or the default name under --output-dir, which must not hold a run."""
+    if args.resume is not None:
+        return Path(args.resume)
+    name = args.run_name or (f"{args.env_id}__{algorithm}__seed{args.seed}__"
                              f"{time.strftime('%Y%m%d-%H%M%S')}")
-    return [Path(args.output_dir) / name.replace("{seed}", str(args.seed + k))
-            for k in range(args.num_seeds)]
+    path = Path(args.output_dir) / name
+    if (path / "config.json").exists():
+        fail(f"{path} already holds a run; continue it with --resume {path} or choose another "
+             "--run-name")
+    return path
 
 
-def batch_run_dirs(args, algorithm: str) -> list[Path]:
-    """With --resume, the folders of the batch the given one belongs to, each checked before
-    anything is written; else fresh folders, none of which may hold a run."""
-    if args.resume is None:
-        dirs = run_dirs(args, algorithm)
-        for run_dir in dirs:
-            if (run_dir / "config.json").exists():
-                fail(f"{run_dir} already holds a run; continue it with --resume {run_dir} or "
-                     "choose another --run-name")
-        return dirs
-    return resume_batch_dirs(Path(args.resume), algorithm)
-
-
-def write_configs(args, dirs: list[Path], obs_dim: int, action_dim: int, algorithm: str,
-                  script: str) -> None:
-    """Each seed's config.json (run_metadata, and the batch it is trained in), at a fresh start;
-    TensorBoard files of an earlier start are removed (a restart from step 0)."""
-    batch = {"first_seed": args.seed, "num_seeds": args.num_seeds,
-             "run_dirs": [d.name for d in dirs]}
-    for k, run_dir in enumerate(dirs):
-        for old in run_dir.glob("events.out.tfevents.*"):
-            old.unlink()
-        config = run_metadata(dataclasses.replace(args, seed=args.seed + k), obs_dim, action_dim,
-                              algorithm, script)
-        atomic_write(run_dir / "config.json", lambda tmp, c=config: tmp.write_text(
-            json.dumps(c | {"batch": batch}, indent=2)))
+def write_config(args, run_dir: Path, obs_dim: int, action_dim: int, algorithm: str,
+                 script: str) -> None:
+    """config.json (run_metadata), at a fresh start; TensorBoard files of an earlier start are
+    removed (a restart from step 0)."""
+    for old in run_dir.glob("events.out.tfevents.*"):
+        old.unlink()
+    config = run_metadata(args, obs_dim, action_dim, algorithm, script)
+    atomic_write(run_dir / "config.json",
+                 lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
 
 
 def new_progress() -> dict:
-    """A seed's training episodes as train.csv reports them, and its last evaluation."""
+    """The training episodes as train.csv reports them, and the last evaluation."""
     return {"episode_returns": [], "episode_lengths": [], "last_eval": None,
             "episode_return": 0.0, "episode_length": 0}
 
 
-def count_episodes(progress: list[dict], reward: np.ndarray, episode_end: np.ndarray) -> None:
-    """Adds a step's rewards to each seed's episode under way; an ended one joins the list that
-    the next train.csv row averages."""
-    for k, seed_progress in enumerate(progress):
-        seed_progress["episode_return"] += float(reward[k])
-        seed_progress["episode_length"] += 1
-        if episode_end[k]:
-            seed_progress["episode_returns"].append(seed_progress["episode_return"])
-            seed_progress["episode_lengths"].append(seed_progress["episode_length"])
-            seed_progress["episode_return"], seed_progress["episode_length"] = 0.0, 0
+def count_episode(progress: dict, reward: float, episode_end: bool) -> None:
+    """Adds a step's reward to the episode under way; an ended one joins the list that the next
+    train.csv row averages."""
+    progress["episode_return"] += float(reward)
+    progress["episode_length"] += 1
+    if episode_end:
+        progress["episode_returns"].append(progress["episode_return"])
+        progress["episode_lengths"].append(progress["episode_length"])
+        progress["episode_return"], progress["episode_length"] = 0.0, 0
 
 
-def progress_line(global_step: int, total: int, elapsed: float, progress: list[dict]) -> str:
+def progress_line(global_step: int, total: int, elapsed: float, progress: dict) -> str:
     """The line printed every --print-interval steps."""
-    last = [p["last_eval"] for p in progress if p["last_eval"] is not None]
-    return (f"step {global_step:,}/{total:,} | {global_step / elapsed:.0f} SPS per seed | "
-            + (f"last eval {np.mean([r for _, r in last]):.1f}"
-               + (f" (mean over {len(last)} seeds)" if len(last) > 1 else "")
-               + f" at step {last[0][0]:,}" if last else "no eval yet"))
+    last = progress["last_eval"]
+    return (f"step {global_step:,}/{total:,} | {global_step / elapsed:.0f} SPS | "
+            + (f"last eval {last[1]:.1f} at step {last[0]:,}" if last else "no eval yet"))
 
 
-def open_logs(args, dirs: list[Path], eval_header: list[str], train_header: list[str],
-              global_step: int, resumed: bool, algorithm: str) -> list[dict]:
-    """Per seed: the eval.csv and train.csv writers (a resume keeps their rows up to its step),
+def open_logs(args, run_dir: Path, eval_header: list[str], train_header: list[str],
+              global_step: int, resumed: bool, algorithm: str) -> dict:
+    """The eval.csv and train.csv writers (a resume keeps their rows up to its step),
     TensorBoard and, with --track, W&B."""
-    logs = []
     keep = global_step if resumed else None
-    for k, run_dir in enumerate(dirs):
-        tb = SummaryWriter(run_dir, purge_step=global_step + 1 if resumed else None)
-        if not resumed:
-            tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
-                f"|{name}|{value}|" for name, value in dataclasses.asdict(args).items()))
-        logs.append({"eval": open_csv(run_dir / "eval.csv", eval_header, keep),
-                     "train": open_csv(run_dir / "train.csv", train_header, keep), "tb": tb,
-                     "tracker": start_tracking(dataclasses.replace(args, seed=args.seed + k),
-                                               run_dir, algorithm)})
-    return logs
+    tb = SummaryWriter(run_dir, purge_step=global_step + 1 if resumed else None)
+    if not resumed:
+        tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
+            f"|{name}|{value}|" for name, value in dataclasses.asdict(args).items()))
+    return {"eval": open_csv(run_dir / "eval.csv", eval_header, keep),
+            "train": open_csv(run_dir / "train.csv", train_header, keep), "tb": tb,
+            "tracker": start_tracking(args, run_dir, algorithm)}
 
 
-def close_logs(logs: list[dict]) -> None:
-    for log in logs:
-        log["tb"].close()
-        if log["tracker"] is not None:
-            log["tracker"].finish()
-        for f, _ in (log["eval"], log["train"]):
-            f.close()
+def close_logs(logs: dict) -> None:
+    logs["tb"].close()
+    if logs["tracker"] is not None:
+        logs["tracker"].finish()
+    for f, _ in (logs["eval"], logs["train"]):
+        f.close()
 
 
-def seed_checkpoint(k: int, args, global_step: int, elapsed: float, progress: dict,
-                    networks: dict[str, nn.Module], log_alpha: torch.Tensor,
-                    optimizers: dict[str, torch.optim.Optimizer], buffer, space: gym.Space,
-                    episode: dict, rng: dict, unfinished: list) -> dict:
-    """Seed k's checkpoint.pt: its part of the batch's networks, temperature, optimizers and
-    replay buffer, and what an exact resume needs besides (the random states, the episode under
-    way, the evaluation rounds a stop left unfinished)."""
+def checkpoint(args, global_step: int, elapsed: float, progress: dict,
+               networks: dict[str, nn.Module], log_alpha: torch.Tensor,
+               optimizers: dict[str, torch.optim.Optimizer], buffer, action_space: gym.Space,
+               episode: dict, rng: dict, unfinished: list) -> dict:
+    """checkpoint.pt: the networks, temperature, optimizers and replay buffer, and what an exact
+    resume needs besides (the random states, the episode under way, the evaluation rounds a
+    stop left unfinished)."""
     return {"args": dataclasses.asdict(args), "global_step": global_step, "elapsed": elapsed,
             "progress": progress,
-            **{name: seed_slice(net, k).state_dict() for name, net in networks.items()},
-            "log_alpha": log_alpha.detach()[k:k + 1].clone(),
-            **{name: optimizer_seed_state(opt, k) for name, opt in optimizers.items()},
-            "buffer": buffer.seed_state_dict(k),
-            "rng": rng | {"action_space": space.np_random.bit_generator.state,
-                          "episode": episode_state(episode, space.shape[0])},
-            "pending_rounds": [pending_round_state(r) for r in unfinished
-                               if r.info["seed_index"] == k]}
+            **{name: net.state_dict() for name, net in networks.items()},
+            "log_alpha": log_alpha.detach().clone(),
+            **{name: opt.state_dict() for name, opt in optimizers.items()},
+            "buffer": buffer.state_dict(),
+            "rng": rng | {"action_space": action_space.np_random.bit_generator.state,
+                          "episode": episode_state(episode, action_space.shape[0])},
+            "pending_rounds": [pending_round_state(r) for r in unfinished]}
 
 
-def load_checkpoints(ckpts: list[dict], networks: dict[str, nn.Module], log_alpha: torch.Tensor,
-                     optimizers: dict[str, torch.optim.Optimizer], buffer, spaces: list,
-                     device: torch.device) -> tuple[int, float, list[dict]]:
-    """The batch's state from its seeds' checkpoints (seed_checkpoint); returns the step, the
-    training time so far and each seed's progress."""
+def load_checkpoint(ckpt: dict, networks: dict[str, nn.Module], log_alpha: torch.Tensor,
+                    optimizers: dict[str, torch.optim.Optimizer], buffer,
+                    action_space: gym.Space, device: torch.device) -> tuple[int, float, dict]:
+    """The run's state from its checkpoint (checkpoint); returns the step, the training time so
+    far and the progress."""
     for name, net in networks.items():
-        load_seed_states(net, [c[name] for c in ckpts])
+        net.load_state_dict(fit_shapes(ckpt[name], net.state_dict()))
     for name, optimizer in optimizers.items():
-        load_optimizer_seed_states(optimizer, [c[name] for c in ckpts])
+        params, state = optimizer.param_groups[0]["params"], ckpt[name]
+        optimizer.load_state_dict({"state": {
+            i: fit_shapes(s, {"exp_avg": params[i], "exp_avg_sq": params[i]})
+            for i, s in state["state"].items()}, "param_groups": state["param_groups"]})
         for group in optimizer.param_groups:
             group["capturable"] = device.type == "cuda"  # the checkpoint's is its device's
     with torch.no_grad():
-        log_alpha.copy_(torch.cat([c["log_alpha"] for c in ckpts]))
-    for k, ckpt in enumerate(ckpts):
-        buffer.load_seed_state_dict(k, ckpt["buffer"])
-        spaces[k].np_random.bit_generator.state = ckpt["rng"]["action_space"]
-    set_rng_states(ckpts[0]["rng"], device)
-    return ckpts[0]["global_step"], ckpts[0]["elapsed"], [c["progress"] for c in ckpts]
+        log_alpha.copy_(ckpt["log_alpha"].reshape(log_alpha.shape))
+    buffer.load_state_dict(ckpt["buffer"])
+    action_space.np_random.bit_generator.state = ckpt["rng"]["action_space"]
+    set_rng_states(ckpt["rng"], device)
+    return ckpt["global_step"], ckpt["elapsed"], ckpt["progress"]
 
 
-def replay_episodes(envs: gym.vector.VectorEnv, seeds: list[int], ckpts: list[dict]) -> np.ndarray:
-    """Every env's episode so far, replayed (the checkpoint may fall mid-episode); returns the
+def replay_episode(envs: gym.vector.VectorEnv, seed: int, ckpt: dict) -> np.ndarray:
+    """The episode so far, replayed (the checkpoint may fall mid-episode); returns the
     observations the run goes on from."""
-    envs.reset(seed=seeds)
-    envs.set_attr("record", [c["rng"]["episode"] for c in ckpts])
+    envs.reset(seed=seed)
+    envs.set_attr("record", [ckpt["rng"]["episode"]])
     return np.stack(envs.call("replay"))
 
 
-def pending_round_networks(actor: nn.Module, qf: nn.Module, k: int,
+def pending_round_networks(actor: nn.Module, qf: nn.Module,
                            state: dict) -> tuple[nn.Module, nn.Module]:
-    """Seed k's networks as an unfinished evaluation round had them (pending_round_state)."""
-    seed_actor, seed_qf = seed_slice(actor, k).cpu(), seed_slice(qf, k).cpu()
-    seed_actor.load_state_dict(state["actor"])
+    """CPU copies of the networks as an unfinished evaluation round had them
+    (pending_round_state)."""
+    round_actor, round_qf = copy.deepcopy(actor).cpu(), copy.deepcopy(qf).cpu()
+    round_actor.load_state_dict(fit_shapes(state["actor"], round_actor.state_dict()))
     if state["qf"] is not None:
-        seed_qf.load_state_dict(state["qf"])
-    return seed_actor, seed_qf
+        round_qf.load_state_dict(fit_shapes(state["qf"], round_qf.state_dict()))
+    return round_actor, round_qf
 
 
-def finish_runs(dirs: list[Path], logs: list[dict], final_models: list[dict], global_step: int,
-                wall_time: float) -> None:
-    """Each seed's final_model.pt, its logs closed, and done.json last: a folder with done.json
-    is a finished run (sweep.py skips it)."""
-    for run_dir, model in zip(dirs, final_models, strict=True):
-        atomic_write(run_dir / "final_model.pt", lambda tmp, m=model: torch.save(on_cpu(m), tmp))
+def finish_run(run_dir: Path, logs: dict, final_model: dict, global_step: int,
+               wall_time: float) -> None:
+    """final_model.pt, the logs closed, and done.json last: a folder with done.json is a
+    finished run (sweep.py skips it)."""
+    atomic_write(run_dir / "final_model.pt", lambda tmp: torch.save(on_cpu(final_model), tmp))
     close_logs(logs)
-    for run_dir in dirs:
-        atomic_write(run_dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
-            {"global_step": global_step, "wall_time": wall_time})))
+    atomic_write(run_dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
+        {"global_step": global_step, "wall_time": wall_time})))
 
 
 def snapshot_path(run_dir: Path, global_step: int) -> Path:
     return run_dir / "snapshots" / f"step{global_step}.pt"
 
 
-def save_snapshots(dirs: list[Path], models: list[dict], global_step: int) -> None:
-    """Each seed's weights at this step, as final_model.pt holds them. Written atomically, so a
-    run killed mid-write leaves the last whole one; a resumed run rewrites the snapshots after its
+def save_snapshot(run_dir: Path, model: dict, global_step: int) -> None:
+    """The weights at this step, as final_model.pt holds them. Written atomically, so a run
+    killed mid-write leaves the last whole one; a resumed run rewrites the snapshots after its
     checkpoint with the same numbers."""
-    for run_dir, model in zip(dirs, models, strict=True):
-        path = snapshot_path(run_dir, global_step)
-        path.parent.mkdir(exist_ok=True)
-        atomic_write(path, lambda tmp, m=model: torch.save(on_cpu(m), tmp))
+    path = snapshot_path(run_dir, global_step)
+    path.parent.mkdir(exist_ok=True)
+    atomic_write(path, lambda tmp: torch.save(on_cpu(model), tmp))
 
 
 def check_finite(x: np.ndarray, what: str) -> None:
@@ -592,10 +484,10 @@ def check_finite(x: np.ndarray, what: str) -> None:
                          "rates or resume from an earlier checkpoint")
 
 
-def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None, k: int) -> dict:
-    """Seed k's train.csv statistics: the last update's losses (sac_losses's logs; none before
-    learning starts) and the training episodes that ended since the previous row (taken out of
-    its `progress`)."""
+def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None) -> dict:
+    """train.csv's statistics: the last update's losses (sac_losses's logs; none before learning
+    starts) and the training episodes that ended since the previous row (taken out of
+    `progress`)."""
     returns, lengths = progress["episode_returns"], progress["episode_lengths"]
     row = {"episodes": len(returns),
            "episode_return_mean": np.mean(returns) if returns else None,
@@ -603,11 +495,10 @@ def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None, k:
     returns.clear()
     lengths.clear()
     if losses is not None:
-        qf_losses, qf_values, actor_losses, alpha, alpha_losses, log_pi = losses
-        check_finite(qf_losses[:, k].detach().cpu().numpy(), "critic loss")
-        row |= {"qf1_loss": qf_losses[0, k].item(), "qf2_loss": qf_losses[1, k].item(),
-                "qf1_value": qf_values[0, k].mean().item(),
-                "qf2_value": qf_values[1, k].mean().item(), "actor_loss": actor_losses[k].item(),
-                "alpha": alpha[k].item(), "alpha_loss": alpha_losses[k].item(),
-                "entropy": -log_pi[k].mean().item()}
+        qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi = losses
+        check_finite(qf_losses.detach().cpu().numpy(), "critic loss")
+        row |= {"qf1_loss": qf_losses[0].item(), "qf2_loss": qf_losses[1].item(),
+                "qf1_value": qf_values[0].mean().item(), "qf2_value": qf_values[1].mean().item(),
+                "actor_loss": actor_loss.item(), "alpha": alpha.item(),
+                "alpha_loss": alpha_loss.item(), "entropy": -log_pi.mean().item()}
     return row

@@ -8,7 +8,6 @@ acts with tanh(mu) from the same start states (a paired comparison on the same a
 far the mode is from tanh(mu): the paper's distribution shift, measured during training.
 """
 
-import atexit
 import copy
 import functools
 import random
@@ -51,11 +50,7 @@ class Args:
     env_id: str = "h1hand-stand-v0"
     """the environment id of the task (any gymnasium env with a Box action space)"""
     seed: int = 0
-    """seed of the experiment (the paper uses seeds 0-4); with --num-seeds, the first"""
-    num_seeds: int = 1
-    """train seeds --seed .. --seed + num_seeds - 1 side by side in this process: batched
-    networks, one replay buffer and env (in a worker process) per seed, each seed in its own run
-    folder; a seed's run depends on the batch it was trained in (recorded in config.json)"""
+    """seed of the experiment (the paper uses seeds 0-4)"""
     total_timesteps: int = 10_000_000
     """total environment steps of the run"""
     buffer_size: int = 1_000_000
@@ -110,11 +105,9 @@ class Args:
     output_dir: str = "runs"
     """the folder that holds run folders"""
     run_name: str | None = None
-    """the run folder's name, {seed} in it replaced by the seed (default:
-    {env_id}__{algorithm}__seed{seed}__{date-time}); with --num-seeds above 1 it needs {seed}"""
+    """the run folder's name (default: {env_id}__{algorithm}__seed{seed}__{date-time})"""
     resume: str | None = None
-    """continue the batch of runs this run folder belongs to from its checkpoints, with its
-    stored arguments"""
+    """continue the run in this run folder from its checkpoint, with its stored arguments"""
     checkpoint_interval: int = 100_000
     """checkpoint every this many steps (0: off)"""
     snapshot_interval: int = 0
@@ -167,74 +160,64 @@ def make_env(env_id: str, render: bool = False) -> gym.Env:
     return flags.check_spaces(env, env_id)
 
 
-def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
-    """One env per seed, each in its own worker process when there are several (a single one
-    steps in-process: no pipe to cross). An episode's end resets that env in the same step, its
-    final observation in info["final_obs"] (gymnasium's SAME_STEP autoreset)."""
-    def make() -> gym.Env:
-        run_folder.ignore_stop_signals_in_worker()
-        return run_folder.EpisodeRecord(gym.make(env_id))
-
-    vector = gym.vector.AsyncVectorEnv if num_envs > 1 else gym.vector.SyncVectorEnv
-    return vector([make] * num_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+def make_vector_env(env_id: str) -> gym.vector.VectorEnv:
+    """The training env, as a vector env of one (CleanRL's way): an episode's end resets it in
+    the same step, its final observation in info["final_obs"] (gymnasium's SAME_STEP
+    autoreset)."""
+    return gym.vector.SyncVectorEnv([lambda: run_folder.EpisodeRecord(gym.make(env_id))],
+                                    autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
 
 
-class SeedLinear(nn.Module):
-    """One linear layer per seed, K in all: weight (K, in, out), bias (K, 1, out). A batched
-    matmul runs the K layers as one; each seed's gradients stay its own. A (batch, in) input is
-    one seed's batch through a K = 1 layer (the evaluation's copies, see run_folder.seed_slice)."""
+class Linear(nn.Module):
+    """nn.Linear with its weight stored (in, out), not (out, in): no transpose in the matmul,
+    whose forward and backward are then ~20% cheaper on a CPU (bench/bench_sac.py)."""
 
-    def __init__(self, seeds: int, in_features: int, out_features: int):
+    def __init__(self, in_features: int, out_features: int):
         super().__init__()
-        # (in, out), not nn.Linear's (out, in): no transpose in the matmul, whose forward and
-        # backward are then ~20% cheaper on a CPU (bench/bench_sac.py).
-        self.weight = nn.Parameter(torch.empty(seeds, in_features, out_features))
-        self.bias = nn.Parameter(torch.zeros(seeds, 1, out_features))
+        self.weight = nn.Parameter(torch.empty(in_features, out_features))
+        self.bias = nn.Parameter(torch.zeros(out_features))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if x.dim() == 2:
-            return self(x[None])[0]
-        return torch.baddbmm(self.bias, x, self.weight)
+        # A batched matmul of one, not addmm: compiled, inductor sums the gradient of a one-output
+        # layer (the critics') in another order for mm than for bmm, and runs trained before the
+        # seed axis went (issue 37) would no longer be reproduced bit for bit.
+        return torch.baddbmm(self.bias, x[None], self.weight[None])[0]
 
 
-def seed_mlp(seeds: int, sizes: tuple[int, ...]) -> nn.Sequential:
-    """K MLPs with ReLU between the layers, none after the last (compiled.ReLU: torch.relu,
+def mlp(sizes: tuple[int, ...]) -> nn.Sequential:
+    """An MLP with ReLU between the layers, none after the last (compiled.ReLU: torch.relu,
     with a backward that inductor compiles into faster code)."""
-    layers = [m for i, o in zip(sizes, sizes[1:], strict=False)
-              for m in (SeedLinear(seeds, i, o), ReLU())]
+    layers = [m for i, o in zip(sizes, sizes[1:], strict=False) for m in (Linear(i, o), ReLU())]
     return nn.Sequential(*layers[:-1])
 
 
-def init_glorot(module: nn.Module, generators: list[torch.Generator] | None) -> None:
+def init_glorot(module: nn.Module, generator: torch.Generator | None) -> None:
     """Glorot-uniform weights and zero biases on every layer, output heads included: HumanoidBench's
-    jaxrl_m networks (flax's variance_scaling(1, "fan_avg", "uniform")), not PyTorch's default.
-    Seed k's layers draw from generators[k] only: a seed's networks are its own."""
+    jaxrl_m networks (flax's variance_scaling(1, "fan_avg", "uniform")), not PyTorch's default."""
     for layer in module.modules():
-        if isinstance(layer, SeedLinear):
-            with torch.no_grad():
-                for k, weight in enumerate(layer.weight):
-                    nn.init.xavier_uniform_(weight, generator=generators[k] if generators else None)
+        if isinstance(layer, Linear):
+            nn.init.xavier_uniform_(layer.weight, generator=generator)
 
 
 class Actor(nn.Module):
     def __init__(self, obs_dim: int, hidden: tuple[int, ...], action_space: gym.spaces.Box,
-                 log_std_min: float, log_std_max: float, seeds: int = 1,
-                 generators: list[torch.Generator] | None = None):
+                 log_std_min: float, log_std_max: float,
+                 generator: torch.Generator | None = None):
         super().__init__()
         sizes, action_dim = (obs_dim, *hidden), int(np.prod(action_space.shape))
         self.trunk = nn.Sequential(*[m for i, o in zip(sizes, sizes[1:], strict=False)
-                                     for m in (SeedLinear(seeds, i, o), ReLU())])
-        self.fc_mean = SeedLinear(seeds, sizes[-1], action_dim)
-        self.fc_logstd = SeedLinear(seeds, sizes[-1], action_dim)
+                                     for m in (Linear(i, o), ReLU())])
+        self.fc_mean = Linear(sizes[-1], action_dim)
+        self.fc_logstd = Linear(sizes[-1], action_dim)
         low, high = (torch.as_tensor(b, dtype=torch.float32) for b in (action_space.low,
                                                                       action_space.high))
         self.register_buffer("action_scale", (high - low) / 2)
         self.register_buffer("action_bias", (high + low) / 2)
         self.log_std_min, self.log_std_max = log_std_min, log_std_max
-        init_glorot(self, generators)
+        init_glorot(self, generator)
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """mu and log sigma of the Gaussian before the tanh squashing, (K, batch, A)."""
+        """mu and log sigma of the Gaussian before the tanh squashing, (batch, A)."""
         h = self.trunk(obs)
         return self.fc_mean(h), self.fc_logstd(h).clamp(self.log_std_min, self.log_std_max)
 
@@ -260,25 +243,24 @@ class Actor(nn.Module):
 
 
 class TwinQ(nn.Module):
-    """The twin critics Q1 and Q2 (the target takes their minimum), K of each. Two plain MLPs:
-    fusing them into one batched matmul measured no faster on CPU (bench/bench_sac.py)."""
+    """The twin critics Q1 and Q2 (the target takes their minimum). Two plain MLPs: fusing them
+    into one batched matmul measured no faster on CPU (bench/bench_sac.py)."""
 
-    def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...], seeds: int = 1,
-                 generators: list[torch.Generator] | None = None):
+    def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...],
+                 generator: torch.Generator | None = None):
         super().__init__()
-        self.qf1, self.qf2 = (seed_mlp(seeds, (obs_dim + action_dim, *hidden, 1))
-                              for _ in range(2))
-        init_glorot(self, generators)
+        self.qf1, self.qf2 = (mlp((obs_dim + action_dim, *hidden, 1)) for _ in range(2))
+        init_glorot(self, generator)
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """Q1 and Q2 of each (obs, action), shape (2, K, batch)."""
+        """Q1 and Q2 of each (obs, action), shape (2, batch)."""
         x = torch.cat([obs, action], -1)
         return torch.stack([self.qf1(x), self.qf2(x)]).squeeze(-1)
 
 
 class ReplayBuffer:
-    """K replay buffers, one per seed, as (K, size, ...) float32 tensors on `device`. Each stores
-    every observation once: slot i's next observation is in slot i + 1.
+    """The replay buffer, float32 tensors on `device`, storing every observation once: slot i's
+    next observation is in slot i + 1.
 
     An episode's last transition is followed by a slot holding only its final observation (never
     sampled), so a truncated episode keeps its true final observation for bootstrapping and no
@@ -289,99 +271,81 @@ class ReplayBuffer:
     CANDIDATES = 16
     ARRAYS = ("obs", "actions", "rewards", "terminated", "valid")
 
-    def __init__(self, seeds: int, size: int, obs_dim: int, action_dim: int,
-                 device: torch.device):
+    def __init__(self, size: int, obs_dim: int, action_dim: int, device: torch.device):
         self.size, self.obs_dim, self.action_dim = size, obs_dim, action_dim
-        self.ptr, self.filled = np.zeros(seeds, np.int64), np.zeros(seeds, np.int64)
-        self.obs = torch.zeros((seeds, size, obs_dim), device=device)
-        self.actions = torch.zeros((seeds, size, action_dim), device=device)
-        self.rewards = torch.zeros((seeds, size), device=device)
-        self.terminated = torch.zeros((seeds, size), device=device)
-        self.valid = torch.zeros((seeds, size), dtype=torch.bool, device=device)  # a transition
-        self.filled_tensor = torch.zeros(seeds, dtype=torch.int64, device=device)  # for graphs
-        self.seed_index = torch.arange(seeds, device=device)[:, None]
+        self.ptr, self.filled = 0, 0
+        self.obs = torch.zeros((size, obs_dim), device=device)
+        self.actions = torch.zeros((size, action_dim), device=device)
+        self.rewards = torch.zeros(size, device=device)
+        self.terminated = torch.zeros(size, device=device)
+        self.valid = torch.zeros(size, dtype=torch.bool, device=device)  # holds a transition
+        self.filled_tensor = torch.zeros((), dtype=torch.int64, device=device)  # for graphs
 
-    def add(self, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
-            terminated: np.ndarray, next_obs: np.ndarray, episode_end: np.ndarray,
-            invented: np.ndarray | None = None) -> None:
-        """One transition per seed (rows); one copy to the buffer's device for all of them.
+    def add(self, obs: np.ndarray, action: np.ndarray, reward: float, terminated: bool,
+            next_obs: np.ndarray, episode_end: bool, invented: bool = False) -> None:
+        """One transition, in one copy to the buffer's device.
 
         An `invented` one (a physics blow-up: the env could not step, and reports its previous
         observation) is not stored: its episode ends at the slot holding that observation, the
         last it reached soundly, which the transition before it keeps as its next observation
         (an episode blowing up at its first step leaves nothing)."""
-        invented = np.zeros(len(self.ptr), bool) if invented is None else invented
         i, j = self.ptr, (self.ptr + 1) % self.size
-        packed = torch.as_tensor(np.concatenate(
-            [obs, actions, rewards[:, None], terminated[:, None], next_obs], 1, dtype=np.float32))
-        slots = torch.as_tensor(np.stack([i, j]))
-        packed, slots = packed.to(self.obs.device), slots.to(self.obs.device)
-        o, a, r, t, n = packed.split([self.obs_dim, self.action_dim, 1, 1, self.obs_dim], 1)
-        k = self.seed_index[:, 0]
-        ends_at = np.where(episode_end, (j + 1) % self.size, j)
-        if invented.any():  # rare: write the real transitions only
-            stepped = self.valid[k, (slots[0] - 1) % self.size].cpu().numpy()
-            ends_at = np.where(invented, np.where(stepped, j, i), ends_at)
-            k = torch.as_tensor(np.flatnonzero(~invented), device=self.obs.device)
-            slots, o, a, r, t, n = slots[:, k], o[k], a[k], r[k], t[k], n[k]
-        self.obs[k, slots[0]], self.actions[k, slots[0]] = o, a
-        self.rewards[k, slots[0]], self.terminated[k, slots[0]] = r[:, 0], t[:, 0]
-        self.valid[k, slots[0]] = True
-        self.obs[k, slots[1]], self.valid[k, slots[1]] = n, False
-        self.ptr = ends_at
-        self.filled = np.where(invented, self.filled,
-                               np.where(j == 0, self.size, np.maximum(self.filled, j + 1)))
-        self.filled_tensor.copy_(torch.as_tensor(self.filled))
+        if invented:  # rare
+            self.ptr = j if self.valid[(i - 1) % self.size] else i
+            return
+        packed = torch.as_tensor(np.concatenate([obs, action, [reward, terminated], next_obs],
+                                                dtype=np.float32)).to(self.obs.device)
+        o, a, r, t, n = packed.split([self.obs_dim, self.action_dim, 1, 1, self.obs_dim])
+        self.obs[i], self.actions[i], self.rewards[i], self.terminated[i] = o, a, r[0], t[0]
+        self.valid[i] = True
+        self.obs[j], self.valid[j] = n, False
+        self.ptr = (j + 1) % self.size if episode_end else j
+        self.filled = self.size if j == 0 else max(self.filled, j + 1)
+        self.filled_tensor.fill_(self.filled)
 
     def sample(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
-        """Uniform over each seed's stored transitions: obs, actions, rewards, next_obs,
-        1 - terminated, each (K, batch, ...).
+        """Uniform over the stored transitions: obs, actions, rewards, next_obs, 1 - terminated.
 
         Each row draws CANDIDATES slots from the torch generator of the buffer's device and keeps
         the first that holds a transition (rejection sampling with a fixed number of tries, so
         no data-dependent loop). If all of them are final-observation slots, which has
         probability (episodes / slots)^16 (below 1e-16 for episodes of 10 steps or more), the row
         takes the slot before: that episode's last transition."""
-        k = self.seed_index
-        slots = torch.randint(2**62, (self.CANDIDATES, *self.filled_tensor.shape, batch_size),
-                              device=self.obs.device) % self.filled_tensor[:, None]
-        first = self.valid[k, slots].byte().argmax(0)  # argmax returns the first maximum
+        slots = torch.randint(2**62, (self.CANDIDATES, batch_size),
+                              device=self.obs.device) % self.filled_tensor
+        first = self.valid[slots].byte().argmax(0)  # argmax returns the first maximum
         idx = slots.gather(0, first[None])[0]
-        idx = torch.where(self.valid[k, idx], idx, (idx - 1) % self.size)
-        batch = (self.obs[k, idx], self.actions[k, idx], self.rewards[k, idx],
-                 self.obs[k, (idx + 1) % self.size], 1 - self.terminated[k, idx])
+        idx = torch.where(self.valid[idx], idx, (idx - 1) % self.size)
+        batch = (self.obs[idx], self.actions[idx], self.rewards[idx],
+                 self.obs[(idx + 1) % self.size], 1 - self.terminated[idx])
         return tuple(t.to(device, non_blocking=True) for t in batch)
 
     def zero_batch(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
         """A batch shaped as sample()'s, all zeros (for a first call that must not learn)."""
-        rows = (len(self.ptr), batch_size)
-        return tuple(torch.zeros((*rows, *shape), device=device) for shape in (
+        return tuple(torch.zeros((batch_size, *shape), device=device) for shape in (
             (self.obs_dim,), (self.action_dim,), (), (self.obs_dim,), ()))
 
-    def seed_state_dict(self, k: int) -> dict:
-        """Seed k's filled slots as CPU tensors: a checkpoint loads on any device."""
-        n = int(self.filled[k])
-        # On the CPU, from_numpy of the slice makes torch.save write n rows, not the storage.
-        rows = (lambda t: torch.from_numpy(t[k, :n].numpy().copy())) \
-            if self.obs.device.type == "cpu" else (lambda t: t[k, :n].cpu())
-        return {"ptr": int(self.ptr[k]), "filled": n, **{a: rows(getattr(self, a))
-                                                          for a in self.ARRAYS}}
+    def state_dict(self) -> dict:
+        """The filled slots as CPU tensors of their own (torch.save of a view would write the
+        whole storage): a checkpoint loads on any device."""
+        n = self.filled
+        return {"ptr": self.ptr, "filled": n,
+                **{a: getattr(self, a)[:n].to("cpu", copy=True) for a in self.ARRAYS}}
 
-    def load_seed_state_dict(self, k: int, state: dict) -> None:
-        self.ptr[k], self.filled[k] = state["ptr"], state["filled"]
-        self.filled_tensor[k] = state["filled"]
+    def load_state_dict(self, state: dict) -> None:
+        self.ptr, self.filled = state["ptr"], state["filled"]
+        self.filled_tensor.fill_(self.filled)
         for a in self.ARRAYS:
-            getattr(self, a)[k, : state["filled"]].copy_(state[a])
+            getattr(self, a)[: self.filled].copy_(state[a])
 
 
 def sac_losses(params: tuple[dict, dict, torch.Tensor], qf_target_params: dict,
                batch: tuple[torch.Tensor, ...], noise: torch.Tensor, actor: Actor, qf: TwinQ,
                gamma: float, target_entropy: float) -> tuple[torch.Tensor, tuple]:
-    """The critic, actor and temperature losses of every seed, summed into one number whose
-    gradient holds each one's: the critics' parameters get the critic loss's (the actor loss sees
-    them detached), the actor's the actor loss's, log alpha (K,) the temperature loss's. Seeds are
-    summed too: each seed's gradients are its own. noise: (2, K, batch, A), the next action's and
-    the action's. Also returns what train.csv logs, per seed."""
+    """The critic, actor and temperature losses, summed into one number whose gradient holds
+    each one's: the critics' parameters get the critic loss's (the actor loss sees them
+    detached), the actor's the actor loss's, log alpha the temperature loss's. noise:
+    (2, batch, A), the next action's and the action's. Also returns what train.csv logs."""
     # The networks stay nn.Modules, defined as usual; functional_call runs one on the parameters
     # given here, which is what grad differentiates.
     actor_params, qf_params, log_alpha = params
@@ -397,16 +361,15 @@ def sac_losses(params: tuple[dict, dict, torch.Tensor], qf_target_params: dict,
     with torch.no_grad():
         next_actions, next_log_pi = policy(b_next_obs, noise[0])
         min_qf_next = q(qf_target_params, b_next_obs, next_actions).min(0).values
-        next_q_value = b_rewards + b_not_done * gamma * (min_qf_next
-                                                         - alpha[:, None] * next_log_pi)
+        next_q_value = b_rewards + b_not_done * gamma * (min_qf_next - alpha * next_log_pi)
     qf_values = q(qf_params, b_obs, b_actions)
     qf_losses = (qf_values - next_q_value).pow(2).mean(-1)
     pi, log_pi = policy(b_obs, noise[1])
     frozen_qf = {name: p.detach() for name, p in qf_params.items()}
-    actor_losses = (alpha[:, None] * log_pi - q(frozen_qf, b_obs, pi).min(0).values).mean(-1)
-    alpha_losses = -(log_alpha.exp()[:, None] * (log_pi.detach() + target_entropy)).mean(-1)
-    total = qf_losses.sum() + actor_losses.sum() + alpha_losses.sum()
-    return total, (qf_losses, qf_values, actor_losses, alpha, alpha_losses, log_pi)
+    actor_loss = (alpha * log_pi - q(frozen_qf, b_obs, pi).min(0).values).mean()
+    alpha_loss = -(log_alpha.exp() * (log_pi.detach() + target_entropy)).mean()
+    total = qf_losses.sum() + actor_loss + alpha_loss
+    return total, (qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi)
 
 
 # grad turns gradients on for the losses alone; nothing else here needs autograd's records (and,
@@ -415,13 +378,13 @@ def sac_losses(params: tuple[dict, dict, torch.Tensor], qf_target_params: dict,
 def sac_update(learner: dict, batch: tuple[torch.Tensor, ...], noise: torch.Tensor,
                actor: Actor, qf: TwinQ, gamma: float, tau: float,
                target_entropy: float) -> tuple[torch.Tensor, ...]:
-    """One gradient step of every seed's twin critics, actor and temperature, and the critics'
+    """One gradient step of the twin critics, actor and temperature, and the critics'
     Polyak-averaged targets, in place on the tensors of `learner` (learner_tensors): a function of
     tensors only (the modules lend their forward passes), so that it compiles whole, once.
 
     As HumanoidBench's jaxrl_m: all three losses use the parameters from before this update
     (the actor is scored by the pre-update critic), and the target moves towards that critic.
-    Returns the tensors that train.csv logs, per seed."""
+    Returns the tensors that train.csv logs."""
     params = (learner["actor"], learner["qf"], learner["log_alpha"])
     # grad: torch.func.grad's (compiled.py: torch.autograd's when not compiled, the same numbers).
     grads, logs = grad(sac_losses)(params, learner["qf_target"], batch, noise, actor, qf, gamma,
@@ -446,28 +409,27 @@ def learner_tensors(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.
             "adam": [adam_state(o) for o in (actor_optimizer, q_optimizer, alpha_optimizer)]}
 
 
-def evaluation_round(args: Args, seed_actor: Actor, seed_qf: TwinQ, actions: dict[str, str],
-                     k: int, global_step: int, wall_time: float, run_dir: Path) -> Round:
-    """Seed k's evaluation round at this step, on CPU copies of its networks (seed_slice):
-    training goes on while a worker runs it (eval_runner.py)."""
-    seed, eval_round = args.seed + k, global_step // args.eval_interval
+def evaluation_round(args: Args, actor: Actor, qf: TwinQ, actions: dict[str, str],
+                     global_step: int, wall_time: float, run_dir: Path) -> Round:
+    """The evaluation round at this step, on CPU copies of the networks: training goes on while
+    a worker runs it (eval_runner.py)."""
+    eval_round = global_step // args.eval_interval
     videos = {"": run_dir / "videos" / f"eval_step{global_step}.mp4"} if args.capture_video \
         else {}
     if videos:
         videos[""].parent.mkdir(exist_ok=True)
-    return Round(args.env_id, eval_seeds(seed, eval_round, args.eval_episodes), actions,
-                 seed_actor, seed_qf if "q_best" in actions.values() else None,
+    return Round(args.env_id, eval_seeds(args.seed, eval_round, args.eval_episodes), actions,
+                 actor, qf if "q_best" in actions.values() else None,
                  mode_solver=args.mode_solver, reset_noise=args.eval_reset_noise,
                  shift_of=SHIFT_OF, videos=videos,
-                 label=f"evaluation of seed {seed} at step {global_step}",
-                 info={"seed_index": k, "global_step": global_step, "wall_time": wall_time,
+                 label=f"evaluation of seed {args.seed} at step {global_step}",
+                 info={"global_step": global_step, "wall_time": wall_time,
                        "eval_round": eval_round})
 
 
-def policy_weights(args: Args, actor: Actor, qf: TwinQ, k: int) -> dict:
-    """Seed k's actor and critic alone, and what rebuilds them: final_model.pt and snapshots."""
-    return {"actor": run_folder.seed_slice(actor, k).state_dict(),
-            "qf": run_folder.seed_slice(qf, k).state_dict(),
+def policy_weights(args: Args, actor: Actor, qf: TwinQ) -> dict:
+    """The actor and critic, and what rebuilds them: final_model.pt and snapshots."""
+    return {"actor": actor.state_dict(), "qf": qf.state_dict(),
             "config": {f: getattr(args, f) for f in MODEL_FIELDS}}
 
 
@@ -477,22 +439,20 @@ def ends_without_bootstrap(terminated: np.ndarray, truncated: np.ndarray) -> np.
     return terminated & ~truncated
 
 
-def physics_blow_ups(info: dict, episode_end: np.ndarray) -> np.ndarray:
-    """Which envs' last step was a physics blow-up (h1hand's info["physics_unstable"]): the
-    episode ended without a real transition."""
+def physics_blow_up(info: dict, episode_end: bool) -> bool:
+    """Whether the env's last step was a physics blow-up (h1hand's info["physics_unstable"]):
+    the episode ended without a real transition."""
     final = info.get("final_info", {})
-    return episode_end & final.get("_physics_unstable", False) \
-        & final.get("physics_unstable", False)
+    return episode_end and bool(final.get("physics_unstable", [False])[0])
 
 
 if __name__ == "__main__":
     args = flags.parse_args(Args, ALGORITHM, eval_actions)
     stop = run_folder.StopRequest()  # from the start: a signal during setup also ends in code 3
     torch.set_num_threads(args.torch_threads)
-    dirs = run_folder.batch_run_dirs(args, ALGORITHM)
-    seeds = [args.seed + k for k in range(args.num_seeds)]
-    if all((d / "done.json").exists() for d in dirs):
-        print(f"{', '.join(map(str, dirs))}: already finished (done.json); nothing to do")
+    run_dir = run_folder.run_dir(args, ALGORITHM)
+    if (run_dir / "done.json").exists():
+        print(f"{run_dir}: already finished (done.json); nothing to do")
         sys.exit(0)
 
     random.seed(args.seed)
@@ -505,21 +465,17 @@ if __name__ == "__main__":
 
     env = make_env(args.env_id)  # checks the id and the spaces
     flags.check_reset_noise(env, args.env_id, args.eval_reset_noise)
-    space = env.action_space
-    spaces = [copy.deepcopy(space) for _ in seeds]  # the random start actions: one per seed
-    for space, seed in zip(spaces, seeds, strict=True):
-        space.seed(seed)
-    envs = make_vector_env(args.env_id, args.num_seeds)
-    # However this process exits: its env workers ignore SIGTERM, so multiprocessing's own exit
-    # handler (terminate, then join) would wait for them forever.
-    atexit.register(envs.close)
-    obs_dim, action_dim = envs.single_observation_space.shape[0], spaces[0].shape[0]
+    action_space = env.action_space  # draws the random start actions
+    action_space.seed(args.seed)
+    envs = make_vector_env(args.env_id)
+    obs_dim, action_dim = envs.single_observation_space.shape[0], action_space.shape[0]
 
-    # Each seed's networks are initialised from its own generator, whatever the batch.
-    generators = [torch.Generator().manual_seed(seed) for seed in seeds]
-    actor = Actor(obs_dim, args.hidden_sizes, spaces[0], args.log_std_min, args.log_std_max,
-                  args.num_seeds, generators).to(device)
-    qf = TwinQ(obs_dim, action_dim, args.hidden_sizes, args.num_seeds, generators).to(device)
+    # The networks draw their initial weights from a generator of their own: torch's, which
+    # draws the actions and the batches, starts from the seed alone.
+    generator = torch.Generator().manual_seed(args.seed)
+    actor = Actor(obs_dim, args.hidden_sizes, action_space, args.log_std_min, args.log_std_max,
+                  generator).to(device)
+    qf = TwinQ(obs_dim, action_dim, args.hidden_sizes, generator).to(device)
     qf_target = copy.deepcopy(qf)
     # The optimizers hold Adam's state (checkpoints keep their state_dict); sac_update steps it.
     # fused: a loaded state_dict puts the step counts on the parameters' device, as the update,
@@ -528,43 +484,41 @@ if __name__ == "__main__":
     q_optimizer = adam(qf.parameters(), lr=args.q_lr)
     actor_optimizer = adam(actor.parameters(), lr=args.policy_lr)
     target_entropy = -args.target_entropy_scale * action_dim
-    log_alpha = torch.full((args.num_seeds,), float(np.log(args.alpha_init)), device=device,
-                           requires_grad=True)
+    log_alpha = torch.tensor(float(np.log(args.alpha_init)), device=device, requires_grad=True)
     alpha_optimizer = adam([log_alpha], lr=args.alpha_lr)
     # By their names in checkpoint.pt.
     networks = {"actor": actor, "qf": qf, "qf_target": qf_target}
     optimizers = {"actor_optimizer": actor_optimizer, "q_optimizer": q_optimizer,
                   "alpha_optimizer": alpha_optimizer}
-    rb = ReplayBuffer(args.num_seeds, args.buffer_size, obs_dim, action_dim,
+    rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim,
                       device if args.gpu_buffer else torch.device("cpu"))
 
     actions = eval_actions(args)
     eval_header = ["global_step", "wall_time", "eval_round",
                    *eval_columns(actions, shift=SHIFT_OF is not None)]
 
-    # The batch's folders: fresh, or resumed from their checkpoints, or restarted if they have
-    # none yet. Every folder is locked and checked before anything in any of them is written.
-    locks = run_folder.lock_run_folders(dirs)
-    ckpts = run_folder.read_batch_checkpoints(dirs) if args.resume is not None else None
-    if ckpts is not None:
-        flags.check_checkpoint_args(dirs, ckpts, args)
-        for run_dir in dirs:
-            run_folder.check_csv(run_dir / "eval.csv", eval_header)
-            run_folder.check_csv(run_dir / "train.csv", list(TRAIN_COLUMNS))
-        global_step, elapsed, progress = run_folder.load_checkpoints(
-            ckpts, networks, log_alpha, optimizers, rb, spaces, device)
-        obs = run_folder.replay_episodes(envs, seeds, ckpts)
-        print(f"resuming {', '.join(map(str, dirs))} at step {global_step}", flush=True)
+    # The folder: fresh, or resumed from its checkpoint, or restarted if it has none yet. It is
+    # locked and checked before anything in it is written.
+    lock = run_folder.lock_run_folder(run_dir)
+    ckpt = run_folder.find_checkpoint(run_dir) if args.resume is not None else None
+    if ckpt is not None:
+        flags.check_checkpoint_args(run_dir, ckpt, args)
+        run_folder.check_csv(run_dir / "eval.csv", eval_header)
+        run_folder.check_csv(run_dir / "train.csv", list(TRAIN_COLUMNS))
+        global_step, elapsed, progress = run_folder.load_checkpoint(
+            ckpt, networks, log_alpha, optimizers, rb, action_space, device)
+        obs = run_folder.replay_episode(envs, args.seed, ckpt)
+        print(f"resuming {run_dir} at step {global_step}", flush=True)
     else:
-        global_step, elapsed, progress = 0, 0.0, [run_folder.new_progress() for _ in seeds]
-        run_folder.write_configs(args, dirs, obs_dim, action_dim, ALGORITHM, Path(__file__).name)
-        obs, _ = envs.reset(seed=seeds)
-    for lock in locks:
-        run_folder.record_holder(lock)
+        global_step, elapsed, progress = 0, 0.0, run_folder.new_progress()
+        run_folder.write_config(args, run_dir, obs_dim, action_dim, ALGORITHM,
+                                Path(__file__).name)
+        obs, _ = envs.reset(seed=args.seed)
+    run_folder.record_holder(lock)
 
-    # Acting: a sampled action per seed from its observation, (K, obs) -> (K, A).
-    act = torch.no_grad()(lambda obs, noise: actor.squash(*actor(obs[:, None]), noise)[0][:, 0])
-    noise_shape = (args.num_seeds, 1, action_dim)
+    # Acting: a sampled action from the observation, (1, obs) -> (1, A).
+    act = torch.no_grad()(lambda obs, noise: actor.squash(*actor(obs), noise)[0])
+    noise_shape = (1, action_dim)
     learner = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers.values())
     update = functools.partial(sac_update, actor=actor, qf=qf, gamma=args.gamma, tau=args.tau,
                                target_entropy=target_entropy)
@@ -572,7 +526,7 @@ if __name__ == "__main__":
     # replayed as CUDA graphs.
     restore = (actor, qf, qf_target, log_alpha, *optimizers.values())
     if args.compile:
-        act = compile_at_start(act, (torch.zeros((args.num_seeds, obs_dim), device=device),
+        act = compile_at_start(act, (torch.zeros((1, obs_dim), device=device),
                                      torch.zeros(noise_shape, device=device)), (), "acting")
         update = compile_update(update, learner, rb.zero_batch(args.batch_size, device), restore)
     graphs = device.type == "cuda" and args.cudagraphs
@@ -581,70 +535,60 @@ if __name__ == "__main__":
     train_step = make_train_step(rb, lambda batch, noise: update(learner, batch, noise),
                                  args.batch_size, device, graphs, restore)
 
-    logs = run_folder.open_logs(args, dirs, eval_header, list(TRAIN_COLUMNS), global_step,
-                                ckpts is not None, ALGORITHM)  # CSVs, TensorBoard, W&B
+    logs = run_folder.open_logs(args, run_dir, eval_header, list(TRAIN_COLUMNS), global_step,
+                                ckpt is not None, ALGORITHM)  # CSVs, TensorBoard, W&B
     # Evaluation rounds that a stop checkpointed before they finished: rerun first, below.
-    pending = [c.get("pending_rounds", []) for c in ckpts] if ckpts is not None else []
-    del ckpts
+    pending = ckpt.get("pending_rounds", []) if ckpt is not None else []
+    del ckpt
 
     def log_evaluation(round_: Round, result: dict) -> None:
         """An evaluation round's eval.csv row; EvalPool calls this in step order."""
-        row, k = dict(round_.info), round_.info["seed_index"]
-        del row["seed_index"]
-        row |= round_row(result, actions)
-        run_folder.write_row(*logs[k]["eval"], logs[k]["tb"], logs[k]["tracker"], "eval", row,
+        row = round_.info | round_row(result, actions)
+        run_folder.write_row(*logs["eval"], logs["tb"], logs["tracker"], "eval", row,
                              round_.videos.get(""))
-        progress[k]["last_eval"] = (row["global_step"], row["return_mean"])
+        progress["last_eval"] = (row["global_step"], row["return_mean"])
 
-    # Training takes a core, and with K > 1 so does each env's worker process.
-    busy = 1 + (args.num_seeds if args.num_seeds > 1 else 0)
-    eval_pool = EvalPool(default_workers(busy) if args.eval_workers is None else args.eval_workers,
-                         log_evaluation, rounds_per_step=args.num_seeds)
-    for k, rounds in enumerate(pending):
-        for state in rounds:
-            eval_pool.submit(evaluation_round(
-                args, *run_folder.pending_round_networks(actor, qf, k, state), actions, k,
-                state["global_step"], state["wall_time"], dirs[k]))
+    eval_pool = EvalPool(default_workers() if args.eval_workers is None else args.eval_workers,
+                         log_evaluation)
+    for state in pending:
+        eval_pool.submit(evaluation_round(
+            args, *run_folder.pending_round_networks(actor, qf, state), actions,
+            state["global_step"], state["wall_time"], run_dir))
 
     session_start, row_start, row_step = time.time(), time.time(), global_step
     losses = None
     while global_step < args.total_timesteps:
         if global_step < args.learning_starts:
-            action = np.stack([space.sample() for space in spaces])
+            action = action_space.sample()[None]  # (1, A): the vector env's one env
         else:
             action = train_action(torch.as_tensor(obs, dtype=torch.float32, device=device))
             action = action.cpu().numpy()
             run_folder.check_finite(action, "action")
         next_obs, reward, terminated, truncated, info = envs.step(action)
         global_step += 1
-        episode_end = terminated | truncated
-        final_obs = next_obs.copy()  # an ended episode's env has already reset: its final obs
-        for k in np.flatnonzero(episode_end):
-            final_obs[k] = info["final_obs"][k]
-        rb.add(obs, action, reward, ends_without_bootstrap(terminated, truncated), final_obs,
-               episode_end, physics_blow_ups(info, episode_end))
+        episode_end = bool(terminated[0] or truncated[0])
+        # An ended episode's env has already reset: its final observation is in info.
+        final_obs = info["final_obs"][0] if episode_end else next_obs[0]
+        rb.add(obs[0], action[0], reward[0], ends_without_bootstrap(terminated, truncated)[0],
+               final_obs, episode_end, physics_blow_up(info, episode_end))
         obs = next_obs
-        run_folder.count_episodes(progress, reward, episode_end)
+        run_folder.count_episode(progress, reward[0], episode_end)
 
         if global_step >= args.learning_starts:
             losses = train_step()
 
         if global_step % args.log_interval == 0:
             now = time.time()
-            for k, log in enumerate(logs):
-                row = {"global_step": global_step, "wall_time": elapsed + now - session_start,
-                       "sps": (global_step - row_step) / (now - row_start),
-                       **run_folder.train_statistics(progress[k], losses, k)}
-                run_folder.write_row(*log["train"], log["tb"], log["tracker"], "train", row)
+            row = {"global_step": global_step, "wall_time": elapsed + now - session_start,
+                   "sps": (global_step - row_step) / (now - row_start),
+                   **run_folder.train_statistics(progress, losses)}
+            run_folder.write_row(*logs["train"], logs["tb"], logs["tracker"], "train", row)
             row_start, row_step = now, global_step
 
         if global_step % args.eval_interval == 0:
-            wall_time = elapsed + time.time() - session_start
-            for k, run_dir in enumerate(dirs):
-                eval_pool.submit(evaluation_round(
-                    args, run_folder.seed_slice(actor, k).cpu(),
-                    run_folder.seed_slice(qf, k).cpu(), actions, k, global_step, wall_time,
-                    run_dir))
+            eval_pool.submit(evaluation_round(
+                args, copy.deepcopy(actor).cpu(), copy.deepcopy(qf).cpu(), actions, global_step,
+                elapsed + time.time() - session_start, run_dir))
         eval_pool.poll()
 
         if global_step % args.print_interval == 0:
@@ -653,8 +597,7 @@ if __name__ == "__main__":
                   flush=True)
 
         if args.snapshot_interval > 0 and global_step % args.snapshot_interval == 0:
-            run_folder.save_snapshots(dirs, [policy_weights(args, actor, qf, k)
-                                             for k in range(args.num_seeds)], global_step)
+            run_folder.save_snapshot(run_dir, policy_weights(args, actor, qf), global_step)
 
         if stop.requested or (args.checkpoint_interval > 0
                               and global_step % args.checkpoint_interval == 0):
@@ -663,21 +606,18 @@ if __name__ == "__main__":
             # the checkpoint is in eval.csv first.
             unfinished = eval_pool.abandon() if stop.requested else []
             eval_pool.drain()
-            episodes, rng = envs.get_attr("record"), run_folder.rng_states(device)
-            run_folder.save_batch_checkpoint(dirs, [run_folder.seed_checkpoint(
-                k, args, global_step, elapsed + time.time() - session_start, progress[k],
-                networks, log_alpha, optimizers, rb, spaces[k], episodes[k], rng, unfinished)
-                for k in range(args.num_seeds)])
+            run_folder.save_checkpoint(run_dir, run_folder.checkpoint(
+                args, global_step, elapsed + time.time() - session_start, progress, networks,
+                log_alpha, optimizers, rb, action_space, envs.get_attr("record")[0],
+                run_folder.rng_states(device), unfinished))
             if stop.requested:
                 run_folder.close_logs(logs)
-                print(f"interrupted at step {global_step}; resume with --resume {dirs[0]}",
+                print(f"interrupted at step {global_step}; resume with --resume {run_dir}",
                       flush=True)
                 sys.exit(run_folder.INTERRUPTED_EXIT_CODE)
 
     eval_pool.drain()
     eval_pool.close()
     wall_time = elapsed + time.time() - session_start
-    final_models = [policy_weights(args, actor, qf, k) for k in range(args.num_seeds)]
-    run_folder.finish_runs(dirs, logs, final_models, global_step, wall_time)
-    print(f"finished {global_step} steps in {wall_time:.0f} s: "
-          f"{', '.join(map(str, dirs))}", flush=True)
+    run_folder.finish_run(run_dir, logs, policy_weights(args, actor, qf), global_step, wall_time)
+    print(f"finished {global_step} steps in {wall_time:.0f} s: {run_dir}", flush=True)

@@ -89,8 +89,8 @@ PRESETS = {
 }
 # sweep.py sets these for every run itself; the same flags after `--` would contradict them.
 SWEEP_FLAGS = (
-    "--env-id", "--seed", "--num-seeds", "--num_seeds", "--output-dir", "--run-name", "--resume",
-    "--checkpoint-interval", "--track", "--wandb-project-name", "--wandb-entity", "--wandb-group",
+    "--env-id", "--seed", "--output-dir", "--run-name", "--resume", "--checkpoint-interval",
+    "--track", "--wandb-project-name", "--wandb-entity", "--wandb-group",
 )
 # The training scripts' exit code after a graceful stop on a signal: "resume with --resume".
 EXIT_INTERRUPTED = 3
@@ -150,11 +150,7 @@ class Args:
     launcher: Literal["local", "slurm"] = "local"
     """`local`: runs on this machine, --workers at a time; `slurm`: one Slurm job array"""
     workers: int = 1
-    """local launcher: how many processes at a time (each trains --seeds-per-process seeds)"""
-    seeds_per_process: int = 1
-    """train up to this many consecutive seeds of a cell side by side in one process (the
-    scripts' --num-seeds); the folders are named as without it, but a seed's run depends on its
-    batch, so an interrupted run resumes only with the packing it was started with"""
+    """local launcher: how many runs at a time (each its own process)"""
     mps: bool = False
     """local launcher: run under NVIDIA's Multi-Process Service, so that runs sharing a GPU run
     their kernels side by side instead of taking turns (started here, stopped at the end)"""
@@ -239,60 +235,6 @@ class Run:
             "seed": self.seed,
             "extra_args": list(self.extra_args),
         }
-
-
-@dataclass(frozen=True)
-class Batch:
-    """The runs of one process: consecutive seeds of one cell (the scripts' --num-seeds)."""
-
-    runs: tuple[Run, ...]
-
-    @property
-    def first(self) -> Run:
-        return self.runs[0]
-
-    @property
-    def name(self) -> str:
-        """The runs' folder name with {seed} in place of the seed, as --run-name takes it."""
-        first = self.first
-        return f"{first.env_id}__{first.algorithm}__seed{{seed}}__{args_hash(first.extra_args)}"
-
-    @property
-    def seeds(self) -> str:
-        first, last = self.first.seed, self.runs[-1].seed
-        return str(first) if first == last else f"{first}-{last}"
-
-    @property
-    def label(self) -> str:
-        return self.name.replace("{seed}", self.seeds)
-
-    def recorded(self) -> dict:
-        """The batch record a training script writes in each folder's config.json."""
-        return {"first_seed": self.first.seed, "num_seeds": len(self.runs),
-                "run_dirs": [run.name for run in self.runs]}
-
-
-def pack(runs: list[Run], per_process: int) -> list[Batch]:
-    """Each cell's seeds, in order, cut into stretches of consecutive numbers (a process trains
-    --seed .. --seed + K - 1) of at most per_process seeds; first processes of every cell first,
-    as build_grid orders the runs seed-major. The sweep packs the runs not done: a batch
-    finishes all its folders together, so the same seeds are packed again as they were, and
-    seeds added to a finished grid get processes of their own."""
-    cells: dict[tuple, list[Run]] = {}
-    for run in runs:
-        cells.setdefault((run.script, run.env_id, run.extra_args), []).append(run)
-    per_cell = []
-    for cell in cells.values():
-        batches: list[list[Run]] = []
-        for run in sorted(cell, key=lambda r: r.seed):
-            last = batches[-1] if batches else None
-            if last and len(last) < per_process and last[-1].seed + 1 == run.seed:
-                last.append(run)
-            else:
-                batches.append([run])
-        per_cell.append([Batch(tuple(batch)) for batch in batches])
-    longest = max((len(batches) for batches in per_cell), default=0)
-    return [batches[i] for i in range(longest) for batches in per_cell if i < len(batches)]
 
 
 def args_hash(extra_args: tuple[str, ...]) -> str:
@@ -422,7 +364,6 @@ def check_ranges(args: Args) -> None:
     rules = (
         ("seeds", all(seed >= 0 for seed in args.seeds), "non-negative integers"),
         ("workers", args.workers >= 1, "at least 1"),
-        ("seeds_per_process", args.seeds_per_process >= 1, "at least 1"),
         ("checkpoint_interval", args.checkpoint_interval >= 1,
          "at least 1 (a run is only resumable from a checkpoint)"),
         ("steps_per_second", args.steps_per_second is None
@@ -489,13 +430,11 @@ def check_output_dir(runs: list[Run]) -> None:
 # Cores for evaluation: each run trains on one core and evaluates in --eval-workers processes
 
 
-def eval_workers_per_run(cores: int, runs_at_once: int, seeds_per_process: int = 1) -> int:
-    """The cores the training processes leave free, shared among the runs. A process takes one
-    core, and with several seeds one more per seed (its envs step in worker processes). At least
-    one worker: with none, every evaluation round would stop the run's training while it plays
-    its episodes; one worker on an oversubscribed core costs less."""
-    busy = 1 + (seeds_per_process if seeds_per_process > 1 else 0)
-    return max(1, (cores - runs_at_once * busy) // runs_at_once)
+def eval_workers_per_run(cores: int, runs_at_once: int) -> int:
+    """The cores the training processes leave free, shared among the runs. At least one worker:
+    with none, every evaluation round would stop the run's training while it plays its
+    episodes; one worker on an oversubscribed core costs less."""
+    return max(1, (cores - runs_at_once) // runs_at_once)
 
 
 def slurm_cpus_per_task(args: Args) -> int:
@@ -508,40 +447,28 @@ def slurm_cpus_per_task(args: Args) -> int:
 
 
 def plural(count: int, noun: str) -> str:
-    return f"{count} {noun}{'' if count == 1 else 'es' if noun.endswith('s') else 's'}"
-
-
-def training_cores(args: Args) -> str:
-    """The cores one process trains on, in words."""
-    k = args.seeds_per_process
-    return "one" if k == 1 else f"{k + 1} (the loop and {k} env workers)"
+    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, str]:
-    """Each process's --eval-workers (to_launch: processes to launch), and the division in
-    words. The user's --eval-workers after `--` stands. On Slurm each process is one task and
-    the count is passed explicitly rather than left to the scripts' default (the CPUs in their
-    affinity mask): Slurm confines a task to its CPUs only under task/affinity or task/cgroup;
-    elsewhere (TaskPlugin=task/none, as in tests/slurm/) the mask is the whole node, and every
-    process would start a worker per node core."""
-    # A process of several seeds takes one --eval-workers for all of them: count processes.
-    unit = "run" if args.seeds_per_process == 1 else "process"
+    """Each run's --eval-workers, and the division in words. The user's --eval-workers after
+    `--` stands. On Slurm each run is one task and the count is passed explicitly rather than
+    left to the scripts' default (the CPUs in their affinity mask): Slurm confines a task to its
+    CPUs only under task/affinity or task/cgroup; elsewhere (TaskPlugin=task/none, as in
+    tests/slurm/) the mask is the whole node, and every run would start a worker per node core."""
     if given is not None:
-        return given, (f"evaluation: {plural(given, 'worker')} per {unit} "
-                       "(--eval-workers after `--`)")
+        return given, f"evaluation: {plural(given, 'worker')} per run (--eval-workers after `--`)"
     if args.launcher == "slurm":
         cpus = slurm_cpus_per_task(args)
-        count = eval_workers_per_run(cpus, 1, args.seeds_per_process)
-        why = f"{plural(cpus, 'CPU')} per Slurm task, {training_cores(args)} for training"
+        count = eval_workers_per_run(cpus, 1)
+        why = f"{plural(cpus, 'CPU')} per Slurm task, one for training"
     else:
         cores = len(os.sched_getaffinity(0))
-        # Fewer to launch than --workers: only that many run at once.
+        # Fewer runs to launch than --workers: only that many run at once.
         at_once = max(1, min(args.workers, to_launch))
-        count = eval_workers_per_run(cores, at_once, args.seeds_per_process)
-        why = f"{plural(cores, 'core')}, {plural(at_once, unit)} at a time"
-        if args.seeds_per_process > 1:
-            why += f", each training on {training_cores(args)}"
-    return count, f"evaluation: {plural(count, 'worker')} per {unit} ({why})"
+        count = eval_workers_per_run(cores, at_once)
+        why = f"{plural(cores, 'core')}, {plural(at_once, 'run')} at a time"
+    return count, f"evaluation: {plural(count, 'worker')} per run ({why})"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -613,50 +540,6 @@ def run_state(run_dir: Path) -> str:
     return "not started"
 
 
-def batch_state(batch: Batch, states: dict[Run, str]) -> str:
-    """A process's state from its folders': it trains, stops and finishes them together, so one
-    folder at work or in trouble speaks for the batch."""
-    seen = [states[run] for run in batch.runs]
-    for state in ("running", "pending", "failed", "interrupted"):
-        if state in seen:
-            return state
-    return "done" if all(state == "done" for state in seen) else "not started"
-
-
-def packing_problem(batch: Batch, per_process: int) -> str | None:
-    """Why one process cannot take the batch's folders as they are, or None. A seed's run
-    depends on the batch it was trained in (the seeds share the process's torch generator), so
-    a started folder goes on only in the batch its config.json records."""
-    configs = {run: read_json(run.run_dir / "config.json") for run in batch.runs}
-    started = [run for run in batch.runs if configs[run] is not None]
-    k = len(batch.runs)
-    for run in started:
-        single = {"first_seed": run.seed, "num_seeds": 1, "run_dirs": [run.name]}
-        recorded = configs[run].get("batch") or single  # written before --num-seeds: alone
-        if recorded != batch.recorded():
-            n, first = recorded.get("num_seeds"), recorded.get("first_seed")
-            was = "alone" if n == 1 else f"in one process with seeds {first}-{first + n - 1}"
-            return (f"{run.run_dir} was trained {was}, but --seeds-per-process {per_process} "
-                    f"packs it {'alone' if k == 1 else f'with seeds {batch.seeds}'}; a seed's "
-                    f"run depends on its batch: rerun with --seeds-per-process {n} (and the "
-                    "seeds it was packed with), or use another --output-dir")
-    if started and len(started) < k:
-        missing = next(run for run in batch.runs if configs[run] is None)
-        return (f"{missing.run_dir} has no config.json but the other folders of its batch "
-                f"({batch.label}) have: the batch was stopped while it was being created; "
-                "delete its folders to start it again")
-    return None
-
-
-def check_packing(batches: list[Batch], states: dict[Run, str], per_process: int) -> None:
-    """Every batch to launch can be started or resumed by one process, checked before any is."""
-    for batch in batches:
-        if action_for(batch_state(batch, states)) in LAUNCH_ACTIONS:
-            problem = packing_problem(batch, per_process)
-            if problem is not None:
-                raise SweepError(problem)
-
-
 def progress(run_dir: Path) -> str:
     config = read_json(run_dir / "config.json") or {}
     step = last_eval_step(run_dir)
@@ -668,11 +551,8 @@ def progress(run_dir: Path) -> str:
 # Starting one run (shared by both launchers)
 
 
-def run_command(batch: Batch) -> tuple[str, list[str]]:
-    """Resume a batch that has started (its first folder's config.json exists; the script finds
-    the others through it), else start it: one seed as before --seeds-per-process, several
-    with --num-seeds and the folder name's {seed} for each."""
-    run = batch.first
+def run_command(run: Run) -> tuple[str, list[str]]:
+    """Resume a run that has started (its config.json exists), else start it."""
     python = [sys.executable, str(run.script)]
     tracking = [*run.tracking, "--wandb-group", f"{run.env_id}__{run.algorithm}"] \
         if run.tracking else []
@@ -680,13 +560,12 @@ def run_command(batch: Batch) -> tuple[str, list[str]]:
     runtime = ["--eval-workers", str(run.eval_workers)] if run.eval_workers is not None else []
     if (run.run_dir / "config.json").exists():
         return "resume", [*python, "--resume", str(run.run_dir), *runtime, *tracking]
-    seeds = ["--seed", str(run.seed), "--run-name", run.name] if len(batch.runs) == 1 else [
-        "--seed", str(run.seed), "--num-seeds", str(len(batch.runs)), "--run-name", batch.name]
     return "start", [
         *python,
         "--env-id", run.env_id,
-        *seeds,
+        "--seed", str(run.seed),
         "--output-dir", str(run.output_dir),
+        "--run-name", run.name,
         "--checkpoint-interval", str(run.checkpoint_interval),
         *run.extra_args,
         *runtime,
@@ -694,37 +573,26 @@ def run_command(batch: Batch) -> tuple[str, list[str]]:
     ]
 
 
-def start_run(batch: Batch, *, new_session: bool, block_user_signals: bool) -> subprocess.Popen:
-    """Start or resume the batch in its own process. Its output goes to the first folder's log
-    (one process, one stream) and is copied into the others' when it ends (record_exit)."""
-    action, command = run_command(batch)
+def start_run(run: Run, *, new_session: bool, block_user_signals: bool) -> subprocess.Popen:
+    """Start or resume the run in its own process, its output appended to its log file."""
+    action, command = run_command(run)
     job_id = slurm_array_task_id()
     where = f"{socket.gethostname()}" + (f", Slurm job {job_id}" if job_id else "")
-    header = (f"=== sweep.py {action} on {where} at {time.strftime('%F %T')}: "
-              f"{shlex.join(command)}\n")
-    if len(batch.runs) > 1:
-        header += (f"=== one process for {batch.label}; its output is in "
-                   f"{batch.first.name}/{LOG_FILE} while it runs, copied here when it ends\n")
-    for run in batch.runs[1:]:
-        with open(run.run_dir / LOG_FILE, "a") as log:
-            log.write(header)
     # On Slurm the signal before the time limit reaches every process of the job; the child
     # must get it only once, through checkpoint(), or it would take a second signal as "exit now".
     preexec = _block_user_signals if block_user_signals else None
-    with open(batch.first.run_dir / LOG_FILE, "a") as log:
-        log.write(header)
+    with open(run.run_dir / LOG_FILE, "a") as log:
+        log.write(f"=== sweep.py {action} on {where} at {time.strftime('%F %T')}: "
+                  f"{shlex.join(command)}\n")
         log.flush()
-        offset = log.tell()
         child = subprocess.Popen(
             command, stdout=log, stderr=subprocess.STDOUT, start_new_session=new_session,
             preexec_fn=preexec, env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
-    for run in batch.runs:
-        write_json(run.run_dir / ATTEMPT_FILE, {
-            "action": action, "host": socket.gethostname(), "pid": child.pid,
-            "slurm_job_id": job_id, "started": time.time(), "returncode": None,
-            "log_offset": offset, "batch": [r.name for r in batch.runs],
-        })
+    write_json(run.run_dir / ATTEMPT_FILE, {
+        "action": action, "host": socket.gethostname(), "pid": child.pid,
+        "slurm_job_id": job_id, "started": time.time(), "returncode": None,
+    })
     return child
 
 
@@ -732,25 +600,12 @@ def _block_user_signals() -> None:
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGUSR1, signal.SIGUSR2})
 
 
-def record_exit(batch: Batch, returncode: int | None) -> None:
-    """The exit code in every folder's attempt file and log, and the process's output of this
-    attempt in the other folders' logs, so that each seed's log tells its own story."""
-    first = read_json(batch.first.run_dir / ATTEMPT_FILE) or {}
-    output = b""
-    # Slurm may record an exit twice (checkpoint(), then the call it interrupted): copy once.
-    if len(batch.runs) > 1 and first.get("ended") is None:
-        with open(batch.first.run_dir / LOG_FILE, "rb") as log:
-            log.seek(first.get("log_offset", 0))
-            output = log.read()
-    for run in batch.runs:
-        attempt = read_json(run.run_dir / ATTEMPT_FILE) or {}
-        attempt.update(returncode=returncode, ended=time.time())
-        write_json(run.run_dir / ATTEMPT_FILE, attempt)
-        with open(run.run_dir / LOG_FILE, "ab") as log:
-            if run is not batch.first:
-                log.write(output)
-            log.write(f"=== sweep.py: exit code {returncode} at {time.strftime('%F %T')}\n"
-                      .encode())
+def record_exit(run: Run, returncode: int | None) -> None:
+    attempt = read_json(run.run_dir / ATTEMPT_FILE) or {}
+    attempt.update(returncode=returncode, ended=time.time())
+    write_json(run.run_dir / ATTEMPT_FILE, attempt)
+    with open(run.run_dir / LOG_FILE, "a") as log:
+        log.write(f"=== sweep.py: exit code {returncode} at {time.strftime('%F %T')}\n")
 
 
 def slurm_array_task_id() -> str | None:
@@ -803,9 +658,9 @@ def mps_daemon() -> Iterator[None]:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def launch_local(batches: list[Batch], workers: int) -> None:
-    """Run on this machine, `workers` processes at a time. SIGINT/SIGTERM: every running process
-    checkpoints after its current step and stops (a second signal stops them at once)."""
+def launch_local(runs: list[Run], workers: int) -> None:
+    """Run on this machine, `workers` at a time. SIGINT/SIGTERM: every running run checkpoints
+    after its current step and stops (a second signal stops them at once)."""
     stopping = threading.Event()
     children: set[subprocess.Popen] = set()
 
@@ -816,33 +671,30 @@ def launch_local(batches: list[Batch], workers: int) -> None:
         for child in list(children):
             child.send_signal(signal.SIGTERM)
 
-    def work(batch: Batch) -> None:
+    def work(run: Run) -> None:
         if stopping.is_set():
             return
-        # A queued batch may have been taken up meanwhile by another sweep of the same folder.
-        state = batch_state(batch, {run: run_state(run.run_dir) for run in batch.runs})
+        # A queued run may have been taken up meanwhile by another sweep of the same folder.
+        state = run_state(run.run_dir)
         if action_for(state) not in LAUNCH_ACTIONS:
-            print(f"{batch.label}: {state} by now (another process took it up): skipped",
-                  flush=True)
+            print(f"{run.name}: {state} by now (another process took it up): skipped", flush=True)
             return
         # Own session: a Ctrl-C at the terminal reaches the children once, through stop().
-        child = start_run(batch, new_session=True, block_user_signals=False)
+        child = start_run(run, new_session=True, block_user_signals=False)
         children.add(child)
         if stopping.is_set():
             child.send_signal(signal.SIGTERM)
         returncode = child.wait()
         children.discard(child)
-        record_exit(batch, returncode)
-        for run in batch.runs:
-            print(f"{run.name}: {run_state(run.run_dir)} (exit code {returncode})", flush=True)
+        record_exit(run, returncode)
+        print(f"{run.name}: {run_state(run.run_dir)} (exit code {returncode})", flush=True)
 
-    for batch in batches:
-        for run in batch.runs:
-            prepare_run_dir(run)
+    for run in runs:
+        prepare_run_dir(run)
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            list(pool.map(work, batches))
+            list(pool.map(work, runs))
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
@@ -853,12 +705,11 @@ def launch_local(batches: list[Batch], workers: int) -> None:
 
 
 class SlurmRun:
-    """A batch (one process: --seeds-per-process seeds) as one task of a Slurm job array
-    (submitit's checkpointable callable).
+    """A run as one task of a Slurm job array (submitit's checkpointable callable).
 
     On preemption or near the time limit Slurm signals the job; submitit calls checkpoint(),
     which makes the script checkpoint after its current step and exit, and requeues the job;
-    the requeued job calls this again, which resumes the batch."""
+    the requeued job calls this again, which resumes the run."""
 
     def __init__(self) -> None:
         self._child: subprocess.Popen | None = None
@@ -870,29 +721,28 @@ class SlurmRun:
     def __setstate__(self, state: dict) -> None:
         self.__init__()
 
-    def __call__(self, batch: Batch) -> str:
-        run = batch.first
-        if all((r.run_dir / "done.json").exists() for r in batch.runs):
+    def __call__(self, run: Run) -> str:
+        if (run.run_dir / "done.json").exists():
             return str(run.run_dir)
-        self._child = start_run(batch, new_session=False, block_user_signals=True)
+        self._child = start_run(run, new_session=False, block_user_signals=True)
         # Poll with os.waitpid, not Popen.wait: checkpoint() runs in a signal handler on this
         # same thread, and Popen.wait holds a lock there that it would wait on forever.
         while self._reap(block=False) is None:
             time.sleep(1.0)
-        record_exit(batch, self._returncode)
+        record_exit(run, self._returncode)
         if self._returncode == 0:
             return str(run.run_dir)
         if self._returncode == EXIT_INTERRUPTED:
-            raise RuntimeError(f"{batch.label} was interrupted: rerun the sweep to resume it")
+            raise RuntimeError(f"{run.name} was interrupted: rerun the sweep to resume it")
         tail = "\n".join(log_tail(run.run_dir))
-        raise RuntimeError(f"{batch.label} failed (exit code {self._returncode}):\n{tail}")
+        raise RuntimeError(f"{run.name} failed (exit code {self._returncode}):\n{tail}")
 
-    def checkpoint(self, batch: Batch) -> submitit.helpers.DelayedSubmission:
+    def checkpoint(self, run: Run) -> submitit.helpers.DelayedSubmission:
         if self._child is not None and self._returncode is None:
             self._child.send_signal(signal.SIGTERM)
             self._reap(block=True)
-            record_exit(batch, self._returncode)
-        return submitit.helpers.DelayedSubmission(SlurmRun(), batch)
+            record_exit(run, self._returncode)
+        return submitit.helpers.DelayedSubmission(SlurmRun(), run)
 
     def _reap(self, block: bool) -> int | None:
         if self._returncode is None:
@@ -940,10 +790,10 @@ def sbatch_options(options: list[str]) -> dict[str, str | bool]:
     return parsed
 
 
-def launch_slurm(batches: list[Batch], args: Args) -> str:
-    """Submit the batches as one job array, a task per process; returns the array's job id."""
+def launch_slurm(runs: list[Run], args: Args) -> str:
+    """Submit the runs as one job array; returns the array's job id."""
     executor = submitit.SlurmExecutor(
-        folder=batches[0].first.output_dir / ".submitit" / "%j", max_num_timeout=args.max_requeues
+        folder=runs[0].output_dir / ".submitit" / "%j", max_num_timeout=args.max_requeues
     )
     optional = {"partition": args.partition, "account": args.account}
     executor.update_parameters(
@@ -960,13 +810,11 @@ def launch_slurm(batches: list[Batch], args: Args) -> str:
         **({"gpus_per_task": args.gpus_per_task} if args.gpus_per_task else {}),
         **{key: value for key, value in optional.items() if value is not None},
     )
-    for batch in batches:
-        for run in batch.runs:
-            prepare_run_dir(run)
-    jobs = executor.map_array(SlurmRun(), batches)
-    for batch, job in zip(batches, jobs, strict=True):
-        for run in batch.runs:
-            prepare_run_dir(run, slurm_job_id=job.job_id)
+    for run in runs:
+        prepare_run_dir(run)
+    jobs = executor.map_array(SlurmRun(), runs)
+    for run, job in zip(runs, jobs, strict=True):
+        prepare_run_dir(run, slurm_job_id=job.job_id)
     return jobs[0].job_id.split("_")[0]
 
 
@@ -1008,7 +856,7 @@ def script_default_total_timesteps(script: Path) -> int:
     return module.Args().total_timesteps
 
 
-def print_plan(runs: list[Run], batches: list[Batch], states: dict[Run, str], args: Args,
+def print_plan(runs: list[Run], states: dict[Run, str], args: Args,
                extra_args: tuple[str, ...]) -> None:
     n_env = len({r.env_id for r in runs})
     n_seed = len({r.seed for r in runs})
@@ -1018,61 +866,22 @@ def print_plan(runs: list[Run], batches: list[Batch], states: dict[Run, str], ar
     print(f"output folder: {runs[0].output_dir}")
     if args.preset and not args.scripts:
         print(f"preset {args.preset}: {PRESETS[args.preset].why}")
-    packed = args.seeds_per_process > 1
-    if packed:
-        print(packing_summary(batches, args.seeds_per_process))
+    total = steps_left = 0
     left = {}
     for run in runs:
         state = states[run]
-        left[run] = 0 if state == "done" else total_timesteps(run) - (
-            last_eval_step(run.run_dir) or 0)
-    total = sum(total_timesteps(run) for run in runs)
-    steps_left = sum(left.values())
-    if not packed:
-        for run in runs:
-            print(f"  {run.name:<60} {states[run]:<12} {action_for(states[run])}")
-    else:
-        for run in (run for run in runs if states[run] == "done"):
-            print(f"  {run.name:<60} {'done':<12} {action_for('done')}")
-        for batch in batches:
-            state = batch_state(batch, states)
-            print(f"  process {batch.label:<52} {state:<12} {action_for(state)}")
-            for run in batch.runs:
-                print(f"    {run.name:<60} {states[run]}")
+        budget = total_timesteps(run)
+        total += budget
+        left[run] = 0 if state == "done" else budget - (last_eval_step(run.run_dir) or 0)
+        steps_left += left[run]
+        print(f"  {run.name:<60} {state:<12} {action_for(state)}")
     hours, longest, speeds = cpu_estimate(left, args.steps_per_second)
     print(f"compute: {len(runs)} runs, {total:,} env steps in all, {steps_left:,} still to run; "
           f"at {speeds} that is {hours:,.1f} run-hours ({hours / len(runs):,.1f} h per run, "
           f"the longest {longest:,.1f} h)")
-    if packed:
-        print(process_estimate(batches, left, args.steps_per_second))
     node_hours = steps_left / args.gpu_node_steps_per_second / 3600
     print(f"on one GPU node at {args.gpu_node_steps_per_second:,g} steps/s in all (16 runs at once "
           f"under MPS: --workers 16 --mps): {node_hours:,.1f} h ({node_hours / 24:,.1f} days)")
-
-
-def packing_summary(batches: list[Batch], per_process: int) -> str:
-    sizes = [len(batch.runs) for batch in batches]
-    if not sizes:
-        return f"packing: --seeds-per-process {per_process}: every run is done, no process"
-    counts = ", ".join(f"{plural(sizes.count(k), 'process')} of {plural(k, 'seed')}"
-                       for k in sorted(set(sizes), reverse=True))
-    fewer = "" if set(sizes) == {per_process} else (
-        f"; a process holds fewer than {per_process} where a cell's seeds run out or skip a "
-        "number (a process trains consecutive seeds)")
-    return (f"packing: --seeds-per-process {per_process}: {plural(len(batches), 'process')} "
-            f"for the {sum(sizes)} runs not done ({counts}){fewer}")
-
-
-def process_estimate(batches: list[Batch], left: dict[Run, int], given: float | None) -> str:
-    """Hours of each process, its seeds side by side: the slowest seed's."""
-    if not batches:
-        return "processes: none to run"
-    hours = [max(left[run] / cpu_steps_per_second(run.env_id, given) / 3600
-                 for run in batch.runs) for batch in batches]
-    return (f"processes: {len(batches)}, {sum(hours):,.1f} process-hours (the longest "
-            f"{max(hours):,.1f} h), if a process trained each of its seeds at a single run's "
-            "speed; on CPUs it does not (2 seeds in one process: 0.58x two processes in all, "
-            "bench/bench_seeds.py), so pack seeds on a GPU node only")
 
 
 def cpu_steps_per_second(env_id: str, given: float | None) -> float:
@@ -1163,21 +972,14 @@ def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
     if args.launcher == "slurm" and not args.dry_run:
         check_slurm(args.partition)
     states = {run: run_state(run.run_dir) for run in runs}
-    batches = pack([run for run in runs if states[run] != "done"], args.seeds_per_process)
-    check_packing(batches, states, args.seeds_per_process)
-    todo = [batch for batch in batches
-            if action_for(batch_state(batch, states)) in LAUNCH_ACTIONS]
+    todo = [run for run in runs if action_for(states[run]) in LAUNCH_ACTIONS]
     count, division = eval_division(args, runs[0].eval_workers, len(todo))
     if args.dry_run:
-        print_plan(runs, batches, states, args, extra_args)
+        print_plan(runs, states, args, extra_args)
         print(division)
         return 0
-    todo = [Batch(tuple(dataclasses.replace(run, eval_workers=count) for run in batch.runs))
-            for batch in todo]
-    to_launch = sum(len(batch.runs) for batch in todo)
-    processes = f" in {plural(len(todo), 'process')}" if args.seeds_per_process > 1 else ""
-    print(f"{len(runs)} runs: {len(runs) - to_launch} done or under way, {to_launch} to launch"
-          f"{processes}")
+    todo = [dataclasses.replace(run, eval_workers=count) for run in todo]
+    print(f"{len(runs)} runs: {len(runs) - len(todo)} done or under way, {len(todo)} to launch")
     report_in_use(runs, states)
     if todo:
         print(division, flush=True)
@@ -1186,8 +988,7 @@ def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
             launch_local(todo, args.workers)
     elif todo:
         job_id = launch_slurm(todo, args)
-        tasks = f", {plural(len(todo), 'task')}" if args.seeds_per_process > 1 else ""
-        print(f"submitted Slurm job array {job_id} ({to_launch} runs{tasks}); "
+        print(f"submitted Slurm job array {job_id} ({len(todo)} runs); "
               f"follow it with: python sweep.py status {runs[0].output_dir}")
         if not (args.wait or args.analyze):
             return 0

@@ -1,27 +1,24 @@
 """GPU speed of the SAC scripts: prints the figures of docs/speed.md's "Speed on a GPU" section.
 
-    python bench/bench_gpu.py                 # everything (about 10 minutes: not measured yet)
+    python bench/bench_gpu.py                 # everything
     python bench/bench_gpu.py --quick         # shorter runs and timings, a few minutes
-    python bench/bench_gpu.py --parts batches many   # some parts only
+    python bench/bench_gpu.py --parts mps     # some parts only
 
-Parts (--parts), each printing steps/s of the update phase (median of a run's train.csv rows
-after the first, which holds the CUDA-graph captures) per seed and in all:
+Parts (--parts); the runs' figures are steps/s of the update phase (median of a run's train.csv
+rows after the first, which holds the CUDA-graph captures) per run and in all:
 - micro: in-process wall-clock timings on --micro-env-id (the GPU is asynchronous: each timing
-  ends with a synchronize), medians over --repeats, for K = 1 and K = --seeds seeds: one
-  gradient update eager and as a CUDA graph (batch sampling from the GPU buffer included), the
-  graph with the buffer in host memory, acting on one observation per seed (host to GPU and
-  back included), the mode of one action per seed; one env step on this CPU; an evaluation
-  round (CPU, as eval_runner.py runs it).
+  ends with a synchronize), medians over --repeats: one gradient update eager and as a CUDA
+  graph (batch sampling from the GPU buffer included), the graph with the buffer in host
+  memory, the compiled update in a graph, acting on one observation (host to GPU and back
+  included), the mode of one action; one env step on this CPU; an evaluation round (CPU, as
+  eval_runner.py runs it).
 - single: one run of --micro-env-id on the CPU, GPU eager, GPU graphs, graphs with the buffer in
   host memory.
-- batches: for each of --env-ids, one single-seed run, --seeds single-seed processes sharing the
-  GPU under MPS, and one process of --num-seeds --seeds.
-- many: --many-seeds seeds of --many-env-id, as one process of --num-seeds --many-seeds and as
-  --many-seeds / --seeds processes of --num-seeds --seeds under MPS; says which is faster.
-- envs: for each of --env-ids, --seeds envs in worker processes (the scripts' vector env,
-  gymnasium's AsyncVectorEnv) stepped with random actions: the env-bound pace of a batch.
+- mps: for each of --env-ids, one run alone and --processes runs sharing the GPU under MPS (as
+  `sweep.py --workers N --mps` runs a grid).
 """
 
+import copy
 import csv
 import functools
 import statistics
@@ -46,38 +43,32 @@ from bench_sac import random_buffer  # noqa: E402  (bench/ is on the path: the s
 from compiled import compile_update, cuda_graph, make_train_step  # noqa: E402
 from eval_runner import Round, eval_seeds, run_round  # noqa: E402
 from mode_search import mode_action  # noqa: E402
-from run_folder import seed_slice  # noqa: E402
 from sac_standard import (  # noqa: E402
     Actor,
     TwinQ,
     learner_tensors,
     make_env,
-    make_vector_env,
     sac_update,
 )
 from sweep import mps_daemon  # noqa: E402
 
 CUDA = torch.device("cuda")
-Part = Literal["micro", "single", "batches", "many", "envs"]
+Part = Literal["micro", "single", "mps"]
 
 
 @dataclass
 class Args:
-    parts: tuple[Part, ...] = ("micro", "single", "batches", "many", "envs")
+    parts: tuple[Part, ...] = ("micro", "single", "mps")
     """which parts to run (see the module's docstring)"""
     quick: bool = False
-    """shorter: --repeats 2 --calls 50 --learning-starts 500 --loop-steps 600 --env-steps 500
-    (those not given as flags)"""
+    """shorter: --repeats 2 --calls 50 --learning-starts 500 --loop-steps 600 (those not given as
+    flags)"""
     env_ids: tuple[str, ...] = ("Hopper-v5", "Humanoid-v5", "h1hand-powerlift-v0")
-    """the tasks of the batches and envs parts"""
+    """the tasks of the mps part"""
     micro_env_id: str = "h1hand-powerlift-v0"
     """the task of the micro and single parts"""
-    seeds: int = 16
-    """K: seeds per batch, processes under MPS, envs stepped in parallel"""
-    many_env_id: str = "Hopper-v5"
-    """the task of the many part"""
-    many_seeds: int = 64
-    """seeds of the many part (a multiple of --seeds)"""
+    processes: int = 16
+    """runs sharing the GPU under MPS (a node's 16 cores: one each)"""
     batch_size: int = 64
     """batch size of the timed updates (the paper's)"""
     repeats: int = 5
@@ -88,13 +79,11 @@ class Args:
     """random steps of each timed run before its updates start"""
     loop_steps: int = 1500
     """update-phase steps of each timed run"""
-    env_steps: int = 2000
-    """steps of the envs part"""
     eval_episodes: int = 10
     """episodes of the timed evaluation round"""
 
 
-QUICK = {"repeats": 2, "calls": 50, "learning_starts": 500, "loop_steps": 600, "env_steps": 500}
+QUICK = {"repeats": 2, "calls": 50, "learning_starts": 500, "loop_steps": 600}
 
 
 def shrink(args: Args) -> Args:
@@ -120,19 +109,18 @@ def cuda_time(fn: Callable, repeats: int, calls: int) -> float:
     return statistics.median(times)
 
 
-def build_train_step(env, seeds: int, graphs: bool, batch_size: int,
-                     buffer_device: torch.device = CUDA,
+def build_train_step(env, graphs: bool, batch_size: int, buffer_device: torch.device = CUDA,
                      compiled: bool = False) -> tuple[Callable, Actor]:
-    """The scripts' learner for K seeds at the paper's sizes on the GPU, a buffer of 20k random
-    transitions per seed, its update compiled or eager."""
+    """The scripts' learner at the paper's sizes on the GPU, a buffer of 20k random
+    transitions, its update compiled or eager."""
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    actor = Actor(obs_dim, (256, 256), env.action_space, -10.0, 2.0, seeds).to(CUDA)
-    qf, qf_target = (TwinQ(obs_dim, action_dim, (256, 256), seeds).to(CUDA) for _ in range(2))
+    actor = Actor(obs_dim, (256, 256), env.action_space, -10.0, 2.0).to(CUDA)
+    qf, qf_target = (TwinQ(obs_dim, action_dim, (256, 256)).to(CUDA) for _ in range(2))
     qf_target.load_state_dict(qf.state_dict())
-    log_alpha = torch.zeros(seeds, device=CUDA, requires_grad=True)
+    log_alpha = torch.zeros((), device=CUDA, requires_grad=True)
     optimizers = tuple(torch.optim.Adam(p, lr=3e-4, fused=True, capturable=True) for p in (
         actor.parameters(), qf.parameters(), [log_alpha]))
-    rb = random_buffer(seeds, 20_000, obs_dim, action_dim, buffer_device)
+    rb = random_buffer(20_000, obs_dim, action_dim, buffer_device)
     state = (actor, qf, qf_target, log_alpha, *optimizers)
     tensors = learner_tensors(*state)
     update = functools.partial(sac_update, actor=actor, qf=qf, gamma=0.99, tau=0.005,
@@ -143,26 +131,26 @@ def build_train_step(env, seeds: int, graphs: bool, batch_size: int,
                            CUDA, graphs, state), actor
 
 
-def time_updates(args: Args, env, seeds: int) -> Actor:
-    """Prints the update's times for K seeds; returns the actor (for the acting timings)."""
+def time_updates(args: Args, env) -> Actor:
+    """Prints the update's times; returns the actor (for the acting timings)."""
     for graphs in (False, True):
-        step, actor = build_train_step(env, seeds, graphs, args.batch_size)
-        print(f"K = {seeds:2d}: update, {'CUDA graph' if graphs else 'eager':<10} (GPU buffer): "
+        step, actor = build_train_step(env, graphs, args.batch_size)
+        print(f"update, {'CUDA graph' if graphs else 'eager':<10} (GPU buffer): "
               f"{cuda_time(step, args.repeats, args.calls) * 1e3:7.3f} ms", flush=True)
-    step, _ = build_train_step(env, seeds, True, args.batch_size, torch.device("cpu"))
-    print(f"K = {seeds:2d}: update, CUDA graph (host buffer): "
+    step, _ = build_train_step(env, True, args.batch_size, torch.device("cpu"))
+    print(f"update, CUDA graph (host buffer): "
           f"{cuda_time(step, args.repeats, args.calls) * 1e3:7.3f} ms", flush=True)
-    step, _ = build_train_step(env, seeds, True, args.batch_size, compiled=True)
-    print(f"K = {seeds:2d}: update, compiled, CUDA graph (GPU buffer): "
+    step, _ = build_train_step(env, True, args.batch_size, compiled=True)
+    print(f"update, compiled, CUDA graph (GPU buffer): "
           f"{cuda_time(step, args.repeats, args.calls) * 1e3:7.3f} ms", flush=True)
     return actor
 
 
-def time_acting(args: Args, env, actor: Actor, seeds: int) -> None:
-    """Acting as the scripts do (one observation per seed, copies in and out) and the mode."""
-    obs = np.stack([env.observation_space.sample() for _ in range(seeds)]).astype(np.float32)
-    sample = torch.no_grad()(lambda o: actor.get_action(o[:, None])[0][:, 0])
-    mu, log_std = (t.detach() for t in actor(torch.as_tensor(obs, device=CUDA)[:, None]))
+def time_acting(args: Args, env, actor: Actor) -> None:
+    """Acting as the scripts do (one observation, copies in and out) and the mode."""
+    obs = env.observation_space.sample()[None].astype(np.float32)
+    sample = torch.no_grad()(lambda o: actor.get_action(o)[0])
+    mu, log_std = (t.detach() for t in actor(torch.as_tensor(obs, device=CUDA)))
     for graphs in (False, True):
         act = cuda_graph(sample) if graphs else sample
         mode = cuda_graph(mode_action) if graphs else mode_action
@@ -170,9 +158,8 @@ def time_acting(args: Args, env, actor: Actor, seeds: int) -> None:
                            args.repeats, args.calls)
         mode_time = cuda_time(lambda mode=mode: mode(mu, log_std), args.repeats, args.calls)
         label = "CUDA graph" if graphs else "eager"
-        print(f"K = {seeds:2d}: act, one obs per seed, {label:<10} (copies in and out): "
-              f"{acting * 1e3:7.3f} ms; mode of one action per seed (exact): "
-              f"{mode_time * 1e3:7.3f} ms", flush=True)
+        print(f"act, one obs, {label:<10} (copies in and out): {acting * 1e3:7.3f} ms; mode of "
+              f"one action (exact): {mode_time * 1e3:7.3f} ms", flush=True)
 
 
 def time_env_step(env, repeats: int) -> float:
@@ -198,14 +185,13 @@ def micro(args: Args) -> None:
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
     print(f"micro: {args.micro_env_id}: obs {obs_dim}, actions {action_dim}, batch "
           f"{args.batch_size}", flush=True)
-    for seeds in sorted({1, args.seeds}):
-        actor = time_updates(args, env, seeds)
-        time_acting(args, env, actor, seeds)
+    actor = time_updates(args, env)
+    time_acting(args, env, actor)
     print(f"env step on this CPU: {time_env_step(env, args.repeats) * 1e3:7.3f} ms", flush=True)
     # Evaluation runs on CPU workers (eval_runner.py); one round, in-process, one thread.
     start = time.perf_counter()
     result = run_round(Round(args.micro_env_id, eval_seeds(0, 1, args.eval_episodes),
-                             {"": "mode", "tanh_mu_": "tanh_mu"}, seed_slice(actor, 0).cpu()))
+                             {"": "mode", "tanh_mu_": "tanh_mu"}, copy.deepcopy(actor).cpu()))
     steps = sum(sum(r["lengths"]) for r in result.values())
     print(f"eval round, mode and tanh(mu), CPU: {args.eval_episodes} episodes each, {steps} "
           f"steps in {time.perf_counter() - start:.2f} s", flush=True)
@@ -229,34 +215,26 @@ def run_command(args: Args, env_id: str, out: str, name: str, flags: list[str]) 
             "--checkpoint-interval", "0", "--output-dir", out, "--run-name", name, *flags]
 
 
-def runs_sps(args: Args, env_id: str, flags: list[str], processes: int,
-             seeds: int = 1) -> list[float]:
-    """Update-phase steps/s per seed of each of `processes` runs of `seeds` seeds, started
-    together (seeds numbered apart, so no two runs share a folder)."""
+def runs_sps(args: Args, env_id: str, flags: list[str], processes: int) -> list[float]:
+    """Update-phase steps/s of each of `processes` runs, started together (seeds apart)."""
     with tempfile.TemporaryDirectory() as out:
-        children = []
-        for i in range(processes):
-            batch = ["--num-seeds", str(seeds)] if seeds > 1 else []
-            name = f"r{i}_s{{seed}}" if seeds > 1 else f"r{i}_s{i * seeds}"
-            children.append(subprocess.Popen(
-                run_command(args, env_id, out, name,
-                            [*flags, *batch, "--seed", str(i * seeds)]),
-                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE))
+        children = [subprocess.Popen(run_command(args, env_id, out, f"r{i}",
+                                                 [*flags, "--seed", str(i)]),
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                    for i in range(processes)]
         errors = [child.communicate()[1] for child in children]
         for child, error in zip(children, errors, strict=True):
             if child.returncode != 0:
                 raise SystemExit(error.decode())
-        return [update_phase_sps(Path(out) / f"r{i}_s{i * seeds}", args.learning_starts)
+        return [update_phase_sps(Path(out) / f"r{i}", args.learning_starts)
                 for i in range(processes)]
 
 
-def report_runs(label: str, sps: list[float], seeds: int = 1) -> float:
-    """Prints steps/s per seed (each process's seeds share its pace) and in all; returns the
-    latter."""
-    total = seeds * sum(sps)
-    print(f"  {label:<46} {statistics.median(sps):7.0f} steps/s per seed "
-          f"(min {min(sps):.0f}, max {max(sps):.0f}), {total:7.0f} in all", flush=True)
-    return total
+def report_runs(label: str, sps: list[float]) -> float:
+    """Prints steps/s per run and in all; returns the latter."""
+    print(f"  {label:<46} {statistics.median(sps):7.0f} steps/s per run "
+          f"(min {min(sps):.0f}, max {max(sps):.0f}), {sum(sps):7.0f} in all", flush=True)
+    return sum(sps)
 
 
 def single(args: Args) -> None:
@@ -268,44 +246,13 @@ def single(args: Args) -> None:
     report_runs("GPU, graphs, --no-gpu-buffer", runs_sps(args, env_id, ["--no-gpu-buffer"], 1))
 
 
-def batches(args: Args) -> None:
-    k = args.seeds
+def mps(args: Args) -> None:
     for env_id in args.env_ids:
-        print(f"batches: {env_id}", flush=True)
+        print(f"mps: {env_id}", flush=True)
         report_runs("one run, CUDA graphs", runs_sps(args, env_id, [], 1))
         with mps_daemon():
-            report_runs(f"{k} processes under MPS", runs_sps(args, env_id, [], k))
-        report_runs(f"one process, --num-seeds {k}", runs_sps(args, env_id, [], 1, k), k)
-
-
-def many(args: Args) -> None:
-    n, k = args.many_seeds, args.seeds
-    if n % k:
-        raise SystemExit(f"--many-seeds {n} is not a multiple of --seeds {k}")
-    print(f"many: {n} seeds of {args.many_env_id}", flush=True)
-    one = report_runs(f"one process, --num-seeds {n}",
-                      runs_sps(args, args.many_env_id, [], 1, n), n)
-    with mps_daemon():
-        split = report_runs(f"{n // k} processes of --num-seeds {k} under MPS",
-                            runs_sps(args, args.many_env_id, [], n // k, k), k)
-    faster = "one process" if one > split else f"{n // k} processes"
-    print(f"  faster: {faster} ({max(one, split) / min(one, split):.2f}x in all)", flush=True)
-
-
-def envs_pace(args: Args) -> None:
-    """Random actions through the scripts' vector env: no learner, only the env and the pipes."""
-    k = args.seeds
-    for env_id in args.env_ids:
-        envs = make_vector_env(env_id, k)
-        envs.reset(seed=list(range(k)))
-        envs.action_space.seed(0)
-        start = time.perf_counter()
-        for _ in range(args.env_steps):
-            envs.step(envs.action_space.sample())
-        pace = args.env_steps / (time.perf_counter() - start)
-        envs.close()
-        print(f"envs: {env_id}, {k} envs in worker processes, random actions: "
-              f"{pace:7.0f} steps/s per env, {k * pace:7.0f} in all", flush=True)
+            report_runs(f"{args.processes} runs under MPS",
+                        runs_sps(args, env_id, [], args.processes))
 
 
 if __name__ == "__main__":
@@ -313,7 +260,6 @@ if __name__ == "__main__":
     assert torch.cuda.is_available(), "bench_gpu.py needs a CUDA GPU"
     print(f"{torch.cuda.get_device_name()}, torch {torch.__version__}, parts {args.parts}, "
           f"{args.learning_starts} random + {args.loop_steps} update steps per run", flush=True)
-    parts = {"micro": micro, "single": single, "batches": batches, "many": many,
-             "envs": envs_pace}
+    parts = {"micro": micro, "single": single, "mps": mps}
     for part in args.parts:
         parts[part](args)

@@ -85,11 +85,11 @@ class BatchedTwinQ(nn.Module):
             nn.init.uniform_(b, -bound, bound)
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """(1, batch, dim) inputs, one seed as the scripts' K = 1 layout; (2, 1, batch) out."""
-        x = torch.cat([obs, action], -1)[0].expand(2, -1, -1)
+        """(batch, dim) inputs; (2, batch) out, as TwinQ's."""
+        x = torch.cat([obs, action], -1).expand(2, -1, -1)
         for w, b in zip(self.weights[:-1], self.biases[:-1], strict=True):
             x = torch.relu(torch.baddbmm(b, x, w))
-        return torch.baddbmm(self.biases[-1], x, self.weights[-1]).squeeze(-1)[:, None]
+        return torch.baddbmm(self.biases[-1], x, self.weights[-1]).squeeze(-1)
 
 
 def median_time(fn, repeats: int, calls: int) -> float:
@@ -112,22 +112,20 @@ def build_learner(env, critic_class=TwinQ) -> tuple:
     actor = Actor(obs_dim, hidden, env.action_space, -10.0, 2.0)
     qf, qf_target = (critic_class(obs_dim, action_dim, hidden) for _ in range(2))
     qf_target.load_state_dict(qf.state_dict())
-    log_alpha = torch.zeros(1, requires_grad=True)  # one seed: the scripts' (K,) layout
+    log_alpha = torch.zeros((), requires_grad=True)
     optimizers = tuple(torch.optim.Adam(params, lr=3e-4, fused=True) for params in (
         actor.parameters(), qf.parameters(), [log_alpha]))
     return actor, qf, qf_target, log_alpha, optimizers
 
 
-def random_buffer(seeds: int, size: int, obs_dim: int, action_dim: int,
+def random_buffer(size: int, obs_dim: int, action_dim: int,
                   device: torch.device) -> ReplayBuffer:
-    """A full buffer of random transitions in episodes of 500 steps, one row per seed."""
-    rb = ReplayBuffer(seeds, size, obs_dim, action_dim, device)
+    """A full buffer of random transitions in episodes of 500 steps."""
+    rb = ReplayBuffer(size, obs_dim, action_dim, device)
     rng = np.random.default_rng(0)
-    no = np.zeros(seeds, bool)
     for i in range(size):
-        rb.add(rng.normal(size=(seeds, obs_dim)), rng.uniform(-1, 1, (seeds, action_dim)),
-               rng.normal(size=seeds), no, rng.normal(size=(seeds, obs_dim)),
-               np.full(seeds, i % 500 == 499))
+        rb.add(rng.normal(size=obs_dim), rng.uniform(-1, 1, action_dim), rng.normal(), False,
+               rng.normal(size=obs_dim), i % 500 == 499)
     return rb
 
 
@@ -146,7 +144,7 @@ def learner_update(learner: tuple, rb: ReplayBuffer, batch_size: int, compiled: 
 def time_update(args: Args, env, critic_class=TwinQ, compiled: bool = True) -> float:
     """Seconds per gradient update, batch sampling and policy noise included (make_train_step)."""
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    rb = random_buffer(1, 20_000, obs_dim, action_dim, torch.device("cpu"))
+    rb = random_buffer(20_000, obs_dim, action_dim, torch.device("cpu"))
     update = learner_update(build_learner(env, critic_class), rb, args.batch_size, compiled)
     return median_time(make_train_step(rb, update, args.batch_size, torch.device("cpu"), False,
                                        ()), args.repeats, args.updates)
@@ -172,12 +170,12 @@ def time_env_step(env, steps: int, repeats: int) -> tuple[float, float]:
 
 def time_actor_forward(env, repeats: int) -> float:
     actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
-    obs = torch.as_tensor(env.observation_space.sample(), dtype=torch.float32)[None, None]
+    obs = torch.as_tensor(env.observation_space.sample(), dtype=torch.float32)[None]
 
     def forward():
         with torch.no_grad():
             mu, _ = actor(obs)
-            actor.scale(torch.tanh(mu))[0, 0].numpy()
+            actor.scale(torch.tanh(mu))[0].numpy()
 
     return median_time(forward, repeats, 500)
 
@@ -209,35 +207,34 @@ def loop_seconds_per_step(args: Args) -> float:
 
 def time_loop_parts(args: Args, steps: int = 3000, start: int = 1000) -> dict[str, float]:
     """Seconds per step of each part of the training loop, timed in place (interleaved as in
-    the scripts, so each part pays for the caches the others evict), one seed: the scripts'
-    K = 1 vector env (in-process) and (1, ...) tensors."""
+    the scripts, so each part pays for the caches the others evict): the scripts' vector env of
+    one (in-process)."""
     torch.manual_seed(0)
     space = make_env(args.env_id).action_space
     space.seed(0)
-    envs = make_vector_env(args.env_id, 1)
+    envs = make_vector_env(args.env_id)
     obs_dim, action_dim = envs.single_observation_space.shape[0], space.shape[0]
     learner = build_learner(make_env(args.env_id))
     actor = learner[0]
-    rb = ReplayBuffer(1, 1_000_000, obs_dim, action_dim, torch.device("cpu"))
+    rb = ReplayBuffer(1_000_000, obs_dim, action_dim, torch.device("cpu"))
     update = learner_update(learner, rb, args.batch_size, args.compile)
-    noise_shape = (2, 1, args.batch_size, action_dim)
+    noise_shape = (2, args.batch_size, action_dim)
     parts = dict.fromkeys(("act", "env step", "buffer add", "batch sample", "update"), 0.0)
-    obs, _ = envs.reset(seed=[0])
+    obs, _ = envs.reset(seed=0)
     for step in range(start + steps):
         t0 = clock()
         if step < start:
             action = space.sample()[None]
         else:
             with torch.no_grad():
-                obs_tensor = torch.as_tensor(obs, dtype=torch.float32)
-                action = actor.get_action(obs_tensor[:, None])[0][:, 0].numpy()
+                action = actor.get_action(torch.as_tensor(obs, dtype=torch.float32))[0].numpy()
         t1 = clock()
         next_obs, reward, terminated, truncated, info = envs.step(action)
         t2 = clock()
-        episode_end = terminated | truncated
-        final_obs = info["final_obs"][0][None] if episode_end[0] else next_obs
-        rb.add(obs, action, reward, ends_without_bootstrap(terminated, truncated), final_obs,
-               episode_end)
+        episode_end = bool(terminated[0] or truncated[0])
+        final_obs = info["final_obs"][0] if episode_end else next_obs[0]
+        rb.add(obs[0], action[0], reward[0], ends_without_bootstrap(terminated, truncated)[0],
+               final_obs, episode_end)
         obs = next_obs
         t3 = clock()
         if step < start:
@@ -265,7 +262,7 @@ def replay_buffer_memory_gb() -> float:
     """Resident memory added by a full 1M x 308-dim buffer (61-dim actions), in GB."""
     process = psutil.Process()
     before = process.memory_info().rss
-    rb = ReplayBuffer(1, 1_000_000, 308, 61, torch.device("cpu"))
+    rb = ReplayBuffer(1_000_000, 308, 61, torch.device("cpu"))
     for name in ReplayBuffer.ARRAYS:
         getattr(rb, name)[:] = 1  # touch every page
     return (process.memory_info().rss - before) / 1e9

@@ -87,7 +87,7 @@ def main(args: Args) -> None:
     torch.set_num_threads(1)
     env = gym.make(args.env_id)
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    rb = random_buffer(1, 20_000, obs_dim, action_dim, torch.device("cpu"))
+    rb = random_buffer(20_000, obs_dim, action_dim, torch.device("cpu"))
     steps = {}
     if args.eager:
         for name, update_fn in (("eager, the scripts' (torch.autograd)", sac_update),

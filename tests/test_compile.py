@@ -35,15 +35,15 @@ LOSSES = ("qf1_loss", "qf2_loss", "qf1_value", "qf2_value", "actor_loss", "alpha
 
 
 def small_learner(seed: int) -> tuple:
-    """The scripts' networks and optimizers, two seeds batched, Hopper's dimensions."""
+    """The scripts' networks and optimizers, Hopper's dimensions."""
     from sac_standard import Actor, TwinQ
 
-    generators = [torch.Generator().manual_seed(seed + k) for k in range(2)]
+    generator = torch.Generator().manual_seed(seed)
     space = gym.spaces.Box(-1.0, 1.0, (3,), np.float32)
-    actor = Actor(11, (64, 64), space, -10.0, 2.0, 2, generators)
-    qf = TwinQ(11, 3, (64, 64), 2, generators)
+    actor = Actor(11, (64, 64), space, -10.0, 2.0, generator)
+    qf = TwinQ(11, 3, (64, 64), generator)
     qf_target = copy.deepcopy(qf)
-    log_alpha = torch.zeros(2, requires_grad=True)
+    log_alpha = torch.zeros((), requires_grad=True)
     adam = functools.partial(torch.optim.Adam, lr=3e-4, fused=True)
     return (actor, qf, qf_target, log_alpha,
             (adam(actor.parameters()), adam(qf.parameters()), adam([log_alpha])))
@@ -71,18 +71,18 @@ def run_updates(compiled: bool, steps: int) -> tuple[list, dict]:
     if compiled:
         torch._dynamo.reset()
         torch._dynamo.utils.counters.clear()
-        zero = (torch.zeros(2, 32, 11), torch.zeros(2, 32, 3), torch.zeros(2, 32),
-                torch.zeros(2, 32, 11), torch.zeros(2, 32))
+        zero = (torch.zeros(32, 11), torch.zeros(32, 3), torch.zeros(32), torch.zeros(32, 11),
+                torch.zeros(32))
         update = compile_update(update, tensors, zero, (actor, qf, qf_target, log_alpha,
                                                         *optimizers))
     g = torch.Generator().manual_seed(1)
     logs = []
     for _ in range(steps):
-        batch = (torch.randn(2, 32, 11, generator=g), torch.rand(2, 32, 3, generator=g) * 2 - 1,
-                 torch.randn(2, 32, generator=g), torch.randn(2, 32, 11, generator=g),
-                 (torch.rand(2, 32, generator=g) > 0.05).float())
+        batch = (torch.randn(32, 11, generator=g), torch.rand(32, 3, generator=g) * 2 - 1,
+                 torch.randn(32, generator=g), torch.randn(32, 11, generator=g),
+                 (torch.rand(32, generator=g) > 0.05).float())
         logs.append([t.detach().clone() for t in update(tensors, batch,
-                                                        torch.randn(2, 2, 32, 3, generator=g))])
+                                                        torch.randn(2, 32, 3, generator=g))])
     return logs, actor.state_dict()
 
 
@@ -231,9 +231,9 @@ def test_the_eager_gradient_is_torch_funcs():
     actor, qf, qf_target, log_alpha, optimizers = small_learner(seed=3)
     learner = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
     torch.manual_seed(4)
-    batch = (torch.randn(2, 32, 11), torch.rand(2, 32, 3) * 2 - 1, torch.randn(2, 32),
-             torch.randn(2, 32, 11), (torch.rand(2, 32) > 0.1).float())
-    noise = torch.randn(2, 2, 32, 3)
+    batch = (torch.randn(32, 11), torch.rand(32, 3) * 2 - 1, torch.randn(32),
+             torch.randn(32, 11), (torch.rand(32) > 0.1).float())
+    noise = torch.randn(2, 32, 3)
     params = (learner["actor"], learner["qf"], learner["log_alpha"])
     args = (params, learner["qf_target"], batch, noise, actor, qf, 0.99, -1.5)
     with torch.no_grad():  # as sac_update calls it

@@ -53,10 +53,10 @@ SWEEP_PASSES_TO = "sac_corrected.py"
 # belong to other programs: the flag, its program, and a word its source must contain (None:
 # the pages say the flag is gone).
 OTHER_FLAGS = {
-    "--batch-threads": ("bench/bench_seeds.py", "batch_threads"),
     "--quick": ("bench/bench_gpu.py", "quick"),
     "--parts": ("bench/bench_gpu.py", "parts"),
     "--concurrent": ("bench/bench_gpu.py", None),  # "the benchmark as it was before --num-seeds"
+    "--num-seeds": ("sac_standard.py", None),  # "until issue 37 the scripts could also ..."
     "--runs": ("docs/make_figures.py", '"--runs"'),
     "--no-build-isolation": ("pip", None),
 }

@@ -305,26 +305,29 @@ def test_weights_files_alone(our_run, tmp_path, capsys):
     assert code == 0 and "checkpoint.pt on Pendulum-v1" in out, err
 
 
-def test_a_file_from_before_the_seed_axis_gives_the_same_numbers(our_run, tmp_path, capsys):
-    """final_model.pt as scripts before --num-seeds wrote it (nn.Linear's (out, in) weights and
-    (out,) biases, no seed axis) evaluates exactly as the same networks in today's layout."""
+def test_files_in_older_layouts_give_the_same_numbers(our_run, tmp_path, capsys):
+    """final_model.pt as older scripts wrote it evaluates exactly as the same networks in
+    today's layout ((in, out) weights, (out,) biases): with a leading seed axis of 1 (between
+    --num-seeds and issue 37, as results/bookshelf_simple-1M's), and nn.Linear's (out, in)
+    weights (before --num-seeds)."""
     state = torch.load(our_run / "final_model.pt", weights_only=True)
+    assert state["actor"]["trunk.0.weight"].shape == (3, 32)  # (in, out)
+    layouts = {"seed_axis": {".weight": lambda v: v[None], ".bias": lambda v: v[None, None]},
+               "linear": {".weight": lambda v: v.t().contiguous()}}
+    for name, layout in layouts.items():  # the action scale and bias buffers stay as they are
+        def old(weights: dict, layout: dict = layout) -> dict:
+            return {k: next((f(v) for end, f in layout.items() if k.endswith(end)), v)
+                    for k, v in weights.items()}
 
-    def old(weights: dict) -> dict:  # the action scale and bias buffers stay as they are
-        layout = {".weight": lambda v: v[0].t().contiguous(), ".bias": lambda v: v[0, 0]}
-        return {k: next((f(v) for end, f in layout.items() if k.endswith(end)), v)
-                for k, v in weights.items()}
-
-    assert state["actor"]["trunk.0.weight"].shape == (1, 3, 32)  # (seeds, in, out)
-    torch.save({**state, "actor": old(state["actor"]), "qf": old(state["qf"])},
-               tmp_path / "old.pt")
+        torch.save({**state, "actor": old(state["actor"]), "qf": old(state["qf"])},
+                   tmp_path / f"{name}.pt")
     outputs = []
-    for source in (our_run / "final_model.pt", tmp_path / "old.pt"):
+    for source in (our_run / "final_model.pt", *(tmp_path / f"{n}.pt" for n in layouts)):
         code, _, err = run(capsys, str(source), "--episodes", "2", "--reps", "20", "--selectors",
                            "mode", "tanh_mu", "q_best", "--out", str(tmp_path / source.stem))
         assert code == 0, err
         outputs.append(read_rows(tmp_path / source.stem / "episodes.csv"))
-    assert outputs[0] == outputs[1]
+    assert outputs[0] == outputs[1] == outputs[2]
 
 
 def test_bad_sources_fail_clearly(sb3_models, our_run, tmp_path, capsys):

@@ -169,25 +169,19 @@ def test_replay_buffer_keeps_episode_boundaries():
 
     from sac_standard import ReplayBuffer
 
-    rb = ReplayBuffer(2, size=7, obs_dim=1, action_dim=1, device=torch.device("cpu"))
-    # Seed 0, episode 1: obs 0 -> 1 -> 2 (truncated); episode 2: 10 -> 11 (terminated); 3: 20 ->
-    # 21 -> 22. Seed 1 at the same time: one episode of obs -1, -2, ... that never ends.
-    for t, (obs, next_obs, end, terminated) in enumerate(
-            [(0, 1, False, False), (1, 2, True, False), (10, 11, True, True),
-             (20, 21, False, False), (21, 22, False, False)]):
-        rb.add(np.array([[obs], [-t - 1]]), np.array([[obs], [-t - 1]]),
-               np.array([obs, -t - 1.0]), np.array([terminated, False]),
-               np.array([[next_obs], [-t - 2]]), np.array([end, False]))
+    rb = ReplayBuffer(size=7, obs_dim=1, action_dim=1, device=torch.device("cpu"))
+    # Episode 1: obs 0 -> 1 -> 2 (truncated); episode 2: 10 -> 11 (terminated); 3: 20 -> 21 -> 22.
+    for obs, next_obs, end, terminated in [(0, 1, False, False), (1, 2, True, False),
+                                           (10, 11, True, True), (20, 21, False, False),
+                                           (21, 22, False, False)]:
+        rb.add(np.array([obs]), np.array([obs]), obs, terminated, np.array([next_obs]), end)
     # 8 slots were needed in a ring of 7: observation 22 overwrote the first transition (0 -> 1).
     obs, actions, rewards, next_obs, not_done = rb.sample(500, torch.device("cpu"))
-    assert obs.shape == (2, 500, 1) and rewards.shape == not_done.shape == (2, 500)
-    pairs = {(int(o), int(n), int(d)) for o, n, d in zip(obs[0, :, 0], next_obs[0, :, 0],
-                                                         not_done[0], strict=True)}
+    assert obs.shape == (500, 1) and rewards.shape == not_done.shape == (500,)
+    pairs = {(int(o), int(n), int(d)) for o, n, d in zip(obs[:, 0], next_obs[:, 0], not_done,
+                                                         strict=True)}
     assert pairs == {(1, 2, 1), (10, 11, 0), (20, 21, 1), (21, 22, 1)}
-    assert torch.equal(actions[..., 0], obs[..., 0]) and torch.equal(rewards, obs[..., 0])
-    # Seed 1's buffer holds only its own transitions: -1 -> -2, ..., -5 -> -6.
-    assert {(int(o), int(n)) for o, n in zip(obs[1, :, 0], next_obs[1, :, 0], strict=True)} \
-        == {(-t, -t - 1) for t in range(1, 6)}
+    assert torch.equal(actions[:, 0], obs[:, 0]) and torch.equal(rewards, obs[:, 0])
 
 
 def test_replay_buffer_state_round_trip():
@@ -196,13 +190,11 @@ def test_replay_buffer_state_round_trip():
     from sac_standard import ReplayBuffer
 
     cpu = torch.device("cpu")
-    rb = ReplayBuffer(2, size=50, obs_dim=3, action_dim=2, device=cpu)
+    rb = ReplayBuffer(size=50, obs_dim=3, action_dim=2, device=cpu)
     for i in range(30):
-        rb.add(np.full((2, 3), i), np.array([[i, -i], [-i, i]]), np.array([i, 2.0 * i]),
-               np.zeros(2, bool), np.full((2, 3), i + 1), np.array([i % 7 == 6, i % 5 == 4]))
-    copy = ReplayBuffer(2, size=50, obs_dim=3, action_dim=2, device=cpu)
-    for k in range(2):  # each seed's part of a checkpoint on its own
-        copy.load_seed_state_dict(k, rb.seed_state_dict(k))
+        rb.add(np.full(3, i), np.array([i, -i]), float(i), False, np.full(3, i + 1), i % 7 == 6)
+    copy = ReplayBuffer(size=50, obs_dim=3, action_dim=2, device=cpu)
+    copy.load_state_dict(rb.state_dict())
     torch.manual_seed(3)
     original = rb.sample(16, cpu)
     torch.manual_seed(3)  # the buffer draws from torch's generator, saved in the checkpoint
@@ -313,39 +305,20 @@ def test_glorot_uniform_init_and_zero_biases():
     import gymnasium as gym
     import numpy as np
 
-    from sac_standard import Actor, SeedLinear, TwinQ
+    from sac_standard import Actor, Linear, TwinQ
 
     space = gym.spaces.Box(-1.0, 1.0, (17,), np.float32)
-    generators = [torch.Generator().manual_seed(s) for s in (0, 1)]
-    layers = [m for net in (Actor(40, (256, 256), space, -10.0, 2.0, 2, generators),
-                            TwinQ(40, 17, (256, 256), 2, generators))
-              for m in net.modules() if isinstance(m, SeedLinear)]
+    layers = [m for net in (Actor(40, (256, 256), space, -10.0, 2.0), TwinQ(40, 17, (256, 256)))
+              for m in net.modules() if isinstance(m, Linear)]
     assert len(layers) == 4 + 6  # actor: two hidden, mean and log-sigma heads; critics: 3 each
     for layer in layers:
-        _, fan_in, fan_out = layer.weight.shape
+        fan_in, fan_out = layer.weight.shape
         bound = (6 / (fan_in + fan_out)) ** 0.5
         assert torch.count_nonzero(layer.bias) == 0
         # Uniform on [-bound, bound]: within it, and reaching near it (PyTorch's default would
         # stay within 1/sqrt(fan_in), 1.7-2.4x narrower here).
         assert layer.weight.abs().max() <= bound
-        assert layer.weight[0].abs().max() > 0.95 * bound
-        assert not torch.equal(layer.weight[0], layer.weight[1])  # each seed its own draw
-
-
-def test_a_seeds_networks_come_from_its_own_seed_whatever_the_batch():
-    import gymnasium as gym
-    import numpy as np
-
-    from run_folder import seed_slice
-    from sac_standard import Actor
-
-    space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
-    batch = Actor(5, (8,), space, -10.0, 2.0, 3,
-                  [torch.Generator().manual_seed(s) for s in (4, 5, 6)])
-    alone = Actor(5, (8,), space, -10.0, 2.0, 1, [torch.Generator().manual_seed(5)])
-    for (name, a), b in zip(seed_slice(batch, 1).state_dict().items(),
-                            alone.state_dict().values(), strict=True):
-        assert torch.equal(a, b), name
+        assert layer.weight.abs().max() > 0.95 * bound
 
 
 def test_update_scores_the_actor_with_the_pre_update_critic():
@@ -361,17 +334,17 @@ def test_update_scores_the_actor_with_the_pre_update_critic():
 
     torch.manual_seed(0)
     actor = Actor(3, (8,), gym.spaces.Box(-1.0, 1.0, (2,), np.float32), -10.0, 2.0)
-    qf, log_alpha = TwinQ(3, 2, (8,)), torch.tensor([0.3], requires_grad=True)
+    qf, log_alpha = TwinQ(3, 2, (8,)), torch.tensor(0.3, requires_grad=True)
     qf_target = copy.deepcopy(qf)
     with torch.no_grad():  # a target apart from the critic, so that the Polyak step shows
         for p in qf_target.parameters():
             p.add_(0.1)
-    batch = (torch.randn(1, 16, 3), torch.rand(1, 16, 2) * 2 - 1, torch.randn(1, 16),
-             torch.randn(1, 16, 3), (torch.rand(1, 16) > 0.2).float())
+    batch = (torch.randn(16, 3), torch.rand(16, 2) * 2 - 1, torch.randn(16),
+             torch.randn(16, 3), (torch.rand(16) > 0.2).float())
     before = [copy.deepcopy(m) for m in (actor, qf, qf_target)]
     adam = functools.partial(torch.optim.Adam, lr=0.05)
     optimizers = (adam(actor.parameters()), adam(qf.parameters()), adam([log_alpha]))
-    noise = torch.randn(2, 1, 16, 2)  # the next action's, then the action's
+    noise = torch.randn(2, 16, 2)  # the next action's, then the action's
     sac_update(learner_tensors(actor, qf, qf_target, log_alpha, *optimizers), batch, noise,
                actor, qf, 0.99, 0.1, -1.0)
 

@@ -189,11 +189,11 @@ def test_run_command_passes_the_division_once_and_the_identity_ignores_it(tmp_pa
                                                                     "--eval-workers", "3")):
         (run,) = grid("--batch-size", "32", *extra)
         assert (run.name, run.identity(), run.eval_workers) == (plain.name, plain.identity(), 3)
-        _, command = sweep_module.run_command(sweep_module.Batch((run,)))
+        _, command = sweep_module.run_command(run)
         assert command.count("--eval-workers") == 1 and command[-2:] == ["--eval-workers", "3"]
         assert not any(arg.startswith("--eval_workers") for arg in command)
     # None: the script's default.
-    assert "--eval-workers" not in sweep_module.run_command(sweep_module.Batch((plain,)))[1]
+    assert "--eval-workers" not in sweep_module.run_command(plain)[1]
 
     divided = sweep_module.eval_division
     assert divided(sweep_module.Args(launcher="slurm", cpus_per_task=4), None, 9)[0] == 3
@@ -204,125 +204,3 @@ def test_run_command_passes_the_division_once_and_the_identity_ignores_it(tmp_pa
     assert divided(sweep_module.Args(launcher="slurm"), 2, 9)[0] == 2
     assert [sweep_module.eval_workers_per_run(16, w) for w in (1, 2, 8, 16, 32)] == [
         15, 7, 1, 1, 1]  # at least one: in-process evaluation would stall training
-    # A process of K > 1 seeds trains on 1 + K cores (its loop and K env workers).
-    assert [sweep_module.eval_workers_per_run(16, w, 4) for w in (1, 2, 3, 4)] == [11, 3, 1, 1]
-    assert divided(sweep_module.Args(launcher="slurm", cpus_per_task=8, seeds_per_process=4),
-                   None, 9)[0] == 3
-
-
-# A stand-in for a script with --num-seeds: starting writes each seed's config.json with the
-# batch record, as the scripts do, and stops (exit code 3); resuming any folder finishes the
-# whole batch it records.
-FAKE_BATCH = """import json, os, sys
-class Args:
-    total_timesteps = 1000
-if __name__ == "__main__":
-    argv = sys.argv[1:]
-    def flag(name, default=None):
-        return argv[argv.index(name) + 1] if name in argv else default
-    if "--resume" in argv:
-        given = flag("--resume")
-        with open(os.path.join(given, "config.json")) as f:
-            names = json.load(f)["batch"]["run_dirs"]
-        for name in names:
-            with open(os.path.join(os.path.dirname(given), name, "done.json"), "w") as f:
-                json.dump({"argv": argv}, f)
-        sys.exit(0)
-    first, k = int(flag("--seed")), int(flag("--num-seeds", "1"))
-    names = [flag("--run-name").replace("{seed}", str(first + i)) for i in range(k)]
-    batch = {"first_seed": first, "num_seeds": k, "run_dirs": names}
-    for i, name in enumerate(names):
-        os.makedirs(os.path.join(flag("--output-dir"), name), exist_ok=True)
-        with open(os.path.join(flag("--output-dir"), name, "config.json"), "w") as f:
-            json.dump({"seed": first + i, "batch": batch, "argv": argv}, f)
-    sys.exit(3)
-"""
-
-
-def test_seeds_per_process_packs_consecutive_seeds_and_divides_cores_by_process(
-        tmp_path, monkeypatch, capsys):
-    """Seeds 0-2 and 5, two per process: processes 0-1, 2 and 5 (a process trains consecutive
-    seeds), started with --num-seeds and {seed} in the run name, the folders named as without
-    packing; 16 cores, --workers 2: 5 evaluation workers per process (each trains on 3 cores:
-    its loop and two env workers). The rerun resumes each
-    batch through its first folder."""
-    import sweep as sweep_module
-
-    monkeypatch.setattr(sweep_module.os, "sched_getaffinity", lambda pid: set(range(16)))
-    script = executable(tmp_path / "sac_fake.py", FAKE_BATCH)
-    out = tmp_path / "runs"
-    grid = ["--env-ids", "Pendulum-v1", "--seeds", "0", "1", "2", "5", "--scripts", str(script),
-            "--output-dir", str(out), "--workers", "2"]
-    unpacked = sweep_module.build_grid(sweep_module.Args(
-        env_ids=["Pendulum-v1"], seeds=[0, 1, 2, 5], scripts=[str(script)], output_dir=str(out)),
-        ())
-    assert sweep_module.main([*grid, "--seeds-per-process", "2"]) == 3
-    printed = capsys.readouterr().out
-    assert "4 runs: 0 done or under way, 4 to launch in 3 processes" in printed
-    assert ("evaluation: 5 workers per process (16 cores, 2 processes at a time, each training "
-            "on 3 (the loop and 2 env workers))") in printed
-    configs = {run.seed: json.loads((run.run_dir / "config.json").read_text())
-               for run in unpacked}  # a KeyError here: a folder named otherwise
-    name = unpacked[0].name.replace("seed0", "seed{seed}")
-    argv = configs[0]["argv"]
-    assert argv[argv.index("--seed"):argv.index("--seed") + 6] == [
-        "--seed", "0", "--num-seeds", "2", "--run-name", name]
-    assert configs[1]["argv"] == argv and configs[0]["batch"]["run_dirs"] == [
-        unpacked[0].name, unpacked[1].name]
-    for seed in (2, 5):  # alone in its process: started as without packing
-        assert "--num-seeds" not in configs[seed]["argv"]
-        assert configs[seed]["batch"]["num_seeds"] == 1
-    for config in configs.values():
-        assert eval_workers_of(config["argv"]) == ["5"]
-    attempts = {run.seed: json.loads((run.run_dir / "sweep_attempt.json").read_text())
-                for run in unpacked}
-    assert attempts[0]["pid"] == attempts[1]["pid"] != attempts[2]["pid"]
-    assert {a["returncode"] for a in attempts.values()} == {3}
-
-    assert sweep_module.main([*grid, "--seeds-per-process", "2"]) == 0
-    assert "to launch in 3 processes" in capsys.readouterr().out
-    for run in unpacked:
-        argv = json.loads((run.run_dir / "done.json").read_text())["argv"]
-        first = unpacked[0] if run.seed == 1 else run
-        assert argv[:2] == ["--resume", str(first.run_dir)], run.seed
-    # Finished batches are skipped whatever the packing: it is no part of a run's identity.
-    assert sweep_module.main([*grid, "--seeds-per-process", "3"]) == 0
-    assert "4 done or under way, 0 to launch" in capsys.readouterr().out
-
-
-def test_folders_packed_otherwise_are_refused_before_anything_starts(tmp_path):
-    """An interrupted batch resumes only in the process layout it was started in: another
-    --seeds-per-process, or runs started alone now packed together, is one line naming the
-    folder and the fix, exit code 2, nothing started or changed."""
-    script = executable(tmp_path / "sac_fake.py", FAKE_BATCH)
-
-    def run(out: Path, seeds: list[str], per_process: str) -> subprocess.CompletedProcess:
-        return sweep("--env-ids", "Pendulum-v1", "--seeds", *seeds, "--scripts", str(script),
-                     "--output-dir", str(out), "--seeds-per-process", per_process,
-                     path=os.environ["PATH"])
-
-    out = tmp_path / "runs"
-    assert run(out, ["0", "1", "2"], "2").returncode == 3  # batches 0-1 and 2, interrupted
-    before = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
-    for seeds, per_process, folder, fix in (
-            (["0", "1", "2"], "1", "seed0", "trained in one process with seeds 0-1, but "
-             "--seeds-per-process 1 packs it alone"),
-            (["0", "1", "2"], "3", "seed0", "--seeds-per-process 3 packs it with seeds 0-2"),
-            (["1", "2"], "2", "seed1", "packs it with seeds 1-2")):
-        result = run(out, seeds, per_process)
-        assert result.returncode == 2, result.stdout
-        (line,) = result.stderr.splitlines()
-        assert folder in line and fix in line and "rerun with --seeds-per-process 2" in line
-        assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before
-    assert not list(out.glob("*/done.json"))
-
-    # Runs started alone (config.json records a batch of one, or none before --num-seeds).
-    alone = tmp_path / "alone"
-    assert run(alone, ["0", "1"], "1").returncode == 3
-    config = next(alone.glob("*seed1*/config.json"))
-    config.write_text(json.dumps({k: v for k, v in json.loads(config.read_text()).items()
-                                  if k != "batch"}))
-    result = run(alone, ["0", "1"], "2")
-    assert result.returncode == 2
-    assert "was trained alone, but --seeds-per-process 2 packs it with seeds 0-1" in \
-        result.stderr and "rerun with --seeds-per-process 1" in result.stderr

@@ -1,13 +1,14 @@
-"""Run folders that travel: a copy resumes the copy and never touches the original; a batch
-resumes from where its folders sit now; the .pt files load without a GPU; evaluation failures
-end a run in one line; evaluation never holds a --num-seeds batch back."""
+"""Run folders that travel: a copy resumes the copy and never touches the original; a folder
+from before issue 37 (checkpoints with a leading seed axis) resumes, one trained with
+--num-seeds is refused in one line; the .pt files load without a GPU; evaluation failures end a
+run in one line."""
 
 import hashlib
+import json
 import shutil
 import signal
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -84,25 +85,78 @@ def test_a_copied_folder_resumes_the_copy_and_never_touches_the_original(tmp_pat
     assert episodes[0] == episodes[1] and episodes[0].count("\n") == 5  # header, 2 x 2 rows
 
 
-def test_a_batch_resumes_where_its_folders_sit_now_and_refuses_a_lone_or_renamed_one(tmp_path):
-    stopped_run(tmp_path / "a", "--run-name", "b{seed}", "--num-seeds", "2")
-    originals = contents(tmp_path / "a")
-    shutil.copytree(tmp_path / "a", tmp_path / "moved")
-    result = run("sac_standard.py", "--resume", str(tmp_path / "moved" / "b1"))
-    assert f"resuming {tmp_path / 'moved' / 'b0'}, {tmp_path / 'moved' / 'b1'}" in result.stdout
-    assert all((tmp_path / "moved" / f"b{k}" / "done.json").exists() for k in (0, 1))
-    assert contents(tmp_path / "a") == originals
+def test_analyze_reads_an_interrupted_run_to_its_last_evaluation(tmp_path):
+    """Two seeds, one stopped early: each counts to the last step of its eval.csv, and the final
+    return is the mean of the two at the last step they share."""
+    import csv
 
-    shutil.copytree(tmp_path / "a" / "b0", tmp_path / "a" / "x0")  # one seed, another name
-    refused = run("sac_standard.py", "--resume", str(tmp_path / "a" / "x0"), check=False)
+    import analyze
+
+    runs = tmp_path / "runs"
+    stopped_run(runs, "--run-name", "s3", "--seed", "3")
+    run("sac_standard.py", *TINY, "--seed", "4", "--output-dir", str(runs), "--run-name", "s4")
+    finals = {s: {int(r["global_step"]): float(r["return_mean"])
+                  for r in read_csv(runs / f"s{s}" / "eval.csv")} for s in (3, 4)}
+    last = sorted({max(f) for f in finals.values()})
+    shared = max(set(finals[3]) & set(finals[4]))
+    assert len(last) == 2  # one run stopped before the other's last evaluation
+    out = tmp_path / "report"
+    assert analyze.main([str(runs), "--out", str(out), "--reps", "100", "--curve-reps", "20",
+                         "--curve-points", "3"]) == 0
+    text = (out / "summary.md").read_text()
+    assert f"Found 2 runs under {runs}:" in text
+    assert f"| Pendulum-v1 | 2 seeds, to step {'-'.join(f'{s:,}' for s in last)} |" in text
+    with (out / "summary.csv").open(newline="") as f:
+        (final,) = [r for r in csv.DictReader(f)
+                    if r["section"] == "task_final" and r["metric"] == "return"]
+    assert (final["task"], final["group"], final["step"], final["n_runs"]) == (
+        "Pendulum-v1", "standard", str(shared), "2")
+    assert float(final["estimate"]) == pytest.approx((finals[3][shared] + finals[4][shared]) / 2)
+
+
+def with_seed_axis(state: dict) -> dict:
+    """A checkpoint as the scripts wrote it between --num-seeds and issue 37: each network and
+    optimizer tensor, and log alpha, with a leading seed axis of 1 (biases (1, 1, out))."""
+    def old(key: str, value: torch.Tensor) -> torch.Tensor:
+        return value[None, None] if value.dim() == 1 else value[None]
+
+    networks = {name: {k: old(k, v) if k.endswith((".weight", ".bias")) else v
+                       for k, v in state[name].items()} for name in ("actor", "qf", "qf_target")}
+    optimizers = {name: {**state[name], "state": {i: {k: v if k == "step" else old(k, v)
+                                                      for k, v in s.items()}
+                                                  for i, s in state[name]["state"].items()}}
+                  for name in ("actor_optimizer", "q_optimizer", "alpha_optimizer")}
+    return {**state, **networks, **optimizers, "log_alpha": state["log_alpha"][None],
+            "args": {**state["args"], "num_seeds": 1}}
+
+
+def test_a_checkpoint_with_the_seed_axis_resumes_to_the_same_run(tmp_path):
+    stopped_run(tmp_path, "--run-name", "now")
+    shutil.copytree(tmp_path / "now", tmp_path / "before")
+    path = tmp_path / "before" / "checkpoint.pt"
+    torch.save(with_seed_axis(torch.load(path, weights_only=False)), path)
+    assert torch.load(path, weights_only=True)["actor"]["trunk.0.weight"].shape == (1, 3, 8)
+    for name in ("now", "before"):
+        run("sac_standard.py", "--resume", str(tmp_path / name))
+    for name in ("eval.csv", "train.csv"):
+        assert read_csv(tmp_path / "before" / name) == read_csv(tmp_path / "now" / name)
+    models = [torch.load(tmp_path / name / "final_model.pt", weights_only=True)
+              for name in ("now", "before")]
+    for key, value in models[0]["actor"].items():
+        assert torch.equal(models[1]["actor"][key], value), key
+
+
+def test_a_folder_trained_with_num_seeds_is_refused_in_one_line(tmp_path):
+    stopped_run(tmp_path, "--run-name", "b0")
+    config_path = tmp_path / "b0" / "config.json"
+    config = json.loads(config_path.read_text())
+    config_path.write_text(json.dumps(config | {"batch": {
+        "first_seed": 0, "num_seeds": 2, "run_dirs": ["b0", "b1"]}}))
+    before = contents(tmp_path)
+    refused = run("sac_standard.py", "--resume", str(tmp_path / "b0"), check=False)
     assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
-    assert "was made as b0, one of a batch of 2 seeds" in refused.stderr
-    shutil.rmtree(tmp_path / "a" / "x0")
-    shutil.rmtree(tmp_path / "a" / "b1")  # a sibling gone
-    refused = run("sac_standard.py", "--resume", str(tmp_path / "a" / "b0"), check=False)
-    assert refused.returncode == 2 and f"{tmp_path / 'a' / 'b1'} is missing" in refused.stderr
-    assert contents(tmp_path / "a") == {k: v for k, v in originals.items()
-                                        if not k.startswith("b1/")}
+    assert "was trained in one process with 2 seeds (--num-seeds" in refused.stderr
+    assert contents(tmp_path) == before
 
 
 def test_checkpoint_parts_are_saved_on_the_cpu_and_rng_only_for_cuda_runs():
@@ -153,24 +207,6 @@ def test_an_env_error_in_evaluation_ends_the_run_in_one_line_with_the_pool_shut_
         assert pool.executor._shutdown_thread
 
 
-def test_a_batchs_rounds_of_one_step_do_not_hold_training_back(tmp_path, monkeypatch):
-    gate = tmp_path / "gate"
-    monkeypatch.setenv("TOY_ENVS_GATE", str(gate))
-    pool = EvalPool(1, lambda round_, result: None, rounds_per_step=4)
-    rounds = [Round("tests.toy_envs:GatedCountdown-v0", [12], {"": "tanh_mu"}, ToyActor(),
-                    label=f"seed {k}") for k in range(8)]
-    submitted = threading.Thread(target=lambda: [pool.submit(r) for r in rounds], daemon=True)
-    submitted.start()
-    submitted.join(timeout=60)
-    still_waiting = submitted.is_alive()
-    gate.touch()
-    submitted.join()
-    pool.drain()
-    pool.close()
-    # Two evaluation steps of 4 seeds' rounds are in flight without waiting for any of them.
-    assert not still_waiting and pool.max_pending == 8
-
-
 def test_a_physics_blow_up_never_becomes_a_training_transition(tmp_path):
     run("sac_standard.py", "--env-id", "tests.toy_envs:BlowUp-v0", "--total-timesteps", "400",
         "--learning-starts", "100", "--eval-interval", "1000", "--eval-episodes", "1",
@@ -190,15 +226,13 @@ def test_a_physics_blow_up_never_becomes_a_training_transition(tmp_path):
 def test_a_blow_up_at_an_episodes_first_step_leaves_nothing_in_the_buffer():
     from sac_standard import ReplayBuffer
 
-    rb = ReplayBuffer(2, 8, 1, 1, torch.device("cpu"))
-    one = lambda x: np.array([[x], [x]], np.float64)  # noqa: E731  (two seeds, same data)
-    both, first = np.array([True, True]), np.array([True, False])
-    # Seed 0 blows up at once; seed 1 makes a real 1-step episode.
-    rb.add(one(5), one(0.1), np.array([0.0, 1.0]), np.zeros(2), one(6), both, first)
-    assert rb.ptr.tolist() == [0, 2] and rb.filled.tolist() == [0, 2]
-    assert not rb.valid[0].any() and rb.valid[1].tolist()[:2] == [True, False]
-    rb.add(one(7), one(0.2), np.ones(2), np.zeros(2), one(8), ~both, None)
-    assert rb.valid[0].tolist()[:2] == [True, False] and rb.obs[0, :2, 0].tolist() == [7, 8]
+    rb = ReplayBuffer(8, 1, 1, torch.device("cpu"))
+    one = lambda x: np.array([x], np.float64)  # noqa: E731
+    rb.add(one(5), one(0.1), 0.0, False, one(6), True, invented=True)  # a blow-up at once
+    assert (rb.ptr, rb.filled) == (0, 0) and not rb.valid.any()
+    rb.add(one(7), one(0.2), 1.0, False, one(8), True)  # a real 1-step episode
+    assert (rb.ptr, rb.filled) == (2, 2)
+    assert rb.valid.tolist()[:2] == [True, False] and rb.obs[:2, 0].tolist() == [7, 8]
 
 
 def test_sigterm_checkpoints_at_once_with_rounds_in_flight_and_resumes_them_exactly(
