@@ -159,8 +159,11 @@ def start_tracking(args, run_dir: Path, algorithm: str):
     return tracker
 
 
-def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: str) -> dict:
-    """config.json: every argument, the algorithm, the library versions and the git commit."""
+def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: str,
+                 device: torch.device) -> dict:
+    """config.json: every argument, the algorithm, the library versions, the git commit, and
+    under "used" what the run started with where flags only ask (--cuda on a machine without a
+    GPU trains on the CPU, without CUDA graphs or a GPU buffer)."""
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
                                 capture_output=True, text=True, check=True).stdout.strip()
@@ -171,7 +174,11 @@ def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: st
             "versions": {"python": platform.python_version(), "torch": torch.__version__,
                          "numpy": np.__version__, "gymnasium": gym.__version__,
                          "mujoco": mujoco.__version__},
-            "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+            "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "used": {"device": device.type, "compile": args.compile,
+                     "cudagraphs": device.type == "cuda" and args.cudagraphs,
+                     "gpu_buffer": device.type == "cuda" and args.gpu_buffer,
+                     "torch_threads": args.torch_threads}}
 
 
 def lock_run_folder(run_dir: Path) -> int:
@@ -340,12 +347,12 @@ def run_dir(args, algorithm: str) -> Path:
 
 
 def write_config(args, run_dir: Path, obs_dim: int, action_dim: int, algorithm: str,
-                 script: str) -> None:
+                 script: str, device: torch.device) -> None:
     """config.json (run_metadata), at a fresh start; TensorBoard files of an earlier start are
     removed (a restart from step 0)."""
     for old in run_dir.glob("events.out.tfevents.*"):
         old.unlink()
-    config = run_metadata(args, obs_dim, action_dim, algorithm, script)
+    config = run_metadata(args, obs_dim, action_dim, algorithm, script, device)
     atomic_write(run_dir / "config.json",
                  lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
 

@@ -509,7 +509,7 @@ if __name__ == "__main__":
     else:
         global_step, elapsed, progress = 0, 0.0, run_folder.new_progress()
         run_folder.write_config(args, run_dir, obs_dim, action_dim, ALGORITHM,
-                                Path(__file__).name)
+                                Path(__file__).name, device)
         obs, _ = envs.reset(seed=args.seed)
     run_folder.record_holder(lock)
 

@@ -96,6 +96,12 @@ def test_run_folder_outputs(standard_run):
     assert config["batch_size"] == 64 and config["env_id"] == "Pendulum-v1"
     assert (config["obs_dim"], config["action_dim"]) == (3, 1)
     assert set(config["versions"]) == {"python", "torch", "numpy", "gymnasium", "mujoco"}
+    # The flags ask for CUDA, graphs and a GPU buffer; on this CPU run none was used.
+    assert config["cuda"] and config["cudagraphs"] and config["gpu_buffer"]
+    expected_device = "cuda" if torch.cuda.is_available() else "cpu"
+    assert config["used"] == {"device": expected_device, "compile": False,
+                              "cudagraphs": expected_device == "cuda",
+                              "gpu_buffer": expected_device == "cuda", "torch_threads": 1}
     assert json.loads((standard_run / "done.json").read_text())["global_step"] == 1500
     with open(standard_run / "eval.csv") as f:
         assert f.readline().strip().split(",") == [
