@@ -32,13 +32,14 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import itertools
 import json
 import math
 import os
 import sys
 import time
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -58,6 +59,7 @@ from eval_runner import (
     eval_seeds,
     start_key,
 )
+from flags import check_reset_noise
 from run_folder import fail, read_config_json
 
 SELECTORS = ACTIONS
@@ -550,15 +552,23 @@ def write_outputs(out: Path, results: dict, seeds: list[int], summary: dict) -> 
         fail(f"--out {out}: cannot write there ({error.strerror}); give a writable folder")
 
 
+EPISODE_COLUMNS = ["selector", "episode", "reset_seed", "return", "length", "success"]
+
+
+def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
+    """episodes.csv's rows (EPISODE_COLUMNS) of merged results, episode k from reset seed k."""
+    for selector, episodes in results.items():
+        for k, seed in enumerate(seeds):
+            success = episodes["successes"][k]
+            yield [selector, k, seed, repr(episodes["returns"][k]), episodes["lengths"][k],
+                   "" if success is None else success]
+
+
 def write_files(out: Path, results: dict, seeds: list[int], summary: dict) -> None:
     with open(out / "episodes.csv", "w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(["selector", "episode", "reset_seed", "return", "length", "success"])
-        for selector, episodes in results.items():
-            for k, seed in enumerate(seeds):
-                success = episodes["successes"][k]
-                writer.writerow([selector, k, seed, repr(episodes["returns"][k]),
-                                 episodes["lengths"][k], "" if success is None else success])
+        writer.writerow(EPISODE_COLUMNS)
+        writer.writerows(episode_rows(results, seeds))
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
 
 
@@ -590,8 +600,11 @@ def is_campaign(source: Path) -> bool:
 def campaign_policies(root: Path, steps: tuple[int, ...]) -> list[Policy]:
     """Every run's snapshots and final weights under root (at --steps only, if given); the final
     weights stand for a snapshot at the same step."""
+    run_dirs = sorted(p.parent for p in root.rglob("config.json"))
+    if len({d.name for d in run_dirs}) < len(run_dirs):  # the output is one folder per name
+        fail(f"{root}: two run folders share a name; evaluate them separately")
     policies, missing = [], []
-    for run_dir in sorted(p.parent for p in root.rglob("config.json")):
+    for run_dir in run_dirs:
         config = read_config(run_dir)
         files = {int(p.stem.removeprefix("step")): p
                  for p in (run_dir / "snapshots").glob("step*.pt")
@@ -610,9 +623,6 @@ def campaign_policies(root: Path, steps: tuple[int, ...]) -> list[Policy]:
              "--snapshot-interval, or give a run folder")
     if missing:
         print(f"not there yet, skipped: {', '.join(missing)}", file=sys.stderr)
-    if len({p.run for p in policies}) != len({p.path.parent.parent if p.path.parent.name ==
-                                               "snapshots" else p.path.parent for p in policies}):
-        fail(f"{root}: two run folders share a name; evaluate them separately")
     return policies
 
 
@@ -624,53 +634,47 @@ def evaluate_campaign(args: Args) -> None:
              "the summary go), and no --video")
     policies = campaign_policies(args.source, args.steps)
     for env_id in sorted({p.env_id for p in policies}):
-        check_reset_noise(env_id, args.reset_noise)
+        check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
     selectors = list(dict.fromkeys(args.selectors))
-    jobs, owners = [], []
+    planned = []  # per policy: its reset seeds and its jobs
     for policy in policies:
         state = load_weights(policy.path)
         actor = build_actor(state["actor"], policy.env_id, policy.config, policy.path).eval()
         critic = build_critic(state, actor, policy.path) if "q_best" in selectors else None
         seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
-        for job in make_jobs(actor, critic, policy.env_id, seeds, selectors, args,
-                             label=f"{policy.run} step {policy.step}: "):
-            jobs.append(job)
-            owners.append(policy)
+        planned.append((seeds, make_jobs(actor, critic, policy.env_id, seeds, selectors, args,
+                                         label=f"{policy.run} step {policy.step}: ")))
     workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
     start = time.perf_counter()
-    results = run_jobs(jobs, workers, progress_bar(
-        f"{len(policies)} policies x {' '.join(selectors)}", len(policies) * args.episodes))
+    results = iter(run_jobs([job for _, jobs in planned for job in jobs], workers, progress_bar(
+        f"{len(policies)} policies x {' '.join(selectors)}", len(policies) * args.episodes)))
     elapsed = time.perf_counter() - start
+    # run_jobs hands the results back in job order: each policy's are the next len(jobs).
+    evaluated = [(policy, seeds, *merge([next(results) for _ in jobs], selectors))
+                 for policy, (seeds, jobs) in zip(policies, planned, strict=True)]
     try:
-        write_campaign(args, policies, selectors, jobs, owners, results, elapsed)
+        write_campaign(args, selectors, evaluated, elapsed)
     except OSError as error:
         fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable folder")
     summarize_campaign(args.out, args.reps, args.seed)
 
 
-def write_campaign(args: Args, policies: list[Policy], selectors: list[str], jobs: list[Round],
-                   owners: list[Policy], results: list[dict], elapsed: float) -> None:
+def write_campaign(args: Args, selectors: list[str],
+                   evaluated: list[tuple[Policy, list[int], dict, dict]], elapsed: float) -> None:
+    """Per run, episodes.csv and shift.csv of its policies (campaign_policies lists a run's
+    policies together), and evaluation.json."""
     args.out.mkdir(parents=True, exist_ok=True)
-    for run in dict.fromkeys(p.run for p in policies):
+    for run, group in itertools.groupby(evaluated, key=lambda e: e[0].run):
         (args.out / run).mkdir(exist_ok=True)
         episodes = open(args.out / run / "episodes.csv", "w", newline="")
         shifts = open(args.out / run / "shift.csv", "w", newline="")
         with episodes, shifts:
             rows, shift_rows = csv.writer(episodes), csv.writer(shifts)
-            rows.writerow(["step", "selector", "episode", "reset_seed", "return", "length",
-                           "success"])
+            rows.writerow(["step", *EPISODE_COLUMNS])
             shift_rows.writerow(["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}"
                                                             for c in Q_BEST_CANDIDATES)])
-            for policy in (p for p in policies if p.run == run):
-                mine = [r for r, o in zip(results, owners, strict=True) if o is policy]
-                seeds = [s for j, o in zip(jobs, owners, strict=True) if o is policy
-                         for s in j.seeds]
-                merged, shift = merge(mine, selectors)
-                for selector, ep in merged.items():
-                    for k, seed in enumerate(seeds):
-                        success = ep["successes"][k]
-                        rows.writerow([policy.step, selector, k, seed, repr(ep["returns"][k]),
-                                       ep["lengths"][k], "" if success is None else success])
+            for policy, seeds, merged, shift in group:
+                rows.writerows([policy.step, *row] for row in episode_rows(merged, seeds))
                 shares = merged.get("q_best", {}).get("shares", {})
                 shift_rows.writerow([policy.step, *(repr(shift[c]) for c in SHIFT_COLUMNS),
                                      *(repr(shares[c]) if shares else "" for c in
@@ -679,7 +683,7 @@ def write_campaign(args: Args, policies: list[Policy], selectors: list[str], job
                 "episodes": args.episodes, "eval_round": args.eval_round,
                 "reset_noise": args.reset_noise, "selectors": selectors, "solver": args.solver,
                 "seconds": round(elapsed, 1), "workers": args.workers,
-                "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
+                "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p, *_ in evaluated}}
     (args.out / CAMPAIGN_FILE).write_text(json.dumps(settings, indent=2) + "\n")
 
 
@@ -696,17 +700,6 @@ def read_campaign(out: Path) -> tuple[dict, dict]:
                 returns.setdefault((run, int(row["step"]), row["selector"]), []).append(
                     float(row["return"]))
     return settings, returns
-
-
-def t_interval(values: np.ndarray) -> tuple[float, float]:
-    """Student's t 95% interval of the mean (NaN with fewer than two values)."""
-    from scipy import stats
-
-    if len(values) < 2:
-        return math.nan, math.nan
-    half = stats.t.ppf(0.5 + CONFIDENCE / 2, len(values) - 1) * values.std(ddof=1) \
-        / math.sqrt(len(values))
-    return float(values.mean() - half), float(values.mean() + half)
 
 
 def standard_error(values: np.ndarray) -> float:
@@ -738,6 +731,8 @@ def across_seed_rows(per_seed: list[dict], reps: int, seed: int) -> list[dict]:
     """Per task, step and selector, over seeds: the mean return, and the mean paired difference
     with a t-interval and, labelled apart, rliable's percentile bootstrap over seeds (with five
     seeds or fewer the bootstrap is narrower than the data allows: read the t-interval)."""
+    from analyze import t_interval  # here: a worker re-imports this module, and never uses it
+
     groups: dict[tuple[str, int, str], list[dict]] = {}
     for row in per_seed:
         groups.setdefault((row["env_id"], row["step"], row["selector"]), []).append(row)
@@ -749,7 +744,7 @@ def across_seed_rows(per_seed: list[dict], reps: int, seed: int) -> list[dict]:
             diffs = np.array([r["difference_mean"] for r in group])
             _, boot_low, boot_high = mean_with_ci(diffs, reps, seed)
             row |= {"difference_mean": float(diffs.mean()),
-                    **dict(zip(("t_low", "t_high"), t_interval(diffs), strict=True)),
+                    **dict(zip(("t_low", "t_high"), t_interval(diffs)[1:], strict=True)),
                     "bootstrap_low": boot_low, "bootstrap_high": boot_high,
                     "seeds_won": int((diffs > 0).sum())}
         rows.append(row)
@@ -890,14 +885,6 @@ def plot_campaign(settings: dict, per_seed: list[dict], across: list[dict]):
     return fig
 
 
-def check_reset_noise(env_id: str, reset_noise: float | None) -> None:
-    from humanoid_envs.base import H1HandEnv
-
-    if reset_noise is not None and not isinstance(sac.make_env(env_id).unwrapped, H1HandEnv):
-        fail(f"--reset-noise {reset_noise}: {env_id} is not an h1hand task, which alone take it "
-             "(gymnasium's MuJoCo envs draw their own reset noise); leave it out")
-
-
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     check_args(args)
@@ -916,7 +903,7 @@ def main(argv: list[str] | None = None) -> None:
             fail(f"--video {args.video}: cannot create it ({error.strerror}); give a "
                  "writable folder")
     seeds = eval_seeds(args.seed, args.eval_round, args.episodes)
-    check_reset_noise(env_id, args.reset_noise)
+    check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
     selectors = list(dict.fromkeys(args.selectors))
     workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
     jobs = make_jobs(actor, critic, env_id, seeds, selectors, args)

@@ -154,13 +154,14 @@ def registered_env_id(env_id: str) -> str:
     return env_id
 
 
-def check_reset_noise(env: gym.Env, env_id: str, reset_noise: float | None) -> None:
+def check_reset_noise(env: gym.Env, env_id: str, reset_noise: float | None,
+                      flag: str = "--eval-reset-noise") -> None:
     """A reset noise is an option of our h1hand tasks only; other envs would ignore it."""
     from humanoid_envs.base import H1HandEnv
 
     if reset_noise is not None and not isinstance(env.unwrapped, H1HandEnv):
-        fail(f"--eval-reset-noise {reset_noise}: {env_id} is not an h1hand task, which alone take "
-             "it (gymnasium's MuJoCo envs set theirs with reset_noise_scale); leave it out")
+        fail(f"{flag} {reset_noise}: {env_id} is not an h1hand task, which alone take it "
+             "(gymnasium's MuJoCo envs set theirs with reset_noise_scale); leave it out")
 
 
 def check_spaces(env: gym.Env, env_id: str) -> gym.Env:

@@ -268,8 +268,13 @@ def find_checkpoint(run_dir: Path) -> dict | None:
     return read_checkpoint(path) if path.exists() else None
 
 
+def save_tensors(path: Path, tree: dict) -> None:
+    """torch.save of the tree's tensors moved to the CPU, atomically (atomic_write)."""
+    atomic_write(path, lambda tmp: torch.save(on_cpu(tree), tmp))
+
+
 def save_checkpoint(run_dir: Path, state: dict) -> None:
-    atomic_write(run_dir / "checkpoint.pt", lambda tmp: torch.save(on_cpu(state), tmp))
+    save_tensors(run_dir / "checkpoint.pt", state)
 
 
 # Resuming exactly: the episode under way.
@@ -466,23 +471,18 @@ def finish_run(run_dir: Path, logs: dict, final_model: dict, global_step: int,
                wall_time: float) -> None:
     """final_model.pt, the logs closed, and done.json last: a folder with done.json is a
     finished run (sweep.py skips it)."""
-    atomic_write(run_dir / "final_model.pt", lambda tmp: torch.save(on_cpu(final_model), tmp))
+    save_tensors(run_dir / "final_model.pt", final_model)
     close_logs(logs)
     atomic_write(run_dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
         {"global_step": global_step, "wall_time": wall_time})))
-
-
-def snapshot_path(run_dir: Path, global_step: int) -> Path:
-    return run_dir / "snapshots" / f"step{global_step}.pt"
 
 
 def save_snapshot(run_dir: Path, model: dict, global_step: int) -> None:
     """The weights at this step, as final_model.pt holds them. Written atomically, so a run
     killed mid-write leaves the last whole one; a resumed run rewrites the snapshots after its
     checkpoint with the same numbers."""
-    path = snapshot_path(run_dir, global_step)
-    path.parent.mkdir(exist_ok=True)
-    atomic_write(path, lambda tmp: torch.save(on_cpu(model), tmp))
+    (run_dir / "snapshots").mkdir(exist_ok=True)
+    save_tensors(run_dir / "snapshots" / f"step{global_step}.pt", model)
 
 
 def check_finite(x: np.ndarray, what: str) -> None:
