@@ -24,7 +24,8 @@ collision classes have them, minus its four excluded body pairs; so is its frict
 
 Why fitted to the hull and not to the bounding box (this model's previous shapes): with
 self-collisions on, bounding-box shapes touch each other where HumanoidBench's meshes do not.
-`python bench/bench_contacts.py --humanoidbench PATH` sets both models to 1500 poses of
+`python bench/bench_contacts.py --humanoidbench PATH` (removed from bench/ since; `git show
+feef783:bench/bench_contacts.py`) sets both models to 1500 poses of
 HumanoidBench's own model under random controls: robot self-contacts between body links
 ((pose, body pair) contacts, hand bodies aside) were in both models 227, only the bounding
 boxes 1837 (the two hip-roll boxes touching each other in 946 poses, the thighs the hip-yaw
@@ -33,7 +34,8 @@ contacts: 1620 / 191 / 69 before, 1604 / 89 / 85 now. Fall times from the keyfra
 action sequences stay as close to HumanoidBench's as before (mean difference 6.3 env steps, 6.0
 before; a chaotic measure).
 
-What fidelity costs, bare physics in env steps per second (`python bench/bench_robot.py`: 10 x
+What fidelity costs, bare physics in env steps per second (`python bench/bench_robot.py`, removed
+from bench/ since, `git show 7d129d4:bench/bench_robot.py`: 10 x
 mj_step with uniform random ctrl, back to the keyframe when the pelvis drops below 0.2 m; thread
 CPU time, median of 5 x 1500 steps on the shared 2-core dev machine, one other process busy),
 each task scene built from robot_spec() with HumanoidBench's choices undone:
