@@ -1,8 +1,8 @@
-"""What makes the SAC scripts fast, kept out of them: torch.compile at start-up, CUDA graphs, and
-the pieces that let the update compile whole (Adam as foreach ops, a ReLU whose backward inductor
-runs fast) and still run fast uncompiled (the gradient).
-
-Both scripts import these; none of it is the algorithm (docs/speed.md).
+"""Speed, for both SAC scripts: torch.compile at start-up (compile_at_start), CUDA graphs
+(cuda_graph), and the update's building blocks written so that the whole update compiles into one
+graph and still runs fast uncompiled: the gradient (grad), Adam's step as foreach ops (adam_step,
+the same arithmetic as torch.optim.Adam) and a ReLU whose backward inductor runs fast (ReLU, the
+same numbers as torch.relu). The algorithm itself is in the scripts (docs/speed.md).
 """
 
 import time
@@ -12,13 +12,13 @@ import torch
 import torch.nn as nn
 import torch.utils._pytree as pytree
 
-from run_folder import fail
+from flags import fail
 
 
 class ReLUFromOutput(torch.autograd.Function):
     """ReLU whose backward multiplies by sign(output), 1 where it passed and 0 where it clipped:
     torch.relu's gradient, from a float tensor instead of a boolean mask of the input, which
-    inductor's CPU code stores ~10x slower (bench/bench_compile.py; the update has ten ReLUs)."""
+    inductor's CPU code stores ~10x slower (docs/speed.md; the update has ten ReLUs)."""
 
     @staticmethod
     def forward(x: torch.Tensor) -> torch.Tensor:
@@ -115,18 +115,18 @@ def training_state(*objects: nn.Module | torch.optim.Optimizer | torch.Tensor) -
 def cuda_graph(fn: Callable, restore: tuple = ()) -> Callable:
     """fn, captured as a CUDA graph at its first call and replayed at every call.
 
-    The returned function copies its tensor arguments into the graph's inputs and returns the
-    graph's outputs (overwritten by the next replay). A capture needs a few eager warm-up calls
-    first; so that they do not change the run, the tensors of `restore` (modules, optimizers,
-    tensors) and the random generators are put back afterwards, and optimizer states that the
-    warm-up created are zeroed, as a fresh optimizer's are. A run is then the same whenever the
-    capture happens (at the start of learning, or after a resume)."""
+    The returned function copies the tensors of its arguments (tensors, or tuples of them) into
+    the graph's inputs and returns the graph's outputs (overwritten by the next replay). A capture
+    needs a few eager warm-up calls first; so that they do not change the run, the tensors of
+    `restore` (modules, optimizers, tensors) and the random generators are put back afterwards,
+    and optimizer states that the warm-up created are zeroed, as a fresh optimizer's are. A run is
+    then the same whenever the capture happens (at the start of learning, or after a resume)."""
     graph, inputs, outputs = None, (), None
 
-    def replay(*args: torch.Tensor):
+    def replay(*args):
         nonlocal graph, inputs, outputs
         if graph is None:
-            inputs = tuple(a.clone() for a in args)
+            inputs = pytree.tree_map(torch.clone, args)
             saved = [(t, t.detach().clone()) for t in training_state(*restore)]
             rng = torch.get_rng_state(), torch.cuda.get_rng_state()
             side = torch.cuda.Stream()
@@ -145,13 +145,12 @@ def cuda_graph(fn: Callable, restore: tuple = ()) -> Callable:
                     t.copy_(value)
             torch.set_rng_state(rng[0])
             torch.cuda.set_rng_state(rng[1])
-        for static, arg in zip(inputs, args, strict=True):
+        for static, arg in zip(pytree.tree_leaves(inputs), pytree.tree_leaves(args), strict=True):
             static.copy_(arg)
         graph.replay()
         return outputs
 
     return replay
-
 
 
 def compile_at_start(fn: Callable, example: tuple, restore: tuple, name: str) -> Callable:
@@ -175,30 +174,3 @@ def compile_at_start(fn: Callable, example: tuple, restore: tuple, name: str) ->
             t.copy_(value)
     print(f"compiled {name} in {time.time() - start:.1f} s", flush=True)
     return compiled
-
-
-def compile_update(update: Callable, learner: dict, batch: tuple[torch.Tensor, ...],
-                   restore: tuple) -> Callable:
-    """update(learner, batch, noise) compiled and run once on `batch` (zeros) and zero noise,
-    the learner's state put back (`restore`: its modules, tensors and optimizers)."""
-    noise = torch.zeros((2, *batch[1].shape), device=batch[1].device)
-    return compile_at_start(update, (learner, batch, noise), restore, "the update")
-
-
-def make_train_step(rb, update: Callable, batch_size: int, device: torch.device, graphs: bool,
-                    learner: tuple) -> Callable:
-    """One gradient update (update(batch, noise)) on a fresh batch from the replay buffer `rb`
-    and fresh policy noise, as a function of nothing. With graphs and the buffer on the GPU,
-    sampling is inside the graph; with the buffer in host memory, the batch is drawn there and
-    copied into the graph's inputs."""
-    noise_shape = (2, batch_size, rb.action_dim)  # the next action's, the action's
-
-    def update_with_noise(batch: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
-        return update(batch, torch.randn(noise_shape, device=device))
-
-    if not graphs:
-        return lambda: update_with_noise(rb.sample(batch_size, device))
-    if rb.obs.device.type == device.type:  # the buffer is on the run's GPU
-        return cuda_graph(lambda: update_with_noise(rb.sample(batch_size, device)), learner)
-    update_graph = cuda_graph(lambda *batch: update_with_noise(batch), learner)
-    return lambda: update_graph(*rb.sample(batch_size, device))

@@ -70,8 +70,9 @@ class Round:
     env_id: str
     seeds: list[int]
     """the reset seed of each episode, shared by every evaluation action"""
-    actions: dict[str, str]
-    """eval.csv column prefix -> evaluation action (one of ACTIONS)"""
+    actions: dict[str, str | Callable]
+    """eval.csv column prefix -> evaluation action: one of ACTIONS, or a script's function of
+    that name, (mu, log sigma, mode solver) -> action in (-1, 1)^A"""
     actor: nn.Module
     """a CPU copy: forward(obs) -> (mu, log sigma) before the tanh; scale(y) -> env action"""
     critic: nn.Module | None = None
@@ -107,10 +108,23 @@ def q_best_choice(obs: torch.Tensor, candidates: dict[str, torch.Tensor], actor:
     return q.reshape(c, n).argmax(0)
 
 
-def select_actions(name: str, mu: torch.Tensor, log_std: torch.Tensor, obs: torch.Tensor,
-                   round_: Round, generators: list[torch.Generator]
+def action_name(action: str | Callable) -> str:
+    """An evaluation action's name: a script's own action is a function named after it."""
+    return action if isinstance(action, str) else action.__name__
+
+
+def shift_measured_at(actions: dict[str, str | Callable]) -> str | None:
+    """The prefix whose visited states give the shift statistics: a run's own evaluation action
+    (prefix "") when it is the mode, as sac_corrected.py's; None otherwise (no shift columns)."""
+    return "" if "" in actions and action_name(actions[""]) == "mode" else None
+
+
+def select_actions(name: str | Callable, mu: torch.Tensor, log_std: torch.Tensor,
+                   obs: torch.Tensor, round_: Round, generators: list[torch.Generator]
                    ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """The squashed actions (batch, A) of one evaluation action, and for q_best its choices."""
+    if callable(name):
+        return name(mu, log_std, round_.mode_solver), None
     if name == "tanh_mu":
         return torch.tanh(mu), None
     if name == "mode":
@@ -221,7 +235,8 @@ def _run_round(round_: Round) -> dict:
             if bad.size:
                 k = int(bad[0])
                 raise EvalError(
-                    f"{round_.label}: the evaluation action {round_.actions[p]!r} is NaN/inf in "
+                    f"{round_.label}: the evaluation action {action_name(round_.actions[p])!r} "
+                    "is NaN/inf in "
                     f"episode {k} (reset seed {round_.seeds[k]}); the actor diverged: resume from "
                     "an earlier checkpoint or lower the learning rates")
             if choice is not None:

@@ -59,8 +59,7 @@ from eval_runner import (
     eval_seeds,
     start_key,
 )
-from flags import check_reset_noise
-from run_folder import fail, read_config_json
+from flags import check_reset_noise, fail, read_config_json
 
 SELECTORS = ACTIONS
 CONFIDENCE = 0.95

@@ -1,6 +1,7 @@
-"""The SAC scripts' command line, kept out of them: each flag's valid range, the rules of
---resume (a run's stored arguments are the defaults; a flag may change where and how fast, never
-what is computed), and the checks of --env-id. Both scripts call parse_args with their own Args.
+"""Bad input, for the SAC scripts and evaluate.py: the one-line error (`fail`), each flag's valid
+range, the rules of --resume (a run's stored arguments are the defaults; a flag may change where
+and how fast, never what is computed), the checks of --env-id and of a run's config.json, and a
+non-finite action or loss. Both scripts call parse_args with their own Args.
 
 None of it is the algorithm; the flags themselves, with a docstring each, are the scripts' Args.
 """
@@ -8,15 +9,16 @@ None of it is the algorithm; the flags themselves, with a docstring each, are th
 import dataclasses
 import difflib
 import importlib
+import json
 import math
+import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import NoReturn
 
 import gymnasium as gym
 import numpy as np
 import tyro
-
-from run_folder import fail, read_run_config
 
 # Flags that may differ when resuming: they change where and how fast, not what is computed.
 TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
@@ -28,6 +30,44 @@ RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "sn
 # run keeps its checkpoints and snapshots as often as it was started with (sweep.py resumes
 # with --resume alone).
 KEPT_FIELDS = (*TRACKING_FIELDS, "compile", "checkpoint_interval", "snapshot_interval")
+
+
+def fail(message: str) -> NoReturn:
+    """Bad input: one line naming the problem and the fix on stderr, exit code 2."""
+    print(f"{Path(sys.argv[0]).name}: error: {message}", file=sys.stderr, flush=True)
+    sys.exit(2)
+
+
+def check_finite(x: np.ndarray, what: str) -> None:
+    """A NaN or infinite action or loss ends the run with one line (exit code 1)."""
+    if not np.isfinite(x).all():
+        raise SystemExit(f"non-finite {what} (NaN/inf): training diverged; try lower learning "
+                         "rates or resume from an earlier checkpoint")
+
+
+def read_config_json(run_dir: Path, give_instead: str, restore: str) -> dict:
+    """A run folder's config.json as a dict, or one line naming the problem: `give_instead` says
+    what to give where the folder is not a run, `restore` what to do about a damaged file."""
+    path = run_dir / "config.json"
+    if not path.is_file():
+        fail(f"{run_dir} is not a run folder (no config.json); {give_instead}")
+    try:
+        config = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        fail(f"{path} is not valid JSON ({error}); {restore}")
+    if not isinstance(config, dict):
+        fail(f"{path} does not hold a JSON object; {restore}")
+    return config
+
+
+def read_run_config(run_dir: Path, algorithm: str) -> dict:
+    """The config.json of a run folder made by this script, or a clear error."""
+    config = read_config_json(
+        run_dir, "give --resume a folder made by sac_standard.py or sac_corrected.py",
+        "restore it from a copy, or start a new run")
+    if config.get("algorithm") != algorithm:
+        fail(f"{run_dir} is a run of {config.get('script')}; resume it with that script")
+    return config
 
 
 def parse_args(args_class: type, algorithm: str, eval_actions: Callable) -> object:
@@ -79,7 +119,10 @@ def check_args(args, eval_actions: Callable) -> None:
     """Every flag's valid range, checked before anything is created or written. eval_actions:
     the script's own (it names the evaluation actions that --eval-selectors may add to)."""
     finite = math.isfinite
-    own_actions = eval_actions(dataclasses.replace(args, eval_selectors=())).values()
+    # An evaluation action is a name (eval_runner.ACTIONS) or the script's function of that name.
+    own_actions = [getattr(a, "__name__", a) for a in
+                   eval_actions(dataclasses.replace(args, eval_selectors=())).values()]
+    actions = [getattr(a, "__name__", a) for a in eval_actions(args).values()]
     rules = (
         ("seed", args.seed >= 0, "a non-negative integer"),
         ("total_timesteps", args.total_timesteps >= 1, "at least 1"),
@@ -107,7 +150,7 @@ def check_args(args, eval_actions: Callable) -> None:
         ("eval_reset_noise", args.eval_reset_noise is None
          or (finite(args.eval_reset_noise) and args.eval_reset_noise >= 0),
          "a finite number >= 0 (HumanoidBench's is 0.01); leave it out for the task's own"),
-        ("eval_selectors", len(set(eval_actions(args).values())) == len(eval_actions(args)),
+        ("eval_selectors", len(set(actions)) == len(actions),
          f"evaluation actions other than this script's own ({', '.join(own_actions)}), each once"),
         ("eval_workers", args.eval_workers is None or args.eval_workers >= 0,
          "0 (in-process) or more"),

@@ -1,28 +1,25 @@
-"""A run folder's files, for sac_standard.py and sac_corrected.py: config.json, the CSV logs
-(written row by row), TensorBoard and W&B, checkpoints (written atomically; what one holds:
-checkpoint), the folder's lock, the random states, the graceful stop on a signal, and what an
-exact resume needs besides: the episode under way (EpisodeRecord). Also the training loop's
-bookkeeping: the episodes and statistics train.csv reports, the progress line.
+"""A run folder, from start to finish, behind one object (RunFolder) that sac_standard.py and
+sac_corrected.py hold: named, locked (one writer), written fresh (config.json) or resumed from its
+checkpoint, logged to (eval.csv and train.csv row by row, TensorBoard, W&B with --track),
+checkpointed, snapshotted and finished (final_model.pt, then done.json). Also the training's
+bookkeeping that train.csv and the progress line report (episodes, steps per second), and the
+graceful stop on a signal (StopRequest).
 
-None of it is the algorithm: the two scripts hold that, top to bottom. The layout of a run folder
-is described in docs/scripts.md ("The run folder").
+What a checkpoint holds is checkpoints.py's; the flags' checks are flags.py's. None of it is the
+algorithm. The folder's layout is described in docs/scripts.md ("The run folder").
 """
 
-import copy
 import csv
 import dataclasses
 import fcntl
 import json
 import os
 import platform
-import random
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import NoReturn
 
 import gymnasium as gym
 import mujoco
@@ -31,154 +28,202 @@ import torch
 import torch.nn as nn
 from torch.utils.tensorboard import SummaryWriter
 
+import checkpoints
+from checkpoints import atomic_write, save_tensors
+from eval_runner import eval_columns, shift_measured_at
+from flags import check_checkpoint_args, check_finite, fail
+
 INTERRUPTED_EXIT_CODE = 3
-CHECKPOINT_KEYS = ("args", "global_step", "elapsed", "progress", "actor", "qf", "qf_target",
-                   "log_alpha", "q_optimizer", "actor_optimizer", "alpha_optimizer", "buffer",
-                   "rng")
+TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
+                 "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
+                 "episode_return_mean", "episode_length_mean")
+# What final_model.pt keeps of the arguments, so that it alone rebuilds the actor (evaluate.py).
+MODEL_FIELDS = ("env_id", "hidden_sizes", "log_std_min", "log_std_max")
 
 
-def fail(message: str) -> NoReturn:
-    """Bad input: one line naming the problem and the fix on stderr, exit code 2."""
-    print(f"{Path(sys.argv[0]).name}: error: {message}", file=sys.stderr, flush=True)
-    sys.exit(2)
+class StopRequest:
+    """SIGTERM/SIGUSR1/SIGUSR2 ask for a graceful stop after the current step (checkpoint, then
+    exit); a second signal exits at once (the last checkpoint stays valid)."""
+
+    def __init__(self):
+        self.requested = False
+        for s in (signal.SIGTERM, signal.SIGUSR1, signal.SIGUSR2):
+            signal.signal(s, self.handle)
+
+    def handle(self, signum, frame) -> None:
+        if self.requested:
+            print("second signal: exiting now; resume with --resume from the last checkpoint",
+                  flush=True)
+            os._exit(INTERRUPTED_EXIT_CODE)
+        self.requested = True
+        print(f"{signal.Signals(signum).name}: checkpointing after this step, then exiting",
+              flush=True)
 
 
-def read_config_json(run_dir: Path, give_instead: str, restore: str) -> dict:
-    """A run folder's config.json as a dict, or one line naming the problem: `give_instead` says
-    what to give where the folder is not a run, `restore` what to do about a damaged file."""
-    path = run_dir / "config.json"
-    if not path.is_file():
-        fail(f"{run_dir} is not a run folder (no config.json); {give_instead}")
-    try:
-        config = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        fail(f"{path} is not valid JSON ({error}); {restore}")
-    if not isinstance(config, dict):
-        fail(f"{path} does not hold a JSON object; {restore}")
-    return config
+class RunFolder:
+    """One run's folder and bookkeeping. Created first thing (a finished run exits here, code 0);
+    `open` locks the folder, starts it or resumes it and opens its logs; the training loop then
+    reports to it (count_step, log_train, log_eval, print_progress) and asks it to keep state
+    (save_snapshot, checkpoint); `stop` or `finish` ends the run."""
+
+    def __init__(self, args, algorithm: str, script: str, eval_actions: dict):
+        self.args, self.algorithm, self.script = args, algorithm, script
+        self.eval_columns = ["global_step", "wall_time", "eval_round", *eval_columns(
+            eval_actions, shift=shift_measured_at(eval_actions) is not None)]
+        self.dir = run_dir(args, algorithm)
+        if (self.dir / "done.json").exists():
+            print(f"{self.dir}: already finished (done.json); nothing to do")
+            sys.exit(0)
+        self.pending_rounds: list[dict] = []
+
+    def open(self, training: dict, buffer, action_space: gym.Space,
+             envs: gym.vector.VectorEnv, device: torch.device) -> tuple[int, np.ndarray]:
+        """Locks the folder (one writer) and checks it before anything in it is written; then a
+        fresh start (config.json, the env reset with the seed) or a resume from checkpoint.pt
+        (in place into `training`, the buffer, the action space's and torch's random streams,
+        the episode under way replayed), or a restart where there is no checkpoint yet. Returns
+        the step and the observation the run goes on from."""
+        args, self.device = self.args, device
+        lock = lock_run_folder(self.dir)
+        ckpt = checkpoints.find_checkpoint(self.dir) if args.resume is not None else None
+        if ckpt is not None:
+            check_checkpoint_args(self.dir, ckpt, args)
+            check_csv(self.dir / "eval.csv", self.eval_columns)
+            check_csv(self.dir / "train.csv", list(TRAIN_COLUMNS))
+            global_step, self.elapsed, self.progress = checkpoints.load_checkpoint(
+                ckpt, training, buffer, action_space, device)
+            obs = checkpoints.replay_episode(envs, args.seed, ckpt)
+            self.pending_rounds = ckpt.get("pending_rounds", [])
+            print(f"resuming {self.dir} at step {global_step}", flush=True)
+        else:
+            global_step, self.elapsed = 0, 0.0
+            self.progress = {"episode_returns": [], "episode_lengths": [], "last_eval": None,
+                             "episode_return": 0.0, "episode_length": 0}
+            write_config(args, self.dir, envs.single_observation_space.shape[0],
+                         action_space.shape[0], self.algorithm, self.script, device)
+            obs, _ = envs.reset(seed=args.seed)
+        record_holder(lock)
+        self.logs = open_logs(args, self.dir, self.eval_columns, list(TRAIN_COLUMNS),
+                              global_step, ckpt is not None, self.algorithm)
+        self.session_start = self.row_start = time.time()
+        self.row_step = global_step
+        return global_step, obs
+
+    def unfinished_rounds(self, actor: nn.Module, qf: nn.Module) -> list[tuple]:
+        """The evaluation rounds that a stop checkpointed before they finished, to rerun first:
+        (step, wall time, the actor and critic as they were then)."""
+        return [(state["global_step"], state["wall_time"],
+                 *checkpoints.pending_round_networks(actor, qf, state))
+                for state in self.pending_rounds]
+
+    def wall_time(self) -> float:
+        """Seconds of training so far, over every session of the run."""
+        return self.elapsed + time.time() - self.session_start
+
+    def count_step(self, reward: float, episode_end: bool) -> None:
+        """Adds a step's reward to the training episode under way; an ended one joins those that
+        the next train.csv row averages."""
+        progress = self.progress
+        progress["episode_return"] += float(reward)
+        progress["episode_length"] += 1
+        if episode_end:
+            progress["episode_returns"].append(progress["episode_return"])
+            progress["episode_lengths"].append(progress["episode_length"])
+            progress["episode_return"], progress["episode_length"] = 0.0, 0
+
+    def log_train(self, global_step: int, losses: tuple[torch.Tensor, ...] | None) -> None:
+        """A train.csv row: the steps per second since the last row, the last update's losses
+        (sac_losses's logs; none before learning starts) and the training episodes that ended
+        since the last row."""
+        now = time.time()
+        returns, lengths = self.progress["episode_returns"], self.progress["episode_lengths"]
+        row = {"global_step": global_step, "wall_time": self.wall_time(),
+               "sps": (global_step - self.row_step) / (now - self.row_start),
+               "episodes": len(returns),
+               "episode_return_mean": np.mean(returns) if returns else None,
+               "episode_length_mean": np.mean(lengths) if lengths else None}
+        returns.clear()
+        lengths.clear()
+        if losses is not None:
+            qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi = losses
+            check_finite(qf_losses.detach().cpu().numpy(), "critic loss")
+            row |= {"qf1_loss": qf_losses[0].item(), "qf2_loss": qf_losses[1].item(),
+                    "qf1_value": qf_values[0].mean().item(),
+                    "qf2_value": qf_values[1].mean().item(), "actor_loss": actor_loss.item(),
+                    "alpha": alpha.item(), "alpha_loss": alpha_loss.item(),
+                    "entropy": -log_pi.mean().item()}
+        write_row(*self.logs["train"], self.logs["tb"], self.logs["tracker"], "train", row)
+        self.row_start, self.row_step = now, global_step
+
+    def log_eval(self, row: dict, video: Path | None = None) -> None:
+        """An evaluation round's eval.csv row (rounds are logged in step order)."""
+        write_row(*self.logs["eval"], self.logs["tb"], self.logs["tracker"], "eval", row, video)
+        self.progress["last_eval"] = (row["global_step"], row["return_mean"])
+
+    def print_progress(self, global_step: int) -> None:
+        last = self.progress["last_eval"]
+        print(f"step {global_step:,}/{self.args.total_timesteps:,} | "
+              f"{global_step / self.wall_time():.0f} SPS | "
+              + (f"last eval {last[1]:.1f} at step {last[0]:,}" if last else "no eval yet"),
+              flush=True)
+
+    def video_path(self, global_step: int) -> Path:
+        (self.dir / "videos").mkdir(exist_ok=True)
+        return self.dir / "videos" / f"eval_step{global_step}.mp4"
+
+    def policy_weights(self, actor: nn.Module, qf: nn.Module) -> dict:
+        """The actor and critic, and what rebuilds them: final_model.pt and snapshots."""
+        return {"actor": actor.state_dict(), "qf": qf.state_dict(),
+                "config": {f: getattr(self.args, f) for f in MODEL_FIELDS}}
+
+    def save_snapshot(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
+        """snapshots/step<N>.pt, as final_model.pt holds the weights. Written atomically, so a run
+        killed mid-write leaves the last whole one; a resumed run rewrites the snapshots after
+        its checkpoint with the same numbers."""
+        (self.dir / "snapshots").mkdir(exist_ok=True)
+        save_tensors(self.dir / "snapshots" / f"step{global_step}.pt",
+                     self.policy_weights(actor, qf))
+
+    def checkpoint(self, global_step: int, training: dict, buffer, action_space: gym.Space,
+                   envs: gym.vector.VectorEnv, unfinished: list) -> None:
+        """checkpoint.pt (checkpoints.checkpoint_state), atomically."""
+        save_tensors(self.dir / "checkpoint.pt", checkpoints.checkpoint_state(
+            self.args, global_step, self.wall_time(), self.progress, training, buffer,
+            action_space, envs.get_attr("record")[0], checkpoints.rng_states(self.device),
+            unfinished))
+
+    def stop(self, global_step: int) -> None:
+        """Ends a run stopped by a signal, after its checkpoint: exit code 3."""
+        close_logs(self.logs)
+        print(f"interrupted at step {global_step}; resume with --resume {self.dir}", flush=True)
+        sys.exit(INTERRUPTED_EXIT_CODE)
+
+    def finish(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
+        """final_model.pt, the logs closed, and done.json last: a folder with done.json is a
+        finished run (sweep.py skips it)."""
+        wall_time = self.wall_time()
+        save_tensors(self.dir / "final_model.pt", self.policy_weights(actor, qf))
+        close_logs(self.logs)
+        atomic_write(self.dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
+            {"global_step": global_step, "wall_time": wall_time})))
+        print(f"finished {global_step} steps in {wall_time:.0f} s: {self.dir}", flush=True)
 
 
-def read_run_config(run_dir: Path, algorithm: str) -> dict:
-    """The config.json of a run folder made by this script, or a clear error."""
-    config = read_config_json(
-        run_dir, "give --resume a folder made by sac_standard.py or sac_corrected.py",
-        "restore it from a copy, or start a new run")
-    if config.get("algorithm") != algorithm:
-        fail(f"{run_dir} is a run of {config.get('script')}; resume it with that script")
-    return config
+# The folder's name, lock and config.json.
 
 
-def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
-    """An append-mode CSV writer. Resuming keeps the whole rows up to the checkpoint's step, so
-    the file ends up with no duplicate or missing rows."""
-    kept = []
-    if keep_until_step is not None and path.exists():
-        with path.open(newline="") as f:  # rows as written: csv ends them with \r\n
-            lines = f.read().splitlines(keepends=True)[1:]
-        kept = [r for r in lines if r.endswith("\n") and int(r.split(",")[0]) <= keep_until_step]
-    atomic_write(path, lambda tmp: tmp.write_text(",".join(columns) + "\n" + "".join(kept)))
-    f = open(path, "a", newline="")  # noqa: SIM115  (kept open for the whole run)
-    return f, csv.DictWriter(f, columns)
-
-
-def check_csv(path: Path, columns: list[str]) -> None:
-    """Before a resume writes anything: the CSV must be this run's (its header, whole steps)."""
-    if not path.exists():
-        return
-    lines = path.read_text(errors="replace").splitlines(keepends=True)
-    if not lines or lines[0].rstrip("\r\n").split(",") != columns:
-        fail(f"{path} does not have the header this run writes ({len(columns)} columns: "
-             f"{', '.join(columns[:3])}, ...); it was edited or belongs to another run: restore "
-             "it, or move it away to drop its rows")
-    for number, line in enumerate(lines[1:], start=2):
-        if line.endswith("\n") and not line.split(",")[0].isdigit():
-            fail(f"{path}, line {number}: global_step {line.split(',')[0]!r} is not a step "
-                 "number; restore the file, or delete that line")
-
-
-def read_checkpoint(path: Path) -> dict:
-    """checkpoint.pt on the CPU (RNG states must stay there; load_state_dict moves the rest to
-    the run's device), or one line saying it is damaged."""
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False, mmap=True)
-        missing = [k for k in CHECKPOINT_KEYS if k not in ckpt]
-    except Exception as error:  # a truncated or foreign file fails in pickle, zip or torch
-        fail(f"{path} cannot be read ({type(error).__name__}: {str(error).splitlines()[0]}); "
-             "it is damaged: restore a copy, or delete it to restart the run from step 0")
-    if missing:
-        fail(f"{path} lacks {missing}: not a checkpoint of this script; restore a copy, or "
-             "delete it to restart the run from step 0")
-    if "episode" not in ckpt["rng"]:
-        fail(f"{path} was written by an older version of this script (before --num-seeds); "
-             "finish the run with that version (its commit is in config.json), or delete the "
-             "checkpoint to restart it from step 0")
-    return ckpt
-
-
-def write_row(f, writer: csv.DictWriter, tb: SummaryWriter, tracker, group: str, row: dict,
-              video: Path | None = None) -> None:
-    """One row to its CSV (flushed), to TensorBoard and, with --track, to W&B."""
-    writer.writerow(row)
-    f.flush()
-    scalars = {f"{group}/{k}": v for k, v in row.items()
-               if v is not None and k not in ("global_step", "wall_time")}
-    for k, v in scalars.items():
-        tb.add_scalar(k, v, row["global_step"])
-    if tracker is not None:
-        import wandb  # only with --track
-
-        media = {f"{group}/video": wandb.Video(str(video), format="mp4")} if video else {}
-        tracker.log({"global_step": row["global_step"], **scalars, **media})
-
-
-def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
-    """Writes via a temporary file and os.replace: a kill leaves the old file or the new one."""
-    tmp = path.with_name(path.name + ".tmp")
-    write(tmp)
-    os.replace(tmp, path)
-
-
-def start_tracking(args, run_dir: Path, algorithm: str):
-    """With --track, the W&B run, as CleanRL logs it: the config, every scalar that goes to
-    TensorBoard (against global_step) and the evaluation videos. wandb is imported only here.
-    Its id is kept in the run folder, so a resumed run continues the same W&B run; with
-    WANDB_MODE=offline it writes to run_dir/wandb, for `wandb sync` later."""
-    if not args.track:
-        return None
-    import wandb
-    from wandb.sdk.lib.runid import generate_id
-
-    id_file = run_dir / "wandb_run_id.txt"
-    if not id_file.exists():
-        atomic_write(id_file, lambda tmp: tmp.write_text(generate_id() + "\n"))
-    tracker = wandb.init(project=args.wandb_project_name, entity=args.wandb_entity,
-                         group=args.wandb_group, name=run_dir.name, dir=run_dir,
-                         id=id_file.read_text().strip(), resume="allow",
-                         config=dataclasses.asdict(args) | {"algorithm": algorithm})
-    tracker.define_metric("*", step_metric="global_step")
-    return tracker
-
-
-def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: str,
-                 device: torch.device) -> dict:
-    """config.json: every argument, the algorithm, the library versions, the git commit, and
-    under "used" what the run started with where flags only ask (--cuda on a machine without a
-    GPU trains on the CPU, without CUDA graphs or a GPU buffer)."""
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
-                                capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        commit = None
-    return {**dataclasses.asdict(args), "algorithm": algorithm, "script": script,
-            "obs_dim": obs_dim, "action_dim": action_dim, "git_commit": commit,
-            "versions": {"python": platform.python_version(), "torch": torch.__version__,
-                         "numpy": np.__version__, "gymnasium": gym.__version__,
-                         "mujoco": mujoco.__version__},
-            "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            "used": {"device": device.type, "compile": args.compile,
-                     "cudagraphs": device.type == "cuda" and args.cudagraphs,
-                     "gpu_buffer": device.type == "cuda" and args.gpu_buffer,
-                     "torch_threads": args.torch_threads}}
+def run_dir(args, algorithm: str) -> Path:
+    """With --resume, the folder given (wherever it is now: a copy resumes the copy); else a
+    fresh one, --run-name or the default name under --output-dir, which must not hold a run."""
+    if args.resume is not None:
+        return Path(args.resume)
+    name = args.run_name or (f"{args.env_id}__{algorithm}__seed{args.seed}__"
+                             f"{time.strftime('%Y%m%d-%H%M%S')}")
+    path = Path(args.output_dir) / name
+    if (path / "config.json").exists():
+        fail(f"{path} already holds a run; continue it with --resume {path} or choose another "
+             "--run-name")
+    return path
 
 
 def lock_run_folder(run_dir: Path) -> int:
@@ -210,145 +255,26 @@ def record_holder(lock_fd: int) -> None:
     os.pwrite(lock_fd, f"{os.getpid()}\n".encode(), 0)
 
 
-class StopRequest:
-    """SIGTERM/SIGUSR1/SIGUSR2 ask for a graceful stop after the current step (checkpoint, then
-    exit); a second signal exits at once (the last checkpoint stays valid)."""
-
-    def __init__(self):
-        self.requested = False
-        for s in (signal.SIGTERM, signal.SIGUSR1, signal.SIGUSR2):
-            signal.signal(s, self.handle)
-
-    def handle(self, signum, frame) -> None:
-        if self.requested:
-            print("second signal: exiting now; resume with --resume from the last checkpoint",
-                  flush=True)
-            os._exit(INTERRUPTED_EXIT_CODE)
-        self.requested = True
-        print(f"{signal.Signals(signum).name}: checkpointing after this step, then exiting",
-              flush=True)
-
-
-def rng_states(device: torch.device) -> dict:
-    """The process's random streams: torch draws the actions and the batches. Nothing of ours
-    uses the global numpy and python generators; libraries might. The CUDA generators only for a
-    run on CUDA: reading them elsewhere would create a CUDA context (and fail on a GPU in
-    exclusive-process mode that another process holds)."""
-    name, keys, pos, has_gauss, gauss = np.random.get_state()  # noqa: NPY002
-    # Plain lists, not arrays: a checkpoint then loads with torch.load(weights_only=True).
-    return {"python": random.getstate(), "numpy": (name, keys.tolist(), pos, has_gauss, gauss),
-            "torch": torch.get_rng_state(),
-            "cuda": torch.cuda.get_rng_state_all() if device.type == "cuda" else None}
-
-
-def set_rng_states(states: dict, device: torch.device) -> None:
-    random.setstate(states["python"])
-    name, keys, pos, has_gauss, gauss = states["numpy"]
-    np.random.set_state((name, np.array(keys, np.uint32), pos, has_gauss, gauss))  # noqa: NPY002
-    torch.set_rng_state(states["torch"])
-    if states["cuda"] is not None and device.type == "cuda":
-        torch.cuda.set_rng_state_all(states["cuda"])
-
-
-def on_cpu(tree):
-    """A copy of nested dicts, lists and tuples with every tensor moved to the CPU: what the run
-    folder's .pt files hold, so that a plain torch.load reads them on a machine without a GPU."""
-    if torch.is_tensor(tree):
-        return tree.cpu()
-    if isinstance(tree, dict):
-        return {k: on_cpu(v) for k, v in tree.items()}
-    if isinstance(tree, list | tuple):
-        return type(tree)(on_cpu(v) for v in tree)
-    return tree
-
-
-def find_checkpoint(run_dir: Path) -> dict | None:
-    """The run's checkpoint.pt, or None where it has none yet (it restarts from step 0)."""
-    path = run_dir / "checkpoint.pt"
-    return read_checkpoint(path) if path.exists() else None
-
-
-def save_tensors(path: Path, tree: dict) -> None:
-    """torch.save of the tree's tensors moved to the CPU, atomically (atomic_write)."""
-    atomic_write(path, lambda tmp: torch.save(on_cpu(tree), tmp))
-
-
-def save_checkpoint(run_dir: Path, state: dict) -> None:
-    save_tensors(run_dir / "checkpoint.pt", state)
-
-
-# Resuming exactly: the episode under way.
-
-
-class EpisodeRecord(gym.Wrapper):
-    """Remembers how the current episode began (its reset seed, or the env's random state before
-    an unseeded reset) and every action since, so that a checkpoint taken mid-episode rebuilds
-    the episode exactly: `replay` resets the same way and steps the same actions (MuJoCo is
-    deterministic). Any gymnasium env, whatever state it keeps."""
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        rng = None if seed is not None else self.env.unwrapped.np_random.bit_generator.state
-        self.record = {"seed": seed, "rng": copy.deepcopy(rng), "actions": []}
-        return self.env.reset(seed=seed, options=options)
-
-    def step(self, action):
-        self.record["actions"].append(np.array(action, copy=True))
-        return self.env.step(action)
-
-    def replay(self) -> np.ndarray:
-        """Rebuilds the episode of `self.record` (a checkpoint's, put there by the vector env's
-        set_attr) and returns its current observation."""
-        seed, rng = self.record["seed"], self.record["rng"]
-        actions = [np.asarray(a) for a in self.record["actions"]]
-        if rng is not None:
-            self.env.unwrapped.np_random.bit_generator.state = rng
-        obs, _ = self.env.reset(seed=seed)
-        for action in actions:
-            obs = self.env.step(action)[0]
-        self.record = {"seed": seed, "rng": rng, "actions": actions}
-        return obs
-
-
-def episode_state(record: dict, action_dim: int) -> dict:
-    """An EpisodeRecord's record for a checkpoint: the actions as one tensor (weights_only), in
-    the dtype numpy promotes them to, which holds each exactly (a float32 policy action and a
-    float64 random one in one episode: float64), so the replay steps the very same actions."""
-    actions = np.array(record["actions"]).reshape(len(record["actions"]), action_dim)
-    return {"seed": record["seed"], "rng": record["rng"], "actions": torch.from_numpy(actions)}
-
-
-def pending_round_state(round_) -> dict:
-    """An evaluation round that a stop left unfinished, as its checkpoint keeps it: everything
-    the resumed run needs to rerun it exactly (the round is a function of these and the run's
-    arguments)."""
-    return {"global_step": round_.info["global_step"], "wall_time": round_.info["wall_time"],
-            "actor": round_.actor.state_dict(),
-            "qf": None if round_.critic is None else round_.critic.state_dict()}
-
-
-def fit_shapes(state: dict, like: dict) -> dict:
-    """A checkpoint's tensors in the shapes of the run's own (`like`, by name): checkpoints
-    written between --num-seeds and its removal (issue 37) hold each with a leading seed axis of
-    1, and the same numbers."""
-    return {k: v.reshape(like[k].shape) if k in like else v for k, v in state.items()}
-
-
-# The scripts' run folders, from start to finish: named, written fresh or resumed, logged to,
-# checkpointed and finished.
-
-
-def run_dir(args, algorithm: str) -> Path:
-    """With --resume, the folder given (wherever it is now: a copy resumes the copy); else a
-    fresh one, --run-name or the default name under --output-dir, which must not hold a run."""
-    if args.resume is not None:
-        return Path(args.resume)
-    name = args.run_name or (f"{args.env_id}__{algorithm}__seed{args.seed}__"
-                             f"{time.strftime('%Y%m%d-%H%M%S')}")
-    path = Path(args.output_dir) / name
-    if (path / "config.json").exists():
-        fail(f"{path} already holds a run; continue it with --resume {path} or choose another "
-             "--run-name")
-    return path
+def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: str,
+                 device: torch.device) -> dict:
+    """config.json: every argument, the algorithm, the library versions, the git commit, and
+    under "used" what the run started with where flags only ask (--cuda on a machine without a
+    GPU trains on the CPU, without CUDA graphs or a GPU buffer)."""
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
+                                capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = None
+    return {**dataclasses.asdict(args), "algorithm": algorithm, "script": script,
+            "obs_dim": obs_dim, "action_dim": action_dim, "git_commit": commit,
+            "versions": {"python": platform.python_version(), "torch": torch.__version__,
+                         "numpy": np.__version__, "gymnasium": gym.__version__,
+                         "mujoco": mujoco.__version__},
+            "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "used": {"device": device.type, "compile": args.compile,
+                     "cudagraphs": device.type == "cuda" and args.cudagraphs,
+                     "gpu_buffer": device.type == "cuda" and args.gpu_buffer,
+                     "torch_threads": args.torch_threads}}
 
 
 def write_config(args, run_dir: Path, obs_dim: int, action_dim: int, algorithm: str,
@@ -362,28 +288,72 @@ def write_config(args, run_dir: Path, obs_dim: int, action_dim: int, algorithm: 
                  lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
 
 
-def new_progress() -> dict:
-    """The training episodes as train.csv reports them, and the last evaluation."""
-    return {"episode_returns": [], "episode_lengths": [], "last_eval": None,
-            "episode_return": 0.0, "episode_length": 0}
+# The logs: CSVs, TensorBoard, W&B.
 
 
-def count_episode(progress: dict, reward: float, episode_end: bool) -> None:
-    """Adds a step's reward to the episode under way; an ended one joins the list that the next
-    train.csv row averages."""
-    progress["episode_return"] += float(reward)
-    progress["episode_length"] += 1
-    if episode_end:
-        progress["episode_returns"].append(progress["episode_return"])
-        progress["episode_lengths"].append(progress["episode_length"])
-        progress["episode_return"], progress["episode_length"] = 0.0, 0
+def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
+    """An append-mode CSV writer. Resuming keeps the whole rows up to the checkpoint's step, so
+    the file ends up with no duplicate or missing rows."""
+    kept = []
+    if keep_until_step is not None and path.exists():
+        with path.open(newline="") as f:  # rows as written: csv ends them with \r\n
+            lines = f.read().splitlines(keepends=True)[1:]
+        kept = [r for r in lines if r.endswith("\n") and int(r.split(",")[0]) <= keep_until_step]
+    atomic_write(path, lambda tmp: tmp.write_text(",".join(columns) + "\n" + "".join(kept)))
+    f = open(path, "a", newline="")  # noqa: SIM115  (kept open for the whole run)
+    return f, csv.DictWriter(f, columns)
 
 
-def progress_line(global_step: int, total: int, elapsed: float, progress: dict) -> str:
-    """The line printed every --print-interval steps."""
-    last = progress["last_eval"]
-    return (f"step {global_step:,}/{total:,} | {global_step / elapsed:.0f} SPS | "
-            + (f"last eval {last[1]:.1f} at step {last[0]:,}" if last else "no eval yet"))
+def check_csv(path: Path, columns: list[str]) -> None:
+    """Before a resume writes anything: the CSV must be this run's (its header, whole steps)."""
+    if not path.exists():
+        return
+    lines = path.read_text(errors="replace").splitlines(keepends=True)
+    if not lines or lines[0].rstrip("\r\n").split(",") != columns:
+        fail(f"{path} does not have the header this run writes ({len(columns)} columns: "
+             f"{', '.join(columns[:3])}, ...); it was edited or belongs to another run: restore "
+             "it, or move it away to drop its rows")
+    for number, line in enumerate(lines[1:], start=2):
+        if line.endswith("\n") and not line.split(",")[0].isdigit():
+            fail(f"{path}, line {number}: global_step {line.split(',')[0]!r} is not a step "
+                 "number; restore the file, or delete that line")
+
+
+def write_row(f, writer: csv.DictWriter, tb: SummaryWriter, tracker, group: str, row: dict,
+              video: Path | None = None) -> None:
+    """One row to its CSV (flushed), to TensorBoard and, with --track, to W&B."""
+    writer.writerow(row)
+    f.flush()
+    scalars = {f"{group}/{k}": v for k, v in row.items()
+               if v is not None and k not in ("global_step", "wall_time")}
+    for k, v in scalars.items():
+        tb.add_scalar(k, v, row["global_step"])
+    if tracker is not None:
+        import wandb  # only with --track
+
+        media = {f"{group}/video": wandb.Video(str(video), format="mp4")} if video else {}
+        tracker.log({"global_step": row["global_step"], **scalars, **media})
+
+
+def start_tracking(args, run_dir: Path, algorithm: str):
+    """With --track, the W&B run, as CleanRL logs it: the config, every scalar that goes to
+    TensorBoard (against global_step) and the evaluation videos. wandb is imported only here.
+    Its id is kept in the run folder, so a resumed run continues the same W&B run; with
+    WANDB_MODE=offline it writes to run_dir/wandb, for `wandb sync` later."""
+    if not args.track:
+        return None
+    import wandb
+    from wandb.sdk.lib.runid import generate_id
+
+    id_file = run_dir / "wandb_run_id.txt"
+    if not id_file.exists():
+        atomic_write(id_file, lambda tmp: tmp.write_text(generate_id() + "\n"))
+    tracker = wandb.init(project=args.wandb_project_name, entity=args.wandb_entity,
+                         group=args.wandb_group, name=run_dir.name, dir=run_dir,
+                         id=id_file.read_text().strip(), resume="allow",
+                         config=dataclasses.asdict(args) | {"algorithm": algorithm})
+    tracker.define_metric("*", step_metric="global_step")
+    return tracker
 
 
 def open_logs(args, run_dir: Path, eval_header: list[str], train_header: list[str],
@@ -406,106 +376,3 @@ def close_logs(logs: dict) -> None:
         logs["tracker"].finish()
     for f, _ in (logs["eval"], logs["train"]):
         f.close()
-
-
-def checkpoint(args, global_step: int, elapsed: float, progress: dict,
-               networks: dict[str, nn.Module], log_alpha: torch.Tensor,
-               optimizers: dict[str, torch.optim.Optimizer], buffer, action_space: gym.Space,
-               episode: dict, rng: dict, unfinished: list) -> dict:
-    """checkpoint.pt: the networks, temperature, optimizers and replay buffer, and what an exact
-    resume needs besides (the random states, the episode under way, the evaluation rounds a
-    stop left unfinished)."""
-    return {"args": dataclasses.asdict(args), "global_step": global_step, "elapsed": elapsed,
-            "progress": progress,
-            **{name: net.state_dict() for name, net in networks.items()},
-            "log_alpha": log_alpha.detach().clone(),
-            **{name: opt.state_dict() for name, opt in optimizers.items()},
-            "buffer": buffer.state_dict(),
-            "rng": rng | {"action_space": action_space.np_random.bit_generator.state,
-                          "episode": episode_state(episode, action_space.shape[0])},
-            "pending_rounds": [pending_round_state(r) for r in unfinished]}
-
-
-def load_checkpoint(ckpt: dict, networks: dict[str, nn.Module], log_alpha: torch.Tensor,
-                    optimizers: dict[str, torch.optim.Optimizer], buffer,
-                    action_space: gym.Space, device: torch.device) -> tuple[int, float, dict]:
-    """The run's state from its checkpoint (checkpoint); returns the step, the training time so
-    far and the progress."""
-    for name, net in networks.items():
-        net.load_state_dict(fit_shapes(ckpt[name], net.state_dict()))
-    for name, optimizer in optimizers.items():
-        params, state = optimizer.param_groups[0]["params"], ckpt[name]
-        optimizer.load_state_dict({"state": {
-            i: fit_shapes(s, {"exp_avg": params[i], "exp_avg_sq": params[i]})
-            for i, s in state["state"].items()}, "param_groups": state["param_groups"]})
-        for group in optimizer.param_groups:
-            group["capturable"] = device.type == "cuda"  # the checkpoint's is its device's
-    with torch.no_grad():
-        log_alpha.copy_(ckpt["log_alpha"].reshape(log_alpha.shape))
-    buffer.load_state_dict(ckpt["buffer"])
-    action_space.np_random.bit_generator.state = ckpt["rng"]["action_space"]
-    set_rng_states(ckpt["rng"], device)
-    return ckpt["global_step"], ckpt["elapsed"], ckpt["progress"]
-
-
-def replay_episode(envs: gym.vector.VectorEnv, seed: int, ckpt: dict) -> np.ndarray:
-    """The episode so far, replayed (the checkpoint may fall mid-episode); returns the
-    observations the run goes on from."""
-    envs.reset(seed=seed)
-    envs.set_attr("record", [ckpt["rng"]["episode"]])
-    return np.stack(envs.call("replay"))
-
-
-def pending_round_networks(actor: nn.Module, qf: nn.Module,
-                           state: dict) -> tuple[nn.Module, nn.Module]:
-    """CPU copies of the networks as an unfinished evaluation round had them
-    (pending_round_state)."""
-    round_actor, round_qf = copy.deepcopy(actor).cpu(), copy.deepcopy(qf).cpu()
-    round_actor.load_state_dict(fit_shapes(state["actor"], round_actor.state_dict()))
-    if state["qf"] is not None:
-        round_qf.load_state_dict(fit_shapes(state["qf"], round_qf.state_dict()))
-    return round_actor, round_qf
-
-
-def finish_run(run_dir: Path, logs: dict, final_model: dict, global_step: int,
-               wall_time: float) -> None:
-    """final_model.pt, the logs closed, and done.json last: a folder with done.json is a
-    finished run (sweep.py skips it)."""
-    save_tensors(run_dir / "final_model.pt", final_model)
-    close_logs(logs)
-    atomic_write(run_dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
-        {"global_step": global_step, "wall_time": wall_time})))
-
-
-def save_snapshot(run_dir: Path, model: dict, global_step: int) -> None:
-    """The weights at this step, as final_model.pt holds them. Written atomically, so a run
-    killed mid-write leaves the last whole one; a resumed run rewrites the snapshots after its
-    checkpoint with the same numbers."""
-    (run_dir / "snapshots").mkdir(exist_ok=True)
-    save_tensors(run_dir / "snapshots" / f"step{global_step}.pt", model)
-
-
-def check_finite(x: np.ndarray, what: str) -> None:
-    if not np.isfinite(x).all():
-        raise SystemExit(f"non-finite {what} (NaN/inf): training diverged; try lower learning "
-                         "rates or resume from an earlier checkpoint")
-
-
-def train_statistics(progress: dict, losses: tuple[torch.Tensor, ...] | None) -> dict:
-    """train.csv's statistics: the last update's losses (sac_losses's logs; none before learning
-    starts) and the training episodes that ended since the previous row (taken out of
-    `progress`)."""
-    returns, lengths = progress["episode_returns"], progress["episode_lengths"]
-    row = {"episodes": len(returns),
-           "episode_return_mean": np.mean(returns) if returns else None,
-           "episode_length_mean": np.mean(lengths) if lengths else None}
-    returns.clear()
-    lengths.clear()
-    if losses is not None:
-        qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi = losses
-        check_finite(qf_losses.detach().cpu().numpy(), "critic loss")
-        row |= {"qf1_loss": qf_losses[0].item(), "qf2_loss": qf_losses[1].item(),
-                "qf1_value": qf_values[0].mean().item(), "qf2_value": qf_values[1].mean().item(),
-                "actor_loss": actor_loss.item(), "alpha": alpha.item(),
-                "alpha_loss": alpha_loss.item(), "entropy": -log_pi.mean().item()}
-    return row

@@ -9,8 +9,6 @@ replaced by the mode of the tanh-squashed policy: `diff` the two to see the corr
 import copy
 import functools
 import random
-import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -21,25 +19,17 @@ import torch
 import torch.nn as nn
 from torch.func import functional_call
 
-# What is not the algorithm sits behind named calls: flags.* (the command line), run_folder.*
-# (the run folder: logs, checkpoints, resume) and compiled.py (speed; see docs/scripts.md).
+# What is not the algorithm sits behind named calls (docs/scripts.md): flags.py (the command
+# line, bad input), run_folder.py (RunFolder: the run folder, its logs, checkpoints and resume),
+# compiled.py (speed: torch.compile, CUDA graphs) and eval_runner.py (evaluation rounds).
 import flags
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
-import run_folder
-from compiled import (
-    ReLU,
-    adam_state,
-    adam_step,
-    compile_at_start,
-    compile_update,
-    cuda_graph,
-    grad,
-    make_train_step,
-)
-from eval_runner import EvalPool, Round, default_workers, eval_columns, eval_seeds, round_row
+from checkpoints import EpisodeRecord
+from compiled import ReLU, adam_state, adam_step, compile_at_start, cuda_graph, grad
+from eval_runner import EvalPool, Round, default_workers, eval_seeds, round_row, shift_measured_at
+from run_folder import RunFolder, StopRequest
 
 ALGORITHM = "standard"
-SHIFT_OF = None  # no shift columns in eval.csv (sac_corrected.py logs them)
 
 
 @dataclass
@@ -136,17 +126,17 @@ class Args:
     """the W&B group (sweep.py sets {env_id}__{algorithm})"""
 
 
-TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
-                 "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
-                 "episode_return_mean", "episode_length_mean")
-# What final_model.pt keeps of the arguments, so that it alone rebuilds the actor (evaluate.py).
-MODEL_FIELDS = ("env_id", "hidden_sizes", "log_std_min", "log_std_max")
+def tanh_mu(mu: torch.Tensor, log_std: torch.Tensor, solver: str) -> torch.Tensor:
+    """The action this script evaluates with, in (-1, 1)^A before the env's scaling: tanh(mu),
+    the squashed Gaussian's per-dimension median (tanh is monotone), as standard SAC; not its
+    most probable action."""
+    return torch.tanh(mu)
 
 
-def eval_actions(args: Args) -> dict[str, str]:
-    """Evaluation actions (eval_runner.py) by eval.csv column prefix: tanh(mu), the usual choice,
-    and the --eval-selectors."""
-    return {"": "tanh_mu", **{f"{s}_": s for s in args.eval_selectors}}
+def eval_actions(args: Args) -> dict:
+    """Evaluation actions by eval.csv column prefix: this script's own (unprefixed columns) and
+    the --eval-selectors, paired with it (the same start states; eval_runner.py)."""
+    return {"": tanh_mu, **{f"{s}_": s for s in args.eval_selectors}}
 
 
 def make_env(env_id: str, render: bool = False) -> gym.Env:
@@ -161,7 +151,7 @@ def make_vector_env(env_id: str) -> gym.vector.VectorEnv:
     """The training env, as a vector env of one (CleanRL's way): an episode's end resets it in
     the same step, its final observation in info["final_obs"] (gymnasium's SAME_STEP
     autoreset)."""
-    return gym.vector.SyncVectorEnv([lambda: run_folder.EpisodeRecord(gym.make(env_id))],
+    return gym.vector.SyncVectorEnv([lambda: EpisodeRecord(gym.make(env_id))],
                                     autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
 
 
@@ -262,7 +252,7 @@ class ReplayBuffer:
     An episode's last transition is followed by a slot holding only its final observation (never
     sampled), so a truncated episode keeps its true final observation for bootstrapping and no
     transition spans a reset. On a GPU the buffer lives there and a batch is drawn without a
-    host synchronisation, so the whole update, sampling included, can be one CUDA graph."""
+    host synchronisation."""
 
     # Slots drawn per batch row; the row takes the first that holds a transition (see sample).
     CANDIDATES = 16
@@ -276,7 +266,6 @@ class ReplayBuffer:
         self.rewards = torch.zeros(size, device=device)
         self.terminated = torch.zeros(size, device=device)
         self.valid = torch.zeros(size, dtype=torch.bool, device=device)  # holds a transition
-        self.filled_tensor = torch.zeros((), dtype=torch.int64, device=device)  # for graphs
 
     def add(self, obs: np.ndarray, action: np.ndarray, reward: float, terminated: bool,
             next_obs: np.ndarray, episode_end: bool, invented: bool = False) -> None:
@@ -298,7 +287,6 @@ class ReplayBuffer:
         self.obs[j], self.valid[j] = n, False
         self.ptr = (j + 1) % self.size if episode_end else j
         self.filled = self.size if j == 0 else max(self.filled, j + 1)
-        self.filled_tensor.fill_(self.filled)
 
     def sample(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
         """Uniform over the stored transitions: obs, actions, rewards, next_obs, 1 - terminated.
@@ -309,7 +297,7 @@ class ReplayBuffer:
         probability (episodes / slots)^16 (below 1e-16 for episodes of 10 steps or more), the row
         takes the slot before: that episode's last transition."""
         slots = torch.randint(2**62, (self.CANDIDATES, batch_size),
-                              device=self.obs.device) % self.filled_tensor
+                              device=self.obs.device) % self.filled
         first = self.valid[slots].byte().argmax(0)  # argmax returns the first maximum
         idx = slots.gather(0, first[None])[0]
         idx = torch.where(self.valid[idx], idx, (idx - 1) % self.size)
@@ -331,7 +319,6 @@ class ReplayBuffer:
 
     def load_state_dict(self, state: dict) -> None:
         self.ptr, self.filled = state["ptr"], state["filled"]
-        self.filled_tensor.fill_(self.filled)
         for a in self.ARRAYS:
             getattr(self, a)[: self.filled].copy_(state[a])
 
@@ -395,6 +382,27 @@ def sac_update(learner: dict, batch: tuple[torch.Tensor, ...], noise: torch.Tens
     return logs
 
 
+def make_learner(args: Args, obs_dim: int, action_space: gym.spaces.Box,
+                 device: torch.device) -> dict:
+    """The actor, twin critics and their target, log alpha and their Adam optimizers: everything
+    training changes, by its name in checkpoint.pt. The networks draw their initial weights from
+    a generator of their own: torch's, which draws the actions and the batches, starts from the
+    seed alone."""
+    generator = torch.Generator().manual_seed(args.seed)
+    actor = Actor(obs_dim, args.hidden_sizes, action_space, args.log_std_min, args.log_std_max,
+                  generator).to(device)
+    qf = TwinQ(obs_dim, action_space.shape[0], args.hidden_sizes, generator).to(device)
+    log_alpha = torch.tensor(float(np.log(args.alpha_init)), device=device, requires_grad=True)
+    # The optimizers hold Adam's state (checkpoints keep their state_dict); sac_update steps it.
+    # fused: a loaded state_dict puts the step counts on the parameters' device, as the update,
+    # one function (a CUDA graph on a GPU), needs.
+    adam = functools.partial(torch.optim.Adam, fused=True, capturable=device.type == "cuda")
+    return {"actor": actor, "qf": qf, "qf_target": copy.deepcopy(qf), "log_alpha": log_alpha,
+            "actor_optimizer": adam(actor.parameters(), lr=args.policy_lr),
+            "q_optimizer": adam(qf.parameters(), lr=args.q_lr),
+            "alpha_optimizer": adam([log_alpha], lr=args.alpha_lr)}
+
+
 def learner_tensors(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.Tensor,
                     actor_optimizer: torch.optim.Optimizer, q_optimizer: torch.optim.Optimizer,
                     alpha_optimizer: torch.optim.Optimizer) -> dict:
@@ -406,28 +414,20 @@ def learner_tensors(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.
             "adam": [adam_state(o) for o in (actor_optimizer, q_optimizer, alpha_optimizer)]}
 
 
-def evaluation_round(args: Args, actor: Actor, qf: TwinQ, actions: dict[str, str],
-                     global_step: int, wall_time: float, run_dir: Path) -> Round:
+def evaluation_round(args: Args, actor: Actor, qf: TwinQ, global_step: int, wall_time: float,
+                     run: RunFolder) -> Round:
     """The evaluation round at this step, on CPU copies of the networks: training goes on while
     a worker runs it (eval_runner.py)."""
-    eval_round = global_step // args.eval_interval
-    videos = {"": run_dir / "videos" / f"eval_step{global_step}.mp4"} if args.capture_video \
-        else {}
-    if videos:
-        videos[""].parent.mkdir(exist_ok=True)
+    eval_round, actions = global_step // args.eval_interval, eval_actions(args)
     return Round(args.env_id, eval_seeds(args.seed, eval_round, args.eval_episodes), actions,
-                 actor, qf if "q_best" in actions.values() else None,
+                 copy.deepcopy(actor).cpu(),
+                 copy.deepcopy(qf).cpu() if "q_best" in actions.values() else None,
                  mode_solver=args.mode_solver, reset_noise=args.eval_reset_noise,
-                 shift_of=SHIFT_OF, videos=videos,
+                 shift_of=shift_measured_at(actions),
+                 videos={"": run.video_path(global_step)} if args.capture_video else {},
                  label=f"evaluation of seed {args.seed} at step {global_step}",
                  info={"global_step": global_step, "wall_time": wall_time,
                        "eval_round": eval_round})
-
-
-def policy_weights(args: Args, actor: Actor, qf: TwinQ) -> dict:
-    """The actor and critic, and what rebuilds them: final_model.pt and snapshots."""
-    return {"actor": actor.state_dict(), "qf": qf.state_dict(),
-            "config": {f: getattr(args, f) for f in MODEL_FIELDS}}
 
 
 def ends_without_bootstrap(terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
@@ -445,13 +445,9 @@ def physics_blow_up(info: dict, episode_end: bool) -> bool:
 
 if __name__ == "__main__":
     args = flags.parse_args(Args, ALGORITHM, eval_actions)
-    stop = run_folder.StopRequest()  # from the start: a signal during setup also ends in code 3
+    stop = StopRequest()  # from the start: a signal during setup also ends in code 3
+    run = RunFolder(args, ALGORITHM, Path(__file__).name, eval_actions(args))
     torch.set_num_threads(args.torch_threads)
-    run_dir = run_folder.run_dir(args, ALGORITHM)
-    if (run_dir / "done.json").exists():
-        print(f"{run_dir}: already finished (done.json); nothing to do")
-        sys.exit(0)
-
     random.seed(args.seed)
     np.random.seed(args.seed)  # noqa: NPY002
     torch.manual_seed(args.seed)
@@ -467,100 +463,50 @@ if __name__ == "__main__":
     envs = make_vector_env(args.env_id)
     obs_dim, action_dim = envs.single_observation_space.shape[0], action_space.shape[0]
 
-    # The networks draw their initial weights from a generator of their own: torch's, which
-    # draws the actions and the batches, starts from the seed alone.
-    generator = torch.Generator().manual_seed(args.seed)
-    actor = Actor(obs_dim, args.hidden_sizes, action_space, args.log_std_min, args.log_std_max,
-                  generator).to(device)
-    qf = TwinQ(obs_dim, action_dim, args.hidden_sizes, generator).to(device)
-    qf_target = copy.deepcopy(qf)
-    # The optimizers hold Adam's state (checkpoints keep their state_dict); sac_update steps it.
-    # fused: a loaded state_dict puts the step counts on the parameters' device, as the update,
-    # one function (a CUDA graph on a GPU), needs.
-    adam = functools.partial(torch.optim.Adam, fused=True, capturable=device.type == "cuda")
-    q_optimizer = adam(qf.parameters(), lr=args.q_lr)
-    actor_optimizer = adam(actor.parameters(), lr=args.policy_lr)
+    training = make_learner(args, obs_dim, action_space, device)
+    actor, qf, qf_target, log_alpha = (training[k] for k in ("actor", "qf", "qf_target",
+                                                             "log_alpha"))
     target_entropy = -args.target_entropy_scale * action_dim
-    log_alpha = torch.tensor(float(np.log(args.alpha_init)), device=device, requires_grad=True)
-    alpha_optimizer = adam([log_alpha], lr=args.alpha_lr)
-    # By their names in checkpoint.pt.
-    networks = {"actor": actor, "qf": qf, "qf_target": qf_target}
-    optimizers = {"actor_optimizer": actor_optimizer, "q_optimizer": q_optimizer,
-                  "alpha_optimizer": alpha_optimizer}
     rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim,
                       device if args.gpu_buffer else torch.device("cpu"))
+    global_step, obs = run.open(training, rb, action_space, envs, device)  # fresh or resumed
 
-    actions = eval_actions(args)
-    eval_header = ["global_step", "wall_time", "eval_round",
-                   *eval_columns(actions, shift=SHIFT_OF is not None)]
-
-    # The folder: fresh, or resumed from its checkpoint, or restarted if it has none yet. It is
-    # locked and checked before anything in it is written.
-    lock = run_folder.lock_run_folder(run_dir)
-    ckpt = run_folder.find_checkpoint(run_dir) if args.resume is not None else None
-    if ckpt is not None:
-        flags.check_checkpoint_args(run_dir, ckpt, args)
-        run_folder.check_csv(run_dir / "eval.csv", eval_header)
-        run_folder.check_csv(run_dir / "train.csv", list(TRAIN_COLUMNS))
-        global_step, elapsed, progress = run_folder.load_checkpoint(
-            ckpt, networks, log_alpha, optimizers, rb, action_space, device)
-        obs = run_folder.replay_episode(envs, args.seed, ckpt)
-        print(f"resuming {run_dir} at step {global_step}", flush=True)
-    else:
-        global_step, elapsed, progress = 0, 0.0, run_folder.new_progress()
-        run_folder.write_config(args, run_dir, obs_dim, action_dim, ALGORITHM,
-                                Path(__file__).name, device)
-        obs, _ = envs.reset(seed=args.seed)
-    run_folder.record_holder(lock)
-
-    # Acting: a sampled action from the observation, (1, obs) -> (1, A).
+    # Acting: a sampled action from the observation and the noise, (1, obs) -> (1, A).
     act = torch.no_grad()(lambda obs, noise: actor.squash(*actor(obs), noise)[0])
-    noise_shape = (1, action_dim)
-    learner = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers.values())
+    learner = learner_tensors(*training.values())
     update = functools.partial(sac_update, actor=actor, qf=qf, gamma=args.gamma, tau=args.tau,
                                target_entropy=target_entropy)
-    # Speed, not the algorithm (compiled.py): both compiled whole at start-up, and on a GPU
-    # replayed as CUDA graphs.
-    restore = (actor, qf, qf_target, log_alpha, *optimizers.values())
+    noise_shape = (2, args.batch_size, action_dim)  # the next action's and the action's
+    # Speed (compiled.py): both compiled whole at start-up and, on a GPU, replayed as CUDA
+    # graphs; the warm-up calls leave the training state as it was (`restore`).
+    restore = tuple(training.values())
     if args.compile:
         act = compile_at_start(act, (torch.zeros((1, obs_dim), device=device),
-                                     torch.zeros(noise_shape, device=device)), (), "acting")
-        update = compile_update(update, learner, rb.zero_batch(args.batch_size, device), restore)
-    graphs = device.type == "cuda" and args.cudagraphs
-    graphed = cuda_graph if graphs else (lambda fn, restore=(): fn)
-    train_action = graphed(lambda obs: act(obs, torch.randn(noise_shape, device=device)))
-    train_step = make_train_step(rb, lambda batch, noise: update(learner, batch, noise),
-                                 args.batch_size, device, graphs, restore)
-
-    logs = run_folder.open_logs(args, run_dir, eval_header, list(TRAIN_COLUMNS), global_step,
-                                ckpt is not None, ALGORITHM)  # CSVs, TensorBoard, W&B
-    # Evaluation rounds that a stop checkpointed before they finished: rerun first, below.
-    pending = ckpt.get("pending_rounds", []) if ckpt is not None else []
-    del ckpt
+                                     torch.zeros((1, action_dim), device=device)), (), "acting")
+        update = compile_at_start(update, (learner, rb.zero_batch(args.batch_size, device),
+                                           torch.zeros(noise_shape, device=device)),
+                                  restore, "the update")
+    update = functools.partial(update, learner)  # the learner's tensors change in place
+    if device.type == "cuda" and args.cudagraphs:
+        act, update = cuda_graph(act), cuda_graph(update, restore)
 
     def log_evaluation(round_: Round, result: dict) -> None:
         """An evaluation round's eval.csv row; EvalPool calls this in step order."""
-        row = round_.info | round_row(result, actions)
-        run_folder.write_row(*logs["eval"], logs["tb"], logs["tracker"], "eval", row,
-                             round_.videos.get(""))
-        progress["last_eval"] = (row["global_step"], row["return_mean"])
+        run.log_eval(round_.info | round_row(result, round_.actions), round_.videos.get(""))
 
     eval_pool = EvalPool(default_workers() if args.eval_workers is None else args.eval_workers,
                          log_evaluation)
-    for state in pending:
-        eval_pool.submit(evaluation_round(
-            args, *run_folder.pending_round_networks(actor, qf, state), actions,
-            state["global_step"], state["wall_time"], run_dir))
+    for step, wall_time, round_actor, round_qf in run.unfinished_rounds(actor, qf):
+        eval_pool.submit(evaluation_round(args, round_actor, round_qf, step, wall_time, run))
 
-    session_start, row_start, row_step = time.time(), time.time(), global_step
     losses = None
     while global_step < args.total_timesteps:
         if global_step < args.learning_starts:
             action = action_space.sample()[None]  # (1, A): the vector env's one env
         else:
-            action = train_action(torch.as_tensor(obs, dtype=torch.float32, device=device))
-            action = action.cpu().numpy()
-            run_folder.check_finite(action, "action")
+            action = act(torch.as_tensor(obs, dtype=torch.float32, device=device),
+                         torch.randn((1, action_dim), device=device)).cpu().numpy()
+            flags.check_finite(action, "action")
         next_obs, reward, terminated, truncated, info = envs.step(action)
         global_step += 1
         episode_end = bool(terminated[0] or truncated[0])
@@ -569,33 +515,21 @@ if __name__ == "__main__":
         rb.add(obs[0], action[0], reward[0], ends_without_bootstrap(terminated, truncated)[0],
                final_obs, episode_end, physics_blow_up(info, episode_end))
         obs = next_obs
-        run_folder.count_episode(progress, reward[0], episode_end)
+        run.count_step(reward[0], episode_end)
 
         if global_step >= args.learning_starts:
-            losses = train_step()
+            batch = rb.sample(args.batch_size, device)
+            losses = update(batch, torch.randn(noise_shape, device=device))
 
         if global_step % args.log_interval == 0:
-            now = time.time()
-            row = {"global_step": global_step, "wall_time": elapsed + now - session_start,
-                   "sps": (global_step - row_step) / (now - row_start),
-                   **run_folder.train_statistics(progress, losses)}
-            run_folder.write_row(*logs["train"], logs["tb"], logs["tracker"], "train", row)
-            row_start, row_step = now, global_step
-
+            run.log_train(global_step, losses)
         if global_step % args.eval_interval == 0:
-            eval_pool.submit(evaluation_round(
-                args, copy.deepcopy(actor).cpu(), copy.deepcopy(qf).cpu(), actions, global_step,
-                elapsed + time.time() - session_start, run_dir))
+            eval_pool.submit(evaluation_round(args, actor, qf, global_step, run.wall_time(), run))
         eval_pool.poll()
-
         if global_step % args.print_interval == 0:
-            print(run_folder.progress_line(global_step, args.total_timesteps,
-                                           elapsed + time.time() - session_start, progress),
-                  flush=True)
-
+            run.print_progress(global_step)
         if args.snapshot_interval > 0 and global_step % args.snapshot_interval == 0:
-            run_folder.save_snapshot(run_dir, policy_weights(args, actor, qf), global_step)
-
+            run.save_snapshot(global_step, actor, qf)
         if stop.requested or (args.checkpoint_interval > 0
                               and global_step % args.checkpoint_interval == 0):
             # A stop checkpoints at once, recording the rounds still running (the resumed run
@@ -603,18 +537,10 @@ if __name__ == "__main__":
             # the checkpoint is in eval.csv first.
             unfinished = eval_pool.abandon() if stop.requested else []
             eval_pool.drain()
-            run_folder.save_checkpoint(run_dir, run_folder.checkpoint(
-                args, global_step, elapsed + time.time() - session_start, progress, networks,
-                log_alpha, optimizers, rb, action_space, envs.get_attr("record")[0],
-                run_folder.rng_states(device), unfinished))
+            run.checkpoint(global_step, training, rb, action_space, envs, unfinished)
             if stop.requested:
-                run_folder.close_logs(logs)
-                print(f"interrupted at step {global_step}; resume with --resume {run_dir}",
-                      flush=True)
-                sys.exit(run_folder.INTERRUPTED_EXIT_CODE)
+                run.stop(global_step)
 
     eval_pool.drain()
     eval_pool.close()
-    wall_time = elapsed + time.time() - session_start
-    run_folder.finish_run(run_dir, logs, policy_weights(args, actor, qf), global_step, wall_time)
-    print(f"finished {global_step} steps in {wall_time:.0f} s: {run_dir}", flush=True)
+    run.finish(global_step, actor, qf)

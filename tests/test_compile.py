@@ -61,7 +61,7 @@ def updates(compiled: bool, steps: int = 200) -> tuple[list, dict]:
 
 
 def run_updates(compiled: bool, steps: int) -> tuple[list, dict]:
-    from compiled import compile_update
+    from compiled import compile_at_start
     from sac_standard import learner_tensors, sac_update
 
     actor, qf, qf_target, log_alpha, optimizers = small_learner(0)
@@ -73,8 +73,8 @@ def run_updates(compiled: bool, steps: int) -> tuple[list, dict]:
         torch._dynamo.utils.counters.clear()
         zero = (torch.zeros(32, 11), torch.zeros(32, 3), torch.zeros(32), torch.zeros(32, 11),
                 torch.zeros(32))
-        update = compile_update(update, tensors, zero, (actor, qf, qf_target, log_alpha,
-                                                        *optimizers))
+        update = compile_at_start(update, (tensors, zero, torch.zeros(2, 32, 3)),
+                                  (actor, qf, qf_target, log_alpha, *optimizers), "the update")
     g = torch.Generator().manual_seed(1)
     logs = []
     for _ in range(steps):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from compiled import compile_update, cuda_graph, make_train_step
+from compiled import compile_at_start, cuda_graph
 from mode_search import mode_action
 from sac_standard import Actor, ReplayBuffer, TwinQ, learner_tensors, sac_update
 from tests.test_sac import SHORT, command, read_csv, run, wait_for
@@ -45,8 +45,10 @@ def learner(buffer_device: torch.device, seed: int = 0, compiled: bool = False):
     update = functools.partial(sac_update, actor=actor, qf=qf, gamma=0.99, tau=0.005,
                                target_entropy=-ACTION_DIM / 2)
     if compiled:
-        update = compile_update(update, tensors, rb.zero_batch(64, CUDA), state)
-    return rb, (lambda batch, noise: update(tensors, batch, noise)), state
+        update = compile_at_start(update, (tensors, rb.zero_batch(64, CUDA),
+                                           torch.zeros(2, 64, ACTION_DIM, device=CUDA)),
+                                  state, "the update")
+    return rb, functools.partial(update, tensors), state
 
 
 def losses_over_updates(graphs: bool, buffer_device: torch.device, updates: int = 300,
@@ -54,7 +56,13 @@ def losses_over_updates(graphs: bool, buffer_device: torch.device, updates: int 
     rb, update, state = learner(buffer_device, compiled=compiled)
     torch.manual_seed(1)
     torch.cuda.manual_seed(1)
-    step = make_train_step(rb, update, 64, CUDA, graphs, state)
+    if graphs:  # as the scripts: the batch drawn outside the graph, copied into its inputs
+        update = cuda_graph(update, state)
+
+    def step():
+        batch = rb.sample(64, CUDA)
+        return update(batch, torch.randn(2, 64, ACTION_DIM, device=CUDA))
+
     losses = torch.stack([torch.stack([t.detach().float().mean() for t in step()])
                           for _ in range(updates)])
     return losses.cpu(), state[0].state_dict()

@@ -270,7 +270,7 @@ def test_bad_resumes_fail_clearly(standard_run, tmp_path):
 
 
 def test_nan_is_a_clear_error():
-    from run_folder import check_finite
+    from flags import check_finite
 
     with pytest.raises(SystemExit, match="training diverged"):
         check_finite(torch.tensor([0.0, float("nan")]).numpy(), "action")

@@ -16,8 +16,8 @@ import pytest
 import torch
 
 import tests.toy_envs  # noqa: F401  (registers the toy envs here; workers import them by id)
+from checkpoints import episode_state, on_cpu, rng_states
 from eval_runner import EvalPool, Round
-from run_folder import episode_state, on_cpu, rng_states
 from tests.test_sac import ROOT, command, read_csv, run, wait_for
 from tests.toy_envs import ToyActor
 
