@@ -12,10 +12,23 @@ decisions for a seed, so that evaluation is the standard run of the seed: where 
 sac_standard.py runs, it stands in for them ("Standard SAC (tanh(mu), paired)"), and where it
 has both, they are checked to agree. Runs made with `--eval-selectors` carry further paired
 evaluations of the same actor: the mean of the squashed policy, the critic's pick (q_best), and
-for a standard run the mode. The headline is the paired analysis: per seed, each selector minus
-tanh(mu) of the same actor, per task and over tasks.
+for a standard run the mode. The headline is the paired analysis: per seed, each evaluation
+action minus tanh(mu) of the same actor, per task and over tasks.
 
-Pipeline: load -> pair -> align -> normalise -> estimate -> plot -> tables.
+The file, top to bottom (docs/analyze.md maps each figure to its section and function):
+
+- What to edit: SUCCESS_BARS (a task's success bar) and EVALUATION_ACTIONS (an action the same
+  actor is also evaluated with). Adding either is one entry there; every report follows.
+- The data layer: load -> pair -> align -> paired differences -> normalise, run folders in,
+  arrays out. It writes no report.
+- Shared tools: the rliable estimators (and the Student-t interval beside them) and the report
+  writer (summary.csv rows, summary.md sections, figures, group labels and colours).
+- One section per report, in the order summary.md prints them, each with its computation, its
+  figure and its table: the header and where the standard numbers come from; the paired
+  difference (the headline); over training; q_best's choices; reward curves and final returns;
+  aggregate metrics; performance profiles; sample efficiency; probability of improvement; the
+  dimension study. A section calls the data layer and the shared tools, never another section.
+- The pipeline: analyze() runs the data layer once and then REPORT_SECTIONS in order.
 """
 
 from __future__ import annotations
@@ -39,6 +52,61 @@ import tyro
 from rliable import library as rly
 from rliable import metrics, plot_utils
 
+# ============================================================================== what to edit
+# A task with a success bar: one entry here. HumanoidBench's success bars, the return at which a
+# task counts as solved; under the default normalisation a score of 1.0 means "reached the bar",
+# and the reward curves draw the bar. A task without one is scored min-max (see NORMALIZATIONS).
+SUCCESS_BARS = {
+    "h1hand-stand-v0": 800.0,
+    "h1hand-powerlift-v0": 800.0,
+    "h1hand-cube-v0": 370.0,
+    "h1hand-bookshelf_simple-v0": 2000.0,
+    "h1hand-bookshelf_hard-v0": 2000.0,
+}
+
+STANDARD, CORRECTED = "standard", "corrected"
+# The action each script evaluates with on its own (eval.csv's return_mean).
+OWN_ACTIONS = {CORRECTED: "mode", STANDARD: "tanh_mu"}
+# Optional (q_best_): how often the critic picked each candidate action (shares summing to 1).
+Q_BEST_SHARE_COLUMNS = ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_share_mean")
+
+
+@dataclasses.dataclass(frozen=True)
+class EvaluationAction:
+    """An action the same actor is also evaluated with, from the same start states: eval.csv's
+    block of columns `NAME_return_mean`, ... forms the group "ALGORITHM (TITLE eval)" (e.g.
+    `corrected (mean eval)`), which every report compares with tanh(mu) of the same actors."""
+
+    name: str  # eval.csv's column prefix without its "_"; the tables' "action" column
+    title: str = ""  # in the group's name, when other than `name`: "tanh(mu)"
+    # algorithm -> index of the group's colour in seaborn's colorblind palette, fixed so that
+    # colours stay put between reports (the actions of one algorithm get distant hues); a group
+    # without one gets a free colour.
+    colors: dict[str, int] = dataclasses.field(default_factory=dict)
+    choice_shares: tuple[str, ...] = ()  # eval.csv columns: how often each candidate was chosen
+
+    @property
+    def prefix(self) -> str:
+        return self.name + "_"
+
+    @property
+    def suffix(self) -> str:
+        return f" ({self.title or self.name} eval)"
+
+
+# The baseline every other action is compared with: sac_corrected.py always logs it.
+TANH_MU = EvaluationAction("tanh_mu", "tanh(mu)", colors={CORRECTED: 9})  # sky blue
+# A new evaluation action: one entry here (its eval.csv columns NAME_return_mean, ...). With
+# --eval-selectors both scripts log mean_ and q_best_, and sac_standard.py mode_.
+EVALUATION_ACTIONS = (
+    TANH_MU,
+    EvaluationAction("mode", colors={STANDARD: 3}),  # vermillion; corrected's own action
+    EvaluationAction("mean", colors={CORRECTED: 2, STANDARD: 5}),  # green, brown
+    EvaluationAction("q_best", colors={CORRECTED: 4, STANDARD: 6},  # pink, light pink
+                     choice_shares=Q_BEST_SHARE_COLUMNS),
+)
+
+# ------------------------------------------------------------------------- the run-folder format
 # The run-folder format read here (docs/scripts.md, "The run folder", documents it, also for users
 # who bring logs from elsewhere). Everything else in a run folder is ignored.
 CONFIG_FILE = "config.json"
@@ -47,23 +115,8 @@ REQUIRED_CONFIG_KEYS = ("env_id", "seed", "algorithm")
 STEP_COLUMN = "global_step"
 RETURN_COLUMN = "return_mean"  # mean return of the script's own evaluation action
 REQUIRED_EVAL_COLUMNS = (STEP_COLUMN, RETURN_COLUMN)
-# Optional: the same actor evaluated with another action on the same start states, a block of
-# columns per evaluation action with this prefix (sac_corrected.py always logs tanh_mu_; with
-# --eval-selectors both scripts log mean_ and q_best_, and sac_standard.py mode_). Each forms the
-# group "ALGORITHM SUFFIX".
-PAIRED_SUFFIX = " (tanh(mu) eval)"
-SELECTOR_PREFIXES = {
-    "tanh_mu_": PAIRED_SUFFIX,
-    "mode_": " (mode eval)",
-    "mean_": " (mean eval)",
-    "q_best_": " (q_best eval)",
-}
-SELECTOR_NAMES = {PAIRED_SUFFIX: "tanh_mu", " (mode eval)": "mode", " (mean eval)": "mean",
-                  " (q_best eval)": "q_best"}
-PAIRED_RETURN_COLUMN = "tanh_mu_" + RETURN_COLUMN
-SELECTOR_RETURN_COLUMNS = tuple(prefix + RETURN_COLUMN for prefix in SELECTOR_PREFIXES)
-# Optional (q_best_): how often the critic picked each candidate action (shares summing to 1).
-Q_BEST_SHARE_COLUMNS = ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_share_mean")
+PAIRED_SUFFIX = TANH_MU.suffix
+PAIRED_RETURN_COLUMN = TANH_MU.prefix + RETURN_COLUMN
 # Optional (sac_corrected.py): the distribution shift at the states the mode policy visited.
 SHIFT_COLUMNS = ("mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
 # Over training: the shift per action dimension, which tasks of any dimension share an axis on.
@@ -71,40 +124,18 @@ OVER_TRAINING_SHIFT_COLUMNS = ("mode_shift_abs_mean", "sigma_mean", "bimodal_fra
 # Optional: how many distinct episodes an evaluation round held. A task that resets without
 # noise plays one episode however many the round asks for, which the figures must say.
 EPISODES_COLUMN = "distinct_episodes"
-OPTIONAL_COLUMNS = (*SELECTOR_RETURN_COLUMNS, *Q_BEST_SHARE_COLUMNS,
-                    *dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS), EPISODES_COLUMN)
-# The dimension study: paired differences at these fractions of each task's shared steps.
-TRAINING_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
 
-STANDARD, CORRECTED = "standard", "corrected"
+# ----------------------------------------------------------------------------- groups and settings
 PAIRED_CORRECTED = CORRECTED + PAIRED_SUFFIX
 # Probability of improvement of the first over the second.
 COMPARISON = (CORRECTED, STANDARD)
-GROUP_ORDER = (STANDARD, CORRECTED, PAIRED_CORRECTED,
-               *(algorithm + suffix for algorithm in (CORRECTED, STANDARD)
-                 for suffix in (" (mode eval)", " (mean eval)", " (q_best eval)")
-                 if (algorithm, suffix) != (CORRECTED, " (mode eval)")))
 STANDARD_LABEL = "Standard SAC"
-LABELS = {
-    STANDARD: STANDARD_LABEL,
-    CORRECTED: "Corrected SAC",
-    PAIRED_CORRECTED: "Corrected SAC (tanh(mu) eval)",
-}
+ALGORITHM_LABELS = {STANDARD: STANDARD_LABEL, CORRECTED: "Corrected SAC"}
 STANDARD_FROM_PAIRED_LABEL = "Standard SAC (tanh(mu), paired)"
 # A standard run and the paired evaluation of the corrected run of the same seed agree when
 # their returns at a shared step differ by at most this (relative): the CSVs hold the same
 # floats, so any real difference (other flags, code, or device) is far larger.
 AGREEMENT_RTOL = 1e-9
-
-# HumanoidBench's success bars: the return at which a task counts as solved. Under the default
-# normalisation a score of 1.0 means "reached the bar".
-SUCCESS_BARS = {
-    "h1hand-stand-v0": 800.0,
-    "h1hand-powerlift-v0": 800.0,
-    "h1hand-cube-v0": 370.0,
-    "h1hand-bookshelf_simple-v0": 2000.0,
-    "h1hand-bookshelf_hard-v0": 2000.0,
-}
 NORMALIZATIONS = {
     "auto": "success-bar when every task has a HumanoidBench success bar, otherwise min-max",
     "success-bar": "score = return / HumanoidBench success bar (1.0 = solved)",
@@ -112,19 +143,12 @@ NORMALIZATIONS = {
     "for the task in this folder (all algorithms, seeds and steps)",
     "none": "raw returns",
 }
-AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
+SCORE_NAMES = {"success-bar": "Success-bar normalised score",
+               "min-max": "Min-max normalised score", "none": "Return"}
 CONFIDENCE = 0.95
 # Up to this many seeds a percentile bootstrap of the mean is narrower than the data allow: it
 # only resamples the few values seen, so summary.md puts a Student-t interval beside it.
 FEW_SEEDS = 5
-# Over training: each seed's paired difference averaged over its last evaluation rounds, since
-# one round of a noisy task is one draw of that noise.
-LAST_ROUNDS = (20, 50)
-# The over-training figure's rolling mean, over this many rounds (drawn with twice as many).
-ROLLING_ROUNDS = 10
-# A success bar further above the returns than this factor would squash them into the floor of
-# the reward-curve axes: it is then named in the title instead of drawn.
-SUCCESS_BAR_DRAWN_WITHIN = 1.5
 
 
 @dataclasses.dataclass
@@ -154,6 +178,20 @@ class AnalysisError(Exception):
     """A problem with the input that the user can fix: reported as one message, no traceback."""
 
 
+# ============================================================================== the data layer
+# Run folders in, arrays out: load -> pair -> align -> paired differences -> normalise. Nothing
+# here writes a report; the notes it returns (runs skipped, cut, left out) go to summary.md.
+def format_step(step: int | float) -> str:
+    """Steps as people write them: 10M, 2.5M, 250k, 1,234."""
+    step = int(step)
+    if step >= 1_000_000 and step % 1_000 == 0:
+        return f"{step / 1_000_000:g}M"
+    if step >= 1_000 and step % 1_000 == 0:
+        return f"{step // 1_000}k"
+    return f"{step:,}"
+
+
+# ------------------------------------------------------------------------------------- load
 @dataclasses.dataclass
 class Curve:
     """One run's evaluation returns, at the steps it logged, for one group."""
@@ -164,7 +202,7 @@ class Curve:
     returns: np.ndarray
     action_dim: int | None = None  # config.json's, where it has one
     shift: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # SHIFT_COLUMNS
-    shares: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # Q_BEST_SHARE_COLUMNS
+    shares: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # choice_shares
     budget: int | None = None  # config.json's total_timesteps, where it has one
     episodes: np.ndarray | None = None  # EPISODES_COLUMN per step, where the run logged it
 
@@ -173,7 +211,14 @@ class Curve:
 Runs = dict[str, dict[str, list[Curve]]]
 
 
-# ----------------------------------------------------------------------------- load
+def optional_columns() -> tuple[str, ...]:
+    """eval.csv's optional columns: each evaluation action's return and choice shares, the
+    shift statistics, the distinct episodes."""
+    return (*(action.prefix + RETURN_COLUMN for action in EVALUATION_ACTIONS),
+            *(column for action in EVALUATION_ACTIONS for column in action.choice_shares),
+            *dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS), EPISODES_COLUMN)
+
+
 def read_config(path: Path) -> dict:
     """The run's config.json, checked for the keys analyze.py needs."""
     try:
@@ -213,7 +258,8 @@ def read_eval_csv(path: Path) -> tuple[dict[str, np.ndarray], bool]:
             f"{path} lacks column(s) {missing}; eval.csv needs a header row with at least "
             f"{list(REQUIRED_EVAL_COLUMNS)} (see docs/analyze.md)"
         )
-    wanted = [*REQUIRED_EVAL_COLUMNS, *(c for c in OPTIONAL_COLUMNS if c in header)]
+    optional = optional_columns()
+    wanted = [*REQUIRED_EVAL_COLUMNS, *(c for c in optional if c in header)]
     columns = {name: np.empty(len(body)) for name in wanted}
     for i, row in enumerate(body):
         if len(row) != len(header):
@@ -222,19 +268,20 @@ def read_eval_csv(path: Path) -> tuple[dict[str, np.ndarray], bool]:
                 "fix or delete that row"
             )
         for name in wanted:
-            columns[name][i] = _parse_number(row[header.index(name)], path, i + 2, name)
+            columns[name][i] = _parse_number(row[header.index(name)], path, i + 2, name,
+                                             name in optional)
     _check_columns(columns, path)
     return columns, partial
 
 
-def _parse_number(text: str, path: Path, row: int, column: str) -> float:
-    if not text.strip() and column in OPTIONAL_COLUMNS:
+def _parse_number(text: str, path: Path, row: int, column: str, optional: bool) -> float:
+    if not text.strip() and optional:
         return math.nan  # optional column: an empty cell means "not measured"
     try:
         value = float(text)
     except ValueError:
         raise AnalysisError(f"{path}, row {row}: {column} = {text!r} is not a number") from None
-    if not math.isfinite(value) and column not in OPTIONAL_COLUMNS:
+    if not math.isfinite(value) and not optional:
         raise AnalysisError(f"{path}, row {row}: {column} = {text!r} is not a finite number")
     return value
 
@@ -284,17 +331,16 @@ def load_runs(root: Path) -> tuple[Runs, list[str]]:
         _add_curve(runs, task, algorithm, Curve(run_dir, seed, steps, columns[RETURN_COLUMN],
                                                 action_dim, shift, budget=budget,
                                                 episodes=episodes))
-        for prefix, suffix in SELECTOR_PREFIXES.items():
-            paired = columns.get(prefix + RETURN_COLUMN)
+        for action in EVALUATION_ACTIONS:
+            paired = columns.get(action.prefix + RETURN_COLUMN)
             if paired is not None and np.isfinite(paired).all():
-                shares = {c: columns[c] for c in Q_BEST_SHARE_COLUMNS
-                          if prefix == "q_best_" and c in columns}
+                shares = {c: columns[c] for c in action.choice_shares if c in columns}
                 curve = Curve(run_dir, seed, steps, paired, action_dim, shares=shares,
                               budget=budget, episodes=episodes)
-                _add_curve(runs, task, algorithm + suffix, curve)
+                _add_curve(runs, task, algorithm + action.suffix, curve)
             elif paired is not None:
-                notes.append(f"{run_dir}: {prefix + RETURN_COLUMN} has empty cells; "
-                             f"its paired {SELECTOR_NAMES[suffix]} eval left out")
+                notes.append(f"{run_dir}: {action.prefix + RETURN_COLUMN} has empty cells; "
+                             f"its paired {action.name} eval left out")
     if not runs:
         raise AnalysisError(
             f"no runs found under {root}: a run is a folder holding {CONFIG_FILE} (keys "
@@ -318,35 +364,53 @@ def _add_curve(runs: Runs, task: str, group: str, curve: Curve) -> None:
     curves.append(curve)
 
 
-def selector_suffix(group: str) -> str:
+def action_suffix(group: str) -> str:
     """The suffix naming a group's paired evaluation action, "" for an algorithm's own."""
-    return next((s for s in SELECTOR_PREFIXES.values() if group.endswith(s)), "")
+    return next((a.suffix for a in EVALUATION_ACTIONS if group.endswith(a.suffix)), "")
 
 
 def algorithm_of(group: str) -> str:
-    return group.removesuffix(selector_suffix(group))
+    """The algorithm whose runs a group evaluates: "corrected" for "corrected (mean eval)"."""
+    return group.removesuffix(action_suffix(group))
 
 
 def is_algorithm(group: str) -> bool:
     """A group of the runs' own evaluations, not a paired evaluation of another action."""
-    return not selector_suffix(group)
+    return not action_suffix(group)
 
 
-def selector_of(group: str) -> str:
+def action_of(group: str) -> str:
     """The action a group evaluates: mode, tanh_mu, mean, q_best, or the algorithm's name for
     an algorithm other than the two scripts (its own action)."""
-    if selector_suffix(group):
-        return SELECTOR_NAMES[selector_suffix(group)]
-    return {CORRECTED: "mode", STANDARD: "tanh_mu"}.get(group, group)
+    suffix = action_suffix(group)
+    if suffix:
+        return next(a.name for a in EVALUATION_ACTIONS if a.suffix == suffix)
+    return OWN_ACTIONS.get(group, group)
+
+
+def group_order() -> list[str]:
+    """The paper's groups in a fixed order (so that tables and colours stay put): the two
+    algorithms, corrected's tanh(mu), then each algorithm's other evaluation actions."""
+    others = [algorithm + action.suffix for algorithm in (CORRECTED, STANDARD)
+              for action in EVALUATION_ACTIONS
+              if action.name not in (TANH_MU.name, OWN_ACTIONS[algorithm])]
+    return [STANDARD, CORRECTED, PAIRED_CORRECTED, *others]
 
 
 def ordered_groups(runs: Runs) -> list[str]:
     """Every group in the folder: the paper's first, in a fixed order (so colours stay put)."""
     found = {group for groups in runs.values() for group in groups}
-    return [g for g in GROUP_ORDER if g in found] + sorted(found - set(GROUP_ORDER))
+    order = group_order()
+    return [g for g in order if g in found] + sorted(found - set(order))
 
 
-# ----------------------------------------------------------------------------- pair
+def group_rank(group: str) -> tuple[int, str]:
+    """Sort key: the paper's groups first, in a fixed order."""
+    order = group_order()
+    return (order.index(group) if group in order else len(order), group)
+
+
+# ------------------------------------------------------------------------------------- pair
 @dataclasses.dataclass
 class Pairing:
     """How the corrected runs' paired tanh(mu) evaluation relates to the standard runs."""
@@ -381,8 +445,8 @@ def standard_from_paired(runs: Runs) -> Pairing:
                 pairing.disagreeing.append(
                     f"{task}, seed {standard.seed}: {standard.run_dir} and the paired evaluation "
                     f"of {twin.run_dir} differ at {int(differ.sum())} of {steps.size} shared "
-                    f"steps (step {_fmt(steps[k])}: {a[k]:.6g} vs {b[k]:.6g}); made with other "
-                    "flags or code? Kept apart")
+                    f"steps (step {format_step(steps[k])}: {a[k]:.6g} vs {b[k]:.6g}); made with "
+                    "other flags or code? Kept apart")
             else:
                 pairing.agreeing[task] = pairing.agreeing.get(task, 0) + steps.size
     return pairing
@@ -397,23 +461,7 @@ def standard_label(pairing: Pairing, tasks: Sequence[str]) -> str:
     return STANDARD_FROM_PAIRED_LABEL.replace("paired", "paired on some tasks")
 
 
-def pairing_lines(pairing: Pairing) -> list[str]:
-    """summary.md's account of where the standard numbers come from."""
-    lines = []
-    if pairing.derived:
-        lines.append(
-            f"No sac_standard.py runs for {', '.join(pairing.derived)}: Standard SAC there is the "
-            "corrected runs' paired evaluation, tanh(mu) of the same actors from the same start "
-            "states (the two scripts make identical training decisions for a seed, so this is "
-            "the standard run of each seed, computed once).")
-    for task, points in sorted(pairing.agreeing.items()):
-        lines.append(f"{task}: the standard runs equal the corrected runs' paired tanh(mu) "
-                     f"evaluation at all {points} shared (seed, step) points.")
-    lines += [f"Disagreement: {line}." for line in pairing.disagreeing]
-    return lines
-
-
-# ----------------------------------------------------------------------------- align
+# ------------------------------------------------------------------------------------- align
 @dataclasses.dataclass
 class Task:
     """A task's runs aligned on the evaluation steps all of them share."""
@@ -448,7 +496,7 @@ def align(runs: Runs, at_step: int | None) -> tuple[dict[str, Task], list[str]]:
         notes += _alignment_notes(task, curves, steps, scored_step)
         tasks[task] = Task(
             steps=steps,
-            returns={g: np.stack([_at(c, steps) for c in cs]) for g, cs in groups.items()},
+            returns={g: np.stack([returns_at(c, steps) for c in cs]) for g, cs in groups.items()},
             seeds={g: [c.seed for c in cs] for g, cs in groups.items()},
             scored_step=scored_step,
             budget=task_budget(curves, steps),
@@ -472,7 +520,7 @@ def _scored_step(task: str, curves: list[Curve], steps: np.ndarray, at_step: int
         raise AnalysisError(
             f"--at-step {at_step}: not every run of {task} was evaluated at that step"
             f"{example if lacking else ''}; steps all its runs share: "
-            f"{_fmt(steps[0])} .. {_fmt(steps[-1])}, {steps.size} in all"
+            f"{format_step(steps[0])} .. {format_step(steps[-1])}, {steps.size} in all"
         )
     return at_step
 
@@ -486,9 +534,10 @@ def _alignment_notes(
     if cut:
         shortest = min(curves, key=lambda c: c.steps[-1])
         notes.append(
-            f"{task}: its runs share steps up to {_fmt(steps[-1])} (shortest run: "
-            f"{shortest.run_dir}, to {_fmt(shortest.steps[-1])}); curves and scores stop there. "
-            "Cut: " + ", ".join(f"{d} (reached {_fmt(last)})" for d, last in cut.items())
+            f"{task}: its runs share steps up to {format_step(steps[-1])} (shortest run: "
+            f"{shortest.run_dir}, to {format_step(shortest.steps[-1])}); curves and scores stop "
+            "there. Cut: "
+            + ", ".join(f"{d} (reached {format_step(last)})" for d, last in cut.items())
         )
     unshared = {c.run_dir for c in curves
                 if np.setdiff1d(c.steps[c.steps <= steps[-1]], steps).size}
@@ -498,15 +547,71 @@ def _alignment_notes(
             f"others lack); curves and scores use the {steps.size} steps all runs share"
         )
     if scored_step != steps[-1]:
-        notes.append(f"{task}: final scores taken at --at-step {_fmt(scored_step)}")
+        notes.append(f"{task}: final scores taken at --at-step {format_step(scored_step)}")
     return notes
 
 
-def _at(curve: Curve, steps: np.ndarray) -> np.ndarray:
+def returns_at(curve: Curve, steps: np.ndarray) -> np.ndarray:
     return curve.returns[np.searchsorted(curve.steps, steps)]
 
 
-# ----------------------------------------------------------------------------- normalise
+# ----------------------------------------------------------------------- paired differences
+# Each evaluation action minus tanh(mu) of the same actors, per seed: the paired difference
+# report, over training and the dimension study read these arrays.
+def tanh_mu_group(groups: Sequence[str], algorithm: str, derived: bool) -> str | None:
+    """The group holding the tanh(mu) evaluation of an algorithm's actors, if the task has one."""
+    if algorithm + PAIRED_SUFFIX in groups:
+        return algorithm + PAIRED_SUFFIX
+    if algorithm == CORRECTED and derived and STANDARD in groups:
+        return STANDARD  # the standard group is the corrected runs' paired evaluation
+    return algorithm if algorithm == STANDARD and algorithm in groups else None
+
+
+def paired_groups(data: Task, derived: bool) -> list[tuple[str, str]]:
+    """(group of some evaluation action, group of tanh(mu) of the same actors) pairs present in
+    a task: the corrected runs' mode, each run's mean, q_best and (standard runs) mode."""
+    pairs = []
+    for group in sorted(data.returns, key=group_rank):
+        baseline = tanh_mu_group(list(data.returns), algorithm_of(group), derived)
+        if baseline is not None and baseline != group and action_of(group) != TANH_MU.name:
+            pairs.append((group, baseline))
+    return pairs
+
+
+def paired_values(data: Task, group: str, baseline: str, steps: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(group, baseline) returns at `steps`, (seeds, steps) each, on the seeds both have: a run
+    made without some evaluation action has no partner there."""
+    seeds = sorted(set(data.seeds[group]) & set(data.seeds[baseline]))
+    rows = [[data.seeds[g].index(seed) for seed in seeds] for g in (group, baseline)]
+    return data.at(group, steps)[rows[0]], data.at(baseline, steps)[rows[1]]
+
+
+def paired_differences(tasks: dict[str, Task], derived: Sequence[str] = ()
+                       ) -> dict[str, dict[str, np.ndarray]]:
+    """task -> group -> per-seed (that group's eval minus tanh(mu) eval of the same actors) at
+    the scored step; the group is the algorithm itself for its own action (the corrected mode)."""
+    differences: dict[str, dict[str, np.ndarray]] = {}
+    for task, data in tasks.items():
+        for group, baseline in paired_groups(data, task in derived):
+            own, paired = paired_values(data, group, baseline, np.array([data.scored_step]))
+            differences.setdefault(task, {})[group] = own[:, 0] - paired[:, 0]
+    return differences
+
+
+def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
+                             ) -> dict[str, dict[str, np.ndarray]]:
+    """task -> group -> per-seed difference (group minus tanh(mu) of the same actors) at every
+    shared step, (seeds, steps): the headline's paired difference over the whole of training."""
+    curves: dict[str, dict[str, np.ndarray]] = {}
+    for task, data in tasks.items():
+        for group, baseline in paired_groups(data, task in derived):
+            own, paired = paired_values(data, group, baseline, data.steps)
+            curves.setdefault(task, {})[group] = own - paired
+    return curves
+
+
+# ------------------------------------------------------------------------------------- normalise
 def resolve_normalization(mode: str, tasks: Sequence[str]) -> tuple[str, str]:
     """`auto` made concrete, and a sentence for summary.md saying what was chosen and why."""
     if mode != "auto":
@@ -548,108 +653,6 @@ def normalizers(tasks: dict[str, Task], mode: str) -> dict[str, tuple[float, flo
 def normalize(returns: np.ndarray, norm: tuple[float, float]) -> np.ndarray:
     offset, scale = norm
     return (returns - offset) / scale
-
-
-# ----------------------------------------------------------------------------- estimate
-def seed_bootstrap(seed: int) -> None:
-    """rliable's bootstraps draw from NumPy's legacy global generator (random_state is ignored)."""
-    np.random.seed(seed)  # noqa: NPY002
-
-
-def interval_estimates(
-    score_dict: dict, func: Callable[..., np.ndarray], reps: int, seed: int
-) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """rliable's stratified-bootstrap point and interval estimates, reproducible by `seed`."""
-    seed_bootstrap(seed)
-    return rly.get_interval_estimates(
-        score_dict, func, reps=reps, confidence_interval_size=CONFIDENCE
-    )
-
-
-def aggregate_metrics(scores: np.ndarray, gap: bool = True) -> np.ndarray:
-    """IQM, median, mean (and optimality gap) of a (runs x tasks) score matrix."""
-    values = [
-        metrics.aggregate_iqm(scores),
-        metrics.aggregate_median(scores),
-        metrics.aggregate_mean(scores),
-    ]
-    return np.array(values + [metrics.aggregate_optimality_gap(scores)] * gap)
-
-
-def iqm_per_step(scores: np.ndarray) -> np.ndarray:
-    """metrics.aggregate_iqm at each step of a (runs x tasks x steps) score array.
-
-    aggregate_iqm is scipy's 25% trimmed mean over all runs and tasks; one call along the step
-    axis gives the same numbers as a call per step, 6x (21 steps) to 15x (51) faster.
-    """
-    return scipy.stats.trim_mean(scores.reshape(-1, scores.shape[-1]), 0.25, axis=0)
-
-
-def reward_curve_estimates(tasks: dict[str, Task], reps: int, seed: int) -> dict:
-    """task -> group -> (mean, (low, high)) over seeds at every shared step."""
-    estimates = {}
-    for task, data in tasks.items():
-        scores = {g: r[:, None, :] for g, r in data.returns.items()}  # (seeds, 1 task, steps)
-        point, interval = interval_estimates(scores, metrics.aggregate_mean, reps, seed)
-        estimates[task] = {g: (point[g], interval[g]) for g in scores}
-    return estimates
-
-
-def seed_mean_estimates(samples: dict[tuple[str, str], np.ndarray], reps: int, seed: int) -> dict:
-    """(task, group) -> (mean, low, high) of one value per seed, with a bootstrap CI.
-
-    The tasks of a group with equal seed counts share one bootstrap: it resamples each task's
-    seeds independently, so each task's interval is distributed as in a bootstrap of its own,
-    at a fraction of the cost.
-    """
-    batches: dict[tuple[str, int], list[str]] = {}
-    for (task, group), values in samples.items():
-        batches.setdefault((group, values.size), []).append(task)
-    estimates = {}
-    for (group, _), batch in batches.items():
-        scores = np.stack([samples[task, group] for task in batch], axis=1)
-        point, interval = interval_estimates({group: scores}, per_task_mean, reps, seed)
-        for i, task in enumerate(batch):
-            estimates[task, group] = (float(point[group][i]), *interval[group][:, i])
-    return estimates
-
-
-def per_task_mean(scores: np.ndarray) -> np.ndarray:
-    """Mean over runs of each task: metrics.aggregate_mean before it averages over tasks."""
-    return np.mean(scores, axis=0)
-
-
-def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
-    """(mean, low, high) of one value per seed: mean +- t_{n-1} * sd / sqrt(n).
-
-    Unlike a percentile bootstrap, Student's interval widens as the seeds get few, which is what
-    five seeds allow. NaN bounds with one seed, where no spread is seen.
-    """
-    values = np.asarray(values, dtype=float)
-    mean = float(values.mean())
-    if values.size < 2:
-        return mean, math.nan, math.nan
-    quantile = scipy.stats.t.ppf(0.5 + confidence / 2, values.size - 1)
-    half = float(quantile * values.std(ddof=1) / math.sqrt(values.size))
-    return mean, mean - half, mean + half
-
-
-def stratified_t_interval(per_task: Sequence[np.ndarray], confidence: float = CONFIDENCE
-                          ) -> tuple[float, float, float]:
-    """(mean, low, high) of the mean over tasks of each task's mean over seeds: Welch's interval
-    with Satterthwaite's degrees of freedom, each task's seeds independent of the others' (as
-    rliable's stratified bootstrap draws them). NaN bounds when a task has one seed."""
-    mean = float(np.mean([np.mean(v) for v in per_task]))
-    if any(np.size(v) < 2 for v in per_task):
-        return mean, math.nan, math.nan
-    terms = np.array([np.var(v, ddof=1) / np.size(v) for v in per_task])
-    total = float(terms.sum())
-    if total == 0:
-        return mean, mean, mean
-    df = total**2 / sum(term**2 / (np.size(v) - 1) for term, v in zip(terms, per_task,
-                                                                       strict=True))
-    half = scipy.stats.t.ppf(0.5 + confidence / 2, df) * math.sqrt(total) / len(per_task)
-    return mean, mean - half, mean + half
 
 
 @dataclasses.dataclass
@@ -716,7 +719,7 @@ def fraction_frames(tasks: dict[str, Task], curve_points: int
     task's steps at them, and summary.md's note saying so."""
     first = max(data.steps[0] / data.budget for data in tasks.values())
     last = min(data.steps[-1] / data.budget for data in tasks.values())
-    budgets = ", ".join(f"{t} {_fmt(data.budget)}" for t, data in tasks.items())
+    budgets = ", ".join(f"{t} {format_step(data.budget)}" for t, data in tasks.items())
     if first > last:
         return np.empty(0), {}, (
             f"the aggregated tasks' evaluations cover no common fraction of their budgets "
@@ -733,83 +736,157 @@ def fraction_frames(tasks: dict[str, Task], curve_points: int
         f"{budgets}); at each fraction a task contributes its last evaluation at or before it")
 
 
-def tanh_mu_group(groups: Sequence[str], algorithm: str, derived: bool) -> str | None:
-    """The group holding the tanh(mu) evaluation of an algorithm's actors, if the task has one."""
-    if algorithm + PAIRED_SUFFIX in groups:
-        return algorithm + PAIRED_SUFFIX
-    if algorithm == CORRECTED and derived and STANDARD in groups:
-        return STANDARD  # the standard group is the corrected runs' paired evaluation
-    return algorithm if algorithm == STANDARD and algorithm in groups else None
+# ============================================================================== shared tools
+# ---------------------------------------------------------------- estimators (rliable's own)
+# rliable's API as the paper uses it, seeded so that a folder and --seed give the same numbers;
+# each report's docstring says which estimator it uses and why. Student's t-intervals sit beside
+# the bootstrap wherever a mean over few seeds is reported.
+def seed_bootstrap(seed: int) -> None:
+    """rliable's bootstraps draw from NumPy's legacy global generator (random_state is ignored)."""
+    np.random.seed(seed)  # noqa: NPY002
 
 
-def group_rank(group: str) -> tuple[int, str]:
-    """Sort key: the paper's groups first, in a fixed order."""
-    return (GROUP_ORDER.index(group) if group in GROUP_ORDER else len(GROUP_ORDER), group)
+def interval_estimates(
+    score_dict: dict, func: Callable[..., np.ndarray], reps: int, seed: int
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """rliable's stratified-bootstrap point and interval estimates, reproducible by `seed`."""
+    seed_bootstrap(seed)
+    return rly.get_interval_estimates(
+        score_dict, func, reps=reps, confidence_interval_size=CONFIDENCE
+    )
 
 
-def paired_groups(data: Task, derived: bool) -> list[tuple[str, str]]:
-    """(group of some evaluation action, group of tanh(mu) of the same actors) pairs present in
-    a task: the corrected runs' mode, each run's mean, q_best and (standard runs) mode."""
-    pairs = []
-    for group in sorted(data.returns, key=group_rank):
-        baseline = tanh_mu_group(list(data.returns), algorithm_of(group), derived)
-        if baseline is not None and baseline != group and selector_of(group) != "tanh_mu":
-            pairs.append((group, baseline))
-    return pairs
+def per_task_mean(scores: np.ndarray) -> np.ndarray:
+    """Mean over runs of each task: metrics.aggregate_mean before it averages over tasks."""
+    return np.mean(scores, axis=0)
 
 
-def paired_values(data: Task, group: str, baseline: str, steps: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """(group, baseline) returns at `steps`, (seeds, steps) each, on the seeds both have: a run
-    made without some evaluation action has no partner there."""
-    seeds = sorted(set(data.seeds[group]) & set(data.seeds[baseline]))
-    rows = [[data.seeds[g].index(seed) for seed in seeds] for g in (group, baseline)]
-    return data.at(group, steps)[rows[0]], data.at(baseline, steps)[rows[1]]
+def seed_mean_estimates(samples: dict[tuple[str, str], np.ndarray], reps: int, seed: int) -> dict:
+    """(task, group) -> (mean, low, high) of one value per seed, with a bootstrap CI.
+
+    The tasks of a group with equal seed counts share one bootstrap: it resamples each task's
+    seeds independently, so each task's interval is distributed as in a bootstrap of its own,
+    at a fraction of the cost.
+    """
+    batches: dict[tuple[str, int], list[str]] = {}
+    for (task, group), values in samples.items():
+        batches.setdefault((group, values.size), []).append(task)
+    estimates = {}
+    for (group, _), batch in batches.items():
+        scores = np.stack([samples[task, group] for task in batch], axis=1)
+        point, interval = interval_estimates({group: scores}, per_task_mean, reps, seed)
+        for i, task in enumerate(batch):
+            estimates[task, group] = (float(point[group][i]), *interval[group][:, i])
+    return estimates
 
 
-def paired_differences(tasks: dict[str, Task], derived: Sequence[str] = ()
-                       ) -> dict[str, dict[str, np.ndarray]]:
-    """task -> group -> per-seed (that group's eval minus tanh(mu) eval of the same actors) at
-    the scored step; the group is the algorithm itself for its own action (the corrected mode)."""
-    differences: dict[str, dict[str, np.ndarray]] = {}
-    for task, data in tasks.items():
-        for group, baseline in paired_groups(data, task in derived):
-            own, paired = paired_values(data, group, baseline, np.array([data.scored_step]))
-            differences.setdefault(task, {})[group] = own[:, 0] - paired[:, 0]
-    return differences
+def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
+    """(mean, low, high) of one value per seed: mean +- t_{n-1} * sd / sqrt(n).
+
+    Unlike a percentile bootstrap, Student's interval widens as the seeds get few, which is what
+    five seeds allow. NaN bounds with one seed, where no spread is seen.
+    """
+    values = np.asarray(values, dtype=float)
+    mean = float(values.mean())
+    if values.size < 2:
+        return mean, math.nan, math.nan
+    quantile = scipy.stats.t.ppf(0.5 + confidence / 2, values.size - 1)
+    half = float(quantile * values.std(ddof=1) / math.sqrt(values.size))
+    return mean, mean - half, mean + half
 
 
-# ----------------------------------------------------------------------------- plot
-# Each group's colour in seaborn's colorblind palette, fixed so that colours stay put between
-# reports. The order of GROUP_ORDER would give the mode (orange) and the mean (vermillion) two
-# shades that are hard to tell apart, so the actions of one algorithm get distant hues.
-GROUP_COLOR_INDEX = {
-    STANDARD: 0,  # blue
-    CORRECTED: 1,  # orange
-    PAIRED_CORRECTED: 9,  # sky blue: tanh(mu), as the standard runs
-    CORRECTED + " (mean eval)": 2,  # green
-    CORRECTED + " (q_best eval)": 4,  # pink
-    STANDARD + " (mode eval)": 3,  # vermillion
-    STANDARD + " (mean eval)": 5,  # brown
-    STANDARD + " (q_best eval)": 6,  # light pink
-}
+def stratified_t_interval(per_task: Sequence[np.ndarray], confidence: float = CONFIDENCE
+                          ) -> tuple[float, float, float]:
+    """(mean, low, high) of the mean over tasks of each task's mean over seeds: Welch's interval
+    with Satterthwaite's degrees of freedom, each task's seeds independent of the others' (as
+    rliable's stratified bootstrap draws them). NaN bounds when a task has one seed."""
+    mean = float(np.mean([np.mean(v) for v in per_task]))
+    if any(np.size(v) < 2 for v in per_task):
+        return mean, math.nan, math.nan
+    terms = np.array([np.var(v, ddof=1) / np.size(v) for v in per_task])
+    total = float(terms.sum())
+    if total == 0:
+        return mean, mean, mean
+    df = total**2 / sum(term**2 / (np.size(v) - 1) for term, v in zip(terms, per_task,
+                                                                       strict=True))
+    half = scipy.stats.t.ppf(0.5 + confidence / 2, df) * math.sqrt(total) / len(per_task)
+    return mean, mean - half, mean + half
+
+
+# ------------------------------------------------------------------------- the report writer
+@dataclasses.dataclass
+class Report:
+    """What the analysis writes: summary.csv rows, summary.md sections, figures, notes."""
+
+    out: Path
+    formats: Sequence[str]
+    rows: list[dict] = dataclasses.field(default_factory=list)
+    sections: list[str] = dataclasses.field(default_factory=list)
+    figures: list[Path] = dataclasses.field(default_factory=list)
+    notes: list[str] = dataclasses.field(default_factory=list)
+
+    def row(self, section: str, task: str, group: str, metric: str, step: int | str,
+            runs: int | str, estimate: float, low: float, high: float) -> None:
+        self.rows.append(dict(section=section, task=task, group=group, metric=metric, step=step,
+                              n_runs=runs, estimate=float(estimate), ci_low=float(low),
+                              ci_high=float(high)))
+
+    def figure(self, fig: plt.Figure, name: str) -> None:
+        for fmt in self.formats:
+            self.figures.append(self.out / f"{name}.{fmt}")
+            fig.savefig(self.figures[-1], dpi=150, bbox_inches="tight")
+        plt.close(fig)
+
+    def section(self, title: str, *lines: str) -> None:
+        self.sections += [f"## {title}", "", *lines, ""]
+
+    def write(self, header: list[str]) -> None:
+        with (self.out / "summary.csv").open("w", newline="") as file:
+            writer = csv.DictWriter(file, fieldnames=list(self.rows[0]))
+            writer.writeheader()
+            writer.writerows(self.rows)
+        notes = ["## Notes", "", *([f"- {note}" for note in self.notes] or ["- none"]), ""]
+        figures = ["## Figures", "", *[f"- `{path.name}`" for path in self.figures]]
+        text = "\n".join(header + notes + self.sections + figures) + "\n"
+        (self.out / "summary.md").write_text(text)
+        print("\n".join(["", *notes, *self.sections]))
+        print(f"wrote {len(self.figures) + 2} files to {self.out}")
+
+
+@dataclasses.dataclass(frozen=True)
+class GroupLabels:
+    """A group's name in figures and tables, "Corrected SAC (mean eval)"; `standard` says where
+    the standard numbers come from (standard_label)."""
+
+    standard: str = STANDARD_LABEL
+
+    def __call__(self, group: str) -> str:
+        algorithm = algorithm_of(group)
+        name = self.standard if algorithm == STANDARD else \
+            ALGORITHM_LABELS.get(algorithm, algorithm)
+        return name + action_suffix(group)
+
+
+def group_color_index() -> dict[str, int]:
+    """Each group's fixed colour, an index in seaborn's colorblind palette (EVALUATION_ACTIONS)."""
+    index = {STANDARD: 0, CORRECTED: 1}  # blue, orange
+    for action in EVALUATION_ACTIONS:
+        index |= {algorithm + action.suffix: i for algorithm, i in action.colors.items()}
+    return index
 
 
 def group_colors(groups: list[str]) -> dict[str, tuple]:
+    """Each group's colour: its fixed one, else a free one of the palette, else a dark one."""
     palette = sns.color_palette("colorblind", n_colors=10)
-    extra = iter(c for i, c in enumerate(palette) if i not in GROUP_COLOR_INDEX.values())
+    fixed = group_color_index()
+    extra = iter(c for i, c in enumerate(palette) if i not in fixed.values())
     cycle = iter(sns.color_palette("dark", n_colors=max(len(groups), 1)))
-    return {g: palette[GROUP_COLOR_INDEX[g]] if g in GROUP_COLOR_INDEX
-            else next(extra, None) or next(cycle) for g in groups}
+    return {g: palette[fixed[g]] if g in fixed else next(extra, None) or next(cycle)
+            for g in groups}
 
 
-def label(group: str) -> str:
-    """"Corrected SAC (mean eval)": analyze() sets LABELS[STANDARD] to say where it comes from."""
-    suffix = selector_suffix(group)
-    return LABELS.get(group, LABELS.get(algorithm_of(group), algorithm_of(group)) + suffix)
-
-
-def _steps_axis(max_step: float) -> tuple[float, str]:
+def steps_axis(max_step: float) -> tuple[float, str]:
+    """A figure's step axis: the unit steps are divided by, and its label."""
     if max_step >= 1e6:
         return 1e6, "Environment steps (millions)"
     if max_step >= 1e3:
@@ -817,151 +894,179 @@ def _steps_axis(max_step: float) -> tuple[float, str]:
     return 1.0, "Environment steps"
 
 
-def success_bar_drawn(bar: float, top: float) -> bool:
-    """Whether a task's success bar is drawn on its reward-curve axes: only where it is within
-    SUCCESS_BAR_DRAWN_WITHIN of the returns' top, so that returns a fraction of it keep the
-    axes; otherwise the title names it."""
-    return top > 0 and bar <= SUCCESS_BAR_DRAWN_WITHIN * top
+def format_ci(point: float, low: float, high: float, digits: int = 3) -> str:
+    """An estimate with its interval, as summary.md writes it: 0.123 [0.100, 0.150]."""
+    return f"{point:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
 
 
-def plot_reward_curves(
-    tasks: dict[str, Task], curves: dict, colors: dict, groups: list[str]
-) -> plt.Figure:
-    """Figure 5: mean evaluation return per task with its 95% CI over seeds."""
-    ncols = math.ceil(math.sqrt(len(tasks)))
-    nrows = math.ceil(len(tasks) / ncols)
-    # At least 9 inches wide, so that the legend below fits in a few rows beside one panel.
-    width = max(5.6 * ncols, 9.0)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(width, 4.0 * nrows + 0.9), squeeze=False)
-    for ax in axes.flat[len(tasks) :]:
-        ax.set_visible(False)
-    for ax, (task, data) in zip(axes.flat, tasks.items(), strict=False):
-        unit, xlabel = _steps_axis(data.steps[-1])
-        width_line = 1.8 if data.steps.size <= 200 else 1.0  # dense curves: thin lines show CIs
-        top = -math.inf
-        for group in [g for g in groups if g in data.returns]:
-            mean, (low, high) = curves[task][group]
-            style = "-" if is_algorithm(group) else "--"
-            ax.plot(data.steps / unit, mean, style, color=colors[group], lw=width_line,
-                    label=label(group))
-            ax.fill_between(data.steps / unit, low, high, color=colors[group], alpha=0.2, lw=0)
-            top = max(top, float(np.max(high)))
-        title = task
-        if task in SUCCESS_BARS:
-            bar = SUCCESS_BARS[task]
-            if success_bar_drawn(bar, top):
-                ax.axhline(bar, color="0.4", ls=":", lw=1.2, label="success bar")
-            else:
-                title += f"\nsuccess bar {bar:g} (above)"
-        ax.set_title(title)
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel("Evaluation return")
-        ax.grid(alpha=0.25)
-    handles = {h.get_label(): h for ax in axes.flat for h in ax.get_lines()}
-    ncol = max(1, min(len(handles), int(width // 3.0)))
-    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=ncol,
-               frameon=False)
-    legend_rows = math.ceil(len(handles) / ncol)
-    fig.suptitle("Mean evaluation return over seeds, 95% bootstrap CI")
-    fig.tight_layout(rect=(0, (0.27 * legend_rows + 0.05) / fig.get_figheight(), 1, 1))
-    return fig
+def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
+               ) -> tuple[str, str]:
+    """summary.md's cells for the mean of one value per seed: (mean with its bootstrap CI,
+    t-interval). With one or two seeds an interval says less than the values themselves, so
+    the cells give those ("two seeds: a to b")."""
+    point = estimate[0]
+    if values.size == 1:
+        return f"{point:.{digits}f} (one seed)", "-"
+    if values.size == 2:
+        a, b = sorted(float(v) for v in values)
+        return f"{point:.{digits}f} (two seeds: {a:.{digits}f} to {b:.{digits}f})", "-"
+    _, low, high = t_interval(values)
+    return format_ci(*estimate, digits=digits), f"[{low:.{digits}f}, {high:.{digits}f}]"
 
 
-def plot_aggregate(point: dict, interval: dict, names: Sequence[str], colors: dict, xlabel: str,
-                   note: str = "") -> plt.Figure:
-    """Figure 6: aggregate metrics with their stratified-bootstrap CIs (rliable's own plot), and
-    `note` under it."""
-    # rliable's defaults (4 ticks at xx-large on 3.4-inch panels, its x label a fixed share of
-    # the height below) make tick labels collide with each other and, with two groups, with the
-    # label: wider panels, smaller ticks, a figure at least 2.2 inches high, the label placed
-    # in inches.
-    height = max(0.55 * len(point), 2.2)
-    fig, axes = plot_utils.plot_interval_estimates(
-        {label(g): v for g, v in point.items()},
-        {label(g): v for g, v in interval.items()},
-        metric_names=list(names),
-        algorithms=[label(g) for g in point],
-        colors={label(g): colors[g] for g in point},
-        xlabel=xlabel,
-        row_height=height / len(point),
-        xlabel_y_coordinate=-0.6 / height,
-        max_ticks=4,
-        subfigure_width=4.0,
-        wspace=0.2,
-    )
-    for ax in np.atleast_1d(axes):
-        ax.tick_params(axis="x", labelsize="x-large")
-    if note:
-        fig.text(0.4, -1.0 / height, note, ha="center", va="top", fontsize="x-large",
-                 color="0.3")
-    return fig
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence]) -> str:
+    """A GitHub markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(map(str, row)) + " |" for row in rows])
 
 
-def plot_profiles(taus: np.ndarray, profiles: dict, cis: dict, colors: dict, xlabel: str):
-    """Figure 7: performance profiles (share of runs scoring above tau) with CIs."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    plot_utils.plot_performance_profiles(
-        {label(g): v for g, v in profiles.items()},
-        taus,
-        performance_profile_cis={label(g): v for g, v in cis.items()},
-        colors={label(g): colors[g] for g in profiles},
-        xlabel=rf"{xlabel} ($\tau$)",
-        ax=ax,
-        legend=True,
-        legendsize="large",
-        labelsize="large",
-        ticklabelsize="large",
-    )
-    return fig
+@dataclasses.dataclass(frozen=True)
+class Analysis:
+    """The data layer's output and the flags: what every report section reads (none changes
+    it)."""
+
+    args: Args  # --normalize resolved from auto
+    runs: Runs
+    tasks: dict[str, Task]
+    groups: list[str]  # every group, in group_order
+    pairing: Pairing
+    norms: dict[str, tuple[float, float]]  # task -> (offset, scale)
+    aggregate: Aggregate | None  # the normalised scores of the groups compared across tasks
+    labels: GroupLabels
+    colors: dict[str, tuple]
+
+    @property
+    def derived(self) -> list[str]:
+        """Tasks whose standard group is the corrected runs' paired tanh(mu) evaluation."""
+        return self.pairing.derived
 
 
-def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colors: dict,
-                           ylabel: str, by_fraction: bool = False):
-    """Figure 8: aggregate IQM against environment steps (or fractions of each task's budget)
-    with CIs."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    unit, xlabel = _steps_axis(frames[-1])
-    if by_fraction:
-        unit, xlabel = 1.0, "Fraction of each task's budget (total_timesteps)"
-    plot_utils.plot_sample_efficiency_curve(
-        frames / unit,
-        {label(g): v for g, v in point.items()},
-        {label(g): v for g, v in interval.items()},
-        colors={label(g): colors[g] for g in point},
-        xlabel=xlabel,
-        ylabel=ylabel,
-        ax=ax,
-        labelsize="large",
-        ticklabelsize="large",
-        legend=True,
-        legendsize="large",
-        marker=".",
-    )
-    return fig
+# ============================================================================== the reports
+# One section per report, in the order summary.md prints them. Each report_*(report, analysis)
+# computes its estimates, draws its figure and writes its summary.csv rows and summary.md table;
+# it reads `analysis` (the data layer's output) and the shared tools, never another section.
+
+# --------------------------------------- 1. the header, and where the standard numbers come from
+def found_table(runs: Runs, groups: list[str]) -> str:
+    """Tasks x groups: how many seeds, and the last step they reached."""
+    rows = []
+    for task, by_group in sorted(runs.items()):
+        cells = []
+        for group in groups:
+            last = [curve.steps[-1] for curve in by_group.get(group, [])]
+            if not last:
+                cells.append("-")
+                continue
+            span = format_step(min(last)) + (f"-{format_step(max(last))}"
+                                             if max(last) > min(last) else "")
+            cells.append(f"{len(last)} seeds, to step {span}")
+        rows.append([task, *cells])
+    return markdown_table(["task", *groups], rows)
 
 
-def plot_improvement(probability: float, ci: np.ndarray, x: str, y: str, color: tuple):
-    """Probability that a run of x beats a run of y on a random task (rliable's own plot)."""
-    fig, ax = plt.subplots(figsize=(6, 1.4))
-    pair = f"{label(x)};{label(y)}"
-    plot_utils.plot_probability_of_improvement(
-        {pair: probability}, {pair: ci}, pair_separator=";", ax=ax, colors=[color],
-        xticks=[0, 0.25, 0.5, 0.75, 1.0], xlabel="P(X > Y)", ticklabelsize="large",
-        labelsize="large",
-    )
-    ax.set_xlim(0, 1)
-    ax.axvline(0.5, color="0.5", ls=":", lw=1)
-    ax.text(0.5, -0.72, "Mann-Whitney: every run of X against every run of Y. It ignores the "
-            "pairing\n(the same seed's actors, the same start states); the paired comparison is "
-            "paired_difference.", transform=ax.transAxes, ha="center", va="top",
-            fontsize="medium", color="0.3")
-    return fig
+def found_text(runs_dir: Path, runs: Runs, groups: list[str]) -> str:
+    """What the folder holds: how many runs, and found_table."""
+    # Run folders, not groups: a corrected folder also stands for the derived standard group.
+    n_runs = len({curve.run_dir for by_group in runs.values() for curves in by_group.values()
+                  for curve in curves})
+    return f"Found {n_runs} runs under {runs_dir}:\n\n" + found_table(runs, groups)
+
+
+def normalization_line(mode: str, norms: dict[str, tuple[float, float]]) -> str:
+    """The normalisation's numbers: each task's success bar or return range."""
+    if mode == "success-bar":
+        per_task = [f"{task} {scale:g}" for task, (_, scale) in norms.items()]
+        return f"Success bars: {', '.join(per_task)}."
+    if mode == "min-max":
+        per_task = [f"{task} [{low:g}, {low + scale:g}]" for task, (low, scale) in norms.items()]
+        return f"Return ranges mapped to [0, 1]: {', '.join(per_task)}."
+    return ""
+
+
+def pairing_lines(pairing: Pairing) -> list[str]:
+    """summary.md's account of where the standard numbers come from."""
+    lines = []
+    if pairing.derived:
+        lines.append(
+            f"No sac_standard.py runs for {', '.join(pairing.derived)}: Standard SAC there is the "
+            "corrected runs' paired evaluation, tanh(mu) of the same actors from the same start "
+            "states (the two scripts make identical training decisions for a seed, so this is "
+            "the standard run of each seed, computed once).")
+    for task, points in sorted(pairing.agreeing.items()):
+        lines.append(f"{task}: the standard runs equal the corrected runs' paired tanh(mu) "
+                     f"evaluation at all {points} shared (seed, step) points.")
+    lines += [f"Disagreement: {line}." for line in pairing.disagreeing]
+    return lines
+
+
+def summary_header(analysis: Analysis, chosen: str, found: str) -> list[str]:
+    """summary.md's first lines: the normalisation (and why `auto` chose it), the intervals,
+    the runs found."""
+    args = analysis.args
+    return [
+        f"# Analysis of {args.runs_dir}", "",
+        f"Normalisation {chosen}`{args.normalize}`: {NORMALIZATIONS[args.normalize]}. "
+        + normalization_line(args.normalize, analysis.norms),
+        f"Intervals: 95% stratified bootstrap (rliable), {args.reps:,} replications for point "
+        f"estimates, {args.curve_reps:,} for curves, profiles and probability of improvement; "
+        f"NumPy seed {args.seed}. Paired differences also get a Student-t 95% interval over "
+        "seeds (t-interval), labelled as such.", "", found, "",
+    ]
+
+
+def report_standard_provenance(report: Report, analysis: Analysis) -> None:
+    """summary.md's "Where the standard numbers come from": the corrected runs' paired
+    tanh(mu) evaluation standing in for standard runs, or checked against them. No estimator."""
+    if pairing_lines(analysis.pairing):
+        report.section("Where the standard numbers come from", *pairing_lines(analysis.pairing))
+
+
+# ------------------------------------------------------- 2. the paired difference (headline)
+# Each seed's paired difference averaged over its last evaluation rounds, since one round of a
+# noisy task is one draw of that noise.
+LAST_ROUNDS = (20, 50)
+
+
+def one_episode_per_seed(curves: Sequence[Curve], steps: np.ndarray) -> bool:
+    """Whether every run logged one distinct episode (eval.csv's distinct_episodes) at each of
+    `steps`, which all of them share: its return there is one draw of the episode's noise."""
+    for curve in curves:
+        if curve.episodes is None:
+            return False
+        if not np.all(curve.episodes[np.searchsorted(curve.steps, steps)] == 1):
+            return False
+    return bool(curves)
+
+
+def last_rounds_averages(tasks: dict[str, Task], curves: dict[str, dict[str, np.ndarray]]
+                         ) -> tuple[dict[tuple[str, str, int], np.ndarray],
+                                    dict[tuple[str, int], np.ndarray], list[str]]:
+    """Per seed, each paired difference averaged over the last k shared evaluation steps up to
+    the scored step, for each k of LAST_ROUNDS: (task, group, k) -> per-seed averages, (task, k)
+    -> the window's steps, and notes on the tasks with fewer steps than k."""
+    averages, windows, short = {}, {}, {}
+    for task, by_group in curves.items():
+        data = tasks[task]
+        rounds = int(np.searchsorted(data.steps, data.scored_step, side="right"))
+        if rounds < max(LAST_ROUNDS):
+            short[task] = rounds
+        for k in LAST_ROUNDS:
+            if k > rounds:
+                continue
+            windows[task, k] = data.steps[rounds - k:rounds]
+            for group, diffs in by_group.items():
+                averages[task, group, k] = diffs[:, rounds - k:rounds].mean(axis=1)
+    notes = [f"averages over the last {' / '.join(map(str, LAST_ROUNDS))} evaluation rounds left "
+             "out where a task has fewer shared rounds up to its scored step: "
+             + ", ".join(f"{task} ({rounds} rounds)" for task, rounds in short.items())
+             ] if short else []
+    return averages, windows, notes
 
 
 @dataclasses.dataclass
 class PairedPanel:
-    """One reading of the paired differences for plot_paired: its title, and per (task, group)
-    the per-seed values and their bootstrap (mean, low, high)."""
+    """One reading of the paired differences for plot_paired_difference: its title, and per
+    (task, group) the per-seed values and their bootstrap (mean, low, high)."""
 
     title: str
     values: dict[tuple[str, str], np.ndarray]
@@ -969,8 +1074,8 @@ class PairedPanel:
     missing: str = ""  # said in a row the panel has no values for
 
 
-def plot_paired(panels: Sequence[PairedPanel], row_labels: dict[tuple[str, str], str],
-                norms: dict, colors: dict, xlabel: str) -> plt.Figure:
+def plot_paired_difference(panels: Sequence[PairedPanel], row_labels: dict[tuple[str, str], str],
+                           norms: dict, colors: dict, xlabel: str) -> plt.Figure:
     """Per (task, evaluation action), each seed's difference from tanh(mu) of the same actor
     (dots), their mean (tick), its bootstrap CI (bar) and t-interval (whisker); a panel per
     reading (the scored step, each seed's mean over its last rounds), rows and x axis shared so
@@ -1021,280 +1126,122 @@ def plot_paired(panels: Sequence[PairedPanel], row_labels: dict[tuple[str, str],
     return fig
 
 
-# ----------------------------------------------------------------------------- tables
-def _fmt(step: int | float) -> str:
-    """Steps as people write them: 10M, 2.5M, 250k, 1,234."""
-    step = int(step)
-    if step >= 1_000_000 and step % 1_000 == 0:
-        return f"{step / 1_000_000:g}M"
-    if step >= 1_000 and step % 1_000 == 0:
-        return f"{step // 1_000}k"
-    return f"{step:,}"
+def paired_over_tasks(report: Report, analysis: Analysis, differences: dict) -> list[str]:
+    """Over tasks, per evaluation action: the mean normalised paired difference and the share
+    of (task, seed) pairs won; summary.md's lines. Estimator: rliable's
+    get_interval_estimates of metrics.aggregate_mean over a (seeds x tasks) matrix, its
+    stratified bootstrap resampling seeds within each task, since the tasks are fixed and only
+    the seeds are drawn; beside it Welch's t-interval (stratified_t_interval), for few seeds."""
+    args, norms, labels = analysis.args, analysis.norms, analysis.labels
+    lines = []
+    found = {group for by_group in differences.values() for group in by_group}
+    for algorithm in sorted(found, key=group_rank):
+        per_task = {t: d[algorithm] / norms[t][1] for t, d in differences.items()
+                    if algorithm in d}
+        if len(per_task) < 2:
+            continue
+        seeds = min(d.size for d in per_task.values())
+        scores = np.stack([d[:seeds] for d in per_task.values()], axis=1)  # (seeds, tasks)
+        point, interval = interval_estimates({algorithm: scores}, metrics.aggregate_mean,
+                                             args.reps, args.seed)
+        low, high = interval[algorithm].ravel()
+        won = sum(int((d > 0).sum()) for d in per_task.values())
+        pairs = sum(d.size for d in per_task.values())
+        t_values = stratified_t_interval(list(scores.T))
+        report.row("paired_difference", "all", algorithm, "mean_score", "", seeds,
+                   point[algorithm], low, high)
+        report.row("paired_difference", "all", algorithm, "mean_score_t", "", seeds, *t_values)
+        report.row("paired_difference", "all", algorithm, "share_won", "", pairs, won / pairs,
+                   math.nan, math.nan)
+        action = action_of(algorithm)
+        lines += ["", f"Over {len(per_task)} tasks, {labels(algorithm_of(algorithm))}, {action} "
+                  f"minus tanh(mu): mean {SCORE_NAMES[args.normalize].lower()} difference "
+                  f"{format_ci(float(point[algorithm]), low, high)} ({seeds} seeds per task, "
+                  f"stratified bootstrap CI), t-interval [{t_values[1]:.3f}, "
+                  f"{t_values[2]:.3f}] (Welch, the tasks' seeds independent); the {action} won "
+                  f"in {won} of {pairs} (task, seed) pairs."]
+    return lines
 
 
-def _ci(point: float, low: float, high: float, digits: int = 3) -> str:
-    return f"{point:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: list[str]
+                       ) -> list[PairedPanel]:
+    """Beside the scored step, each seed's paired difference averaged over its last 20 and 50
+    evaluation rounds: one round of a noisy task is one draw of its noise, and a headline read
+    at one step can be the extreme of its neighbours. `scored`: the scored step's bootstrap
+    estimates, (task, group) -> (mean, low, high). Appends summary.md's table to `lines`;
+    returns the figure's panel of the last LAST_ROUNDS[0] rounds, if any task has them.
+    Estimator: as at the scored step (seed_mean_estimates and t_interval), on the averages."""
+    args, runs, tasks, labels = analysis.args, analysis.runs, analysis.tasks, analysis.labels
+    curves = paired_difference_curves(tasks, analysis.derived)
+    averages, windows, notes = last_rounds_averages(tasks, curves)
+    report.notes.extend(notes)
+    if not averages:
+        return []
+    estimates = seed_mean_estimates({(f"{t}|{k}", g): v for (t, g, k), v in averages.items()},
+                                    args.reps, args.seed)
+    table = []
+    for task, by_group in curves.items():
+        step = tasks[task].scored_step
+        for group, diffs in by_group.items():
+            last = diffs[:, np.searchsorted(tasks[task].steps, step)]
+            cells = seed_cells(last, scored[task, group], 1)
+            table.append([task, labels(algorithm_of(group)), action_of(group), last.size,
+                          f"last ({format_step(step)})", *cells, f"{int((last > 0).sum())} of "
+                          f"{last.size}"])
+            for k in LAST_ROUNDS:
+                if (task, group, k) not in averages:
+                    continue
+                values, window = averages[task, group, k], windows[task, k]
+                estimate = estimates[f"{task}|{k}", group]
+                won = int((values > 0).sum())
+                report.row("paired_last_rounds", task, group, f"return_last{k}", step,
+                           values.size, *estimate)
+                report.row("paired_last_rounds", task, group, f"return_last{k}_t", step,
+                           values.size, *t_interval(values))
+                report.row("paired_last_rounds", task, group, f"share_won_last{k}", step,
+                           values.size, won / values.size, math.nan, math.nan)
+                episodes = one_episode_per_seed(
+                    [c for cs in runs[task].values() for c in cs], window)
+                rounds = f"last {k} ({format_step(window[0])}-{format_step(window[-1])})" + \
+                    (", one episode each" if episodes else "")
+                table.append([task, labels(algorithm_of(group)), action_of(group),
+                              values.size, rounds, *seed_cells(values, estimate, 1),
+                              f"{won} of {values.size}"])
+    lines += ["", "Averaged over the last rounds: per seed, the difference averaged over the "
+              "last " + " and the last ".join(map(str, LAST_ROUNDS)) + " shared evaluation "
+              "rounds up to the scored step, then the mean over seeds (bootstrap CI and "
+              "t-interval as above); 'won': seeds whose average is positive. Beside it, the "
+              "scored step's own difference.", "",
+              markdown_table(["task", "algorithm", "action", "seeds", "rounds",
+                              "return difference (bootstrap CI)", "t-interval", "won"], table)]
+    k = LAST_ROUNDS[0]
+    values = {(t, g): v for (t, g, kk), v in averages.items() if kk == k}
+    if not values:
+        return []
+    spans = {(int(w[0]), int(w[-1])) for (_, kk), w in windows.items() if kk == k}
+    span = f" ({format_step(min(spans)[0])}-{format_step(min(spans)[1])})" \
+        if len(spans) == 1 else ""
+    return [PairedPanel(f"Per seed, mean over the last {k} rounds{span}", values,
+                        {(t, g): estimates[f"{t}|{k}", g] for t, g in values},
+                        missing=f"fewer than {k} rounds")]
 
 
-def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
-               ) -> tuple[str, str]:
-    """summary.md's cells for the mean of one value per seed: (mean with its bootstrap CI,
-    t-interval). With one or two seeds an interval says less than the values themselves, so
-    the cells give those ("two seeds: a to b")."""
-    point = estimate[0]
-    if values.size == 1:
-        return f"{point:.{digits}f} (one seed)", "-"
-    if values.size == 2:
-        a, b = sorted(float(v) for v in values)
-        return f"{point:.{digits}f} (two seeds: {a:.{digits}f} to {b:.{digits}f})", "-"
-    _, low, high = t_interval(values)
-    return _ci(*estimate, digits=digits), f"[{low:.{digits}f}, {high:.{digits}f}]"
-
-
-def markdown_table(header: Sequence[str], rows: Sequence[Sequence]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return "\n".join(lines + ["| " + " | ".join(map(str, row)) + " |" for row in rows])
-
-
-def found_table(runs: Runs, groups: list[str]) -> str:
-    """Tasks x groups: how many seeds, and the last step they reached."""
-    rows = []
-    for task, by_group in sorted(runs.items()):
-        cells = []
-        for group in groups:
-            last = [curve.steps[-1] for curve in by_group.get(group, [])]
-            if not last:
-                cells.append("-")
-                continue
-            span = _fmt(min(last)) + (f"-{_fmt(max(last))}" if max(last) > min(last) else "")
-            cells.append(f"{len(last)} seeds, to step {span}")
-        rows.append([task, *cells])
-    return markdown_table(["task", *groups], rows)
-
-
-def normalization_line(mode: str, norms: dict[str, tuple[float, float]]) -> str:
-    if mode == "success-bar":
-        per_task = [f"{task} {scale:g}" for task, (_, scale) in norms.items()]
-        return f"Success bars: {', '.join(per_task)}."
-    if mode == "min-max":
-        per_task = [f"{task} [{low:g}, {low + scale:g}]" for task, (low, scale) in norms.items()]
-        return f"Return ranges mapped to [0, 1]: {', '.join(per_task)}."
-    return ""
-
-
-@dataclasses.dataclass
-class Report:
-    """What the analysis writes: summary.csv rows, summary.md sections, figures, notes."""
-
-    out: Path
-    formats: Sequence[str]
-    rows: list[dict] = dataclasses.field(default_factory=list)
-    sections: list[str] = dataclasses.field(default_factory=list)
-    figures: list[Path] = dataclasses.field(default_factory=list)
-    notes: list[str] = dataclasses.field(default_factory=list)
-
-    def row(self, section: str, task: str, group: str, metric: str, step: int | str,
-            runs: int | str, estimate: float, low: float, high: float) -> None:
-        self.rows.append(dict(section=section, task=task, group=group, metric=metric, step=step,
-                              n_runs=runs, estimate=float(estimate), ci_low=float(low),
-                              ci_high=float(high)))
-
-    def figure(self, fig: plt.Figure, name: str) -> None:
-        for fmt in self.formats:
-            self.figures.append(self.out / f"{name}.{fmt}")
-            fig.savefig(self.figures[-1], dpi=150, bbox_inches="tight")
-        plt.close(fig)
-
-    def section(self, title: str, *lines: str) -> None:
-        self.sections += [f"## {title}", "", *lines, ""]
-
-    def write(self, header: list[str]) -> None:
-        with (self.out / "summary.csv").open("w", newline="") as file:
-            writer = csv.DictWriter(file, fieldnames=list(self.rows[0]))
-            writer.writeheader()
-            writer.writerows(self.rows)
-        notes = ["## Notes", "", *([f"- {note}" for note in self.notes] or ["- none"]), ""]
-        figures = ["## Figures", "", *[f"- `{path.name}`" for path in self.figures]]
-        text = "\n".join(header + notes + self.sections + figures) + "\n"
-        (self.out / "summary.md").write_text(text)
-        print("\n".join(["", *notes, *self.sections]))
-        print(f"wrote {len(self.figures) + 2} files to {self.out}")
-
-
-# ----------------------------------------------------------------------------- pipeline
-SCORE_NAMES = {"success-bar": "Success-bar normalised score",
-               "min-max": "Min-max normalised score", "none": "Return"}
-
-
-def validate(args: Args) -> None:
-    """Every flag's valid range, checked before anything is read or written."""
-    rules = (
-        ("reps", args.reps >= 1, "at least 1"),
-        ("curve_reps", args.curve_reps >= 1, "at least 1"),
-        ("curve_points", args.curve_points >= 2, "at least 2"),
-        ("at_step", args.at_step is None or args.at_step >= 1, "a step of at least 1"),
-        ("seed", 0 <= args.seed < 2**32, "in [0, 2**32) (NumPy's seed range)"),
-        ("format", len(args.format) >= 1, "one or more of png, pdf"),
-    )
-    for name, ok, allowed in rules:
-        if not ok:
-            value = getattr(args, name)
-            shown = " ".join(value) if isinstance(value, tuple) else value
-            raise AnalysisError(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
-
-
-def analyze(args: Args) -> Report:
-    """The whole analysis: load, align, normalise, estimate, plot, tabulate."""
-    validate(args)
-    runs, notes = load_runs(args.runs_dir)
-    pairing = standard_from_paired(runs)
-    LABELS[STANDARD] = standard_label(pairing, list(runs))
-    groups = ordered_groups(runs)
-    # Run folders, not groups: a corrected folder also stands for the derived standard group.
-    n_runs = len({curve.run_dir for by_group in runs.values() for curves in by_group.values()
-                  for curve in curves})
-    found = f"Found {n_runs} runs under {args.runs_dir}:\n\n" + found_table(runs, groups)
-    print(found + "\n")
-    tasks, align_notes = align(runs, args.at_step)
-    normalization, chosen = resolve_normalization(args.normalize, list(tasks))
-    args = dataclasses.replace(args, normalize=normalization)
-    norms = normalizers(tasks, args.normalize)
-    aggregate, aggregate_notes = build_aggregate(tasks, norms, groups, args.curve_points)
-    args.out.mkdir(parents=True, exist_ok=True)
-    report = Report(args.out, args.format, notes=notes + align_notes + aggregate_notes)
-    colors = group_colors(groups)
-
-    if pairing_lines(pairing):
-        report.section("Where the standard numbers come from", *pairing_lines(pairing))
-    differences = paired_differences(tasks, pairing.derived)
-    if differences:  # the headline: paired data, paired statistics
-        report_paired(report, args, runs, tasks, differences, norms, colors, pairing.derived)
-    else:
+def report_paired_difference(report: Report, analysis: Analysis) -> None:
+    """The headline (figure `paired_difference`): each evaluation action (the mode, the mean,
+    q_best) minus tanh(mu) of the same actors from the same start states (paired), per task and
+    over tasks, with the share of seeds where that action won; at the scored step and averaged
+    over the last rounds. Estimator, per task: the mean over seeds of the per-seed differences
+    with rliable's bootstrap CI (seed_mean_estimates: get_interval_estimates of
+    per_task_mean), since the pairing makes each seed one value; beside it Student's
+    t-interval, since with 5 seeds or fewer a percentile bootstrap is too narrow. Over tasks:
+    paired_over_tasks."""
+    args, runs, tasks, norms = analysis.args, analysis.runs, analysis.tasks, analysis.norms
+    labels = analysis.labels
+    differences = paired_differences(tasks, analysis.derived)
+    if not differences:
         report.notes.append(f"no run carries the paired evaluation ({PAIRED_RETURN_COLUMN}): "
                             "paired differences skipped")
-    report_over_training(report, args, runs, tasks, pairing.derived, colors)
-    report_q_best_shares(report, args, runs, tasks)
-    report_tasks(report, args, tasks, norms, groups, colors)
-    if aggregate is not None:
-        report_aggregate(report, args, aggregate, colors)
-    report_dimensions(report, args, runs, tasks, pairing.derived)
-    report.write([
-        f"# Analysis of {args.runs_dir}", "",
-        f"Normalisation {chosen}`{args.normalize}`: {NORMALIZATIONS[args.normalize]}. "
-        + normalization_line(args.normalize, norms),
-        f"Intervals: 95% stratified bootstrap (rliable), {args.reps:,} replications for point "
-        f"estimates, {args.curve_reps:,} for curves, profiles and probability of improvement; "
-        f"NumPy seed {args.seed}. Paired differences also get a Student-t 95% interval over "
-        "seeds (t-interval), labelled as such.", "", found, "",
-    ])
-    return report
-
-
-def report_tasks(report: Report, args: Args, tasks: dict[str, Task], norms: dict,
-                 groups: list[str], colors: dict) -> None:
-    """Figure 5 and the per-task final returns."""
-    print(f"per-task curves ({args.curve_reps:,} reps) and final returns ({args.reps:,}) ...")
-    curves = reward_curve_estimates(tasks, args.curve_reps, args.seed)
-    report.figure(plot_reward_curves(tasks, curves, colors, groups), "reward_curves")
-    finals = seed_mean_estimates({(t, g): data.scored(g) for t, data in tasks.items()
-                                  for g in data.returns}, args.reps, args.seed)
-    table = []
-    for task, data in tasks.items():
-        for group in [g for g in groups if g in data.returns]:
-            point, low, high = finals[task, group]
-            runs, step = data.returns[group].shape[0], data.scored_step
-            scores = normalize(np.array([point, low, high]), norms[task])
-            report.row("task_final", task, group, "return", step, runs, point, low, high)
-            report.row("task_final", task, group, "score", step, runs, *scores)
-            table.append([task, _fmt(step), label(group), runs, _ci(point, low, high, 1),
-                          _ci(*scores)])
-    report.section("Final evaluation return per task (mean over seeds, 95% CI)",
-                   markdown_table(["task", "step", "group", "seeds", "return", "score"], table))
-
-
-def report_aggregate(report: Report, args: Args, agg: Aggregate, colors: dict) -> None:
-    """Figures 6-8 and the probability of improvement."""
-    score_name = SCORE_NAMES[args.normalize]
-    names = AGGREGATE_METRICS if args.normalize != "none" else AGGREGATE_METRICS[:3]
-    print(f"aggregate metrics over {len(agg.tasks)} task(s) ({args.reps:,} reps) ...")
-    gap = args.normalize != "none"  # the optimality gap's threshold 1 needs normalised scores
-    point, interval = interval_estimates(
-        agg.final, functools.partial(aggregate_metrics, gap=gap), args.reps, args.seed)
-    note = few_runs_note(agg)
-    report.figure(plot_aggregate(point, interval, names, colors, score_name, note),
-                  "aggregate_metrics")
-    table = []
-    for g in agg.groups:
-        runs = agg.final[g].shape[0]
-        for i, name in enumerate(names):
-            report.row("aggregate", "all", g, name, "", runs, point[g][i], *interval[g][:, i])
-        table.append([label(g), runs, *[_ci(point[g][i], *interval[g][:, i])
-                                        for i in range(len(names))]])
-    report.section(f"Aggregate metrics over {len(agg.tasks)} task(s)",
-                   f"{score_name}s at each task's scored step; tasks: {', '.join(agg.tasks)}."
-                   + (f" {note}." if note else ""),
-                   "", markdown_table(["group", "runs per task", *names], table))
-
-    print(f"performance profiles and sample-efficiency curves ({args.curve_reps:,} reps) ...")
-    everything = np.concatenate([s.ravel() for s in agg.final.values()])
-    # The scores' own range (from 0 where all are positive), not the bar's: scores that are a
-    # fraction of the bar would otherwise crowd the left of the axis.
-    low, high = min(everything.min(), 0.0), everything.max()
-    taus = np.linspace(low, high + (0.05 * (high - low) or 0.05), 101)
-    seed_bootstrap(args.seed)
-    profiles, cis = rly.create_performance_profile(agg.final, taus, reps=args.curve_reps)
-    report.figure(plot_profiles(taus, profiles, cis, colors, score_name), "performance_profiles")
-    if agg.frames.size == 1:
-        where = f"{agg.frames[0]:g} of the budget" if agg.by_fraction else _fmt(agg.frames[0])
-        report.notes.append(
-            "sample-efficiency curve left out: the aggregated tasks share one evaluation point "
-            f"({where}), so its axis would hold a single step")
-    elif agg.frames.size:
-        point, interval = interval_estimates(agg.curves, iqm_per_step, args.curve_reps, args.seed)
-        report.figure(plot_sample_efficiency(agg.frames, point, interval, colors,
-                                             f"IQM {score_name.lower()}", agg.by_fraction),
-                      "sample_efficiency")
-
-    x, y = COMPARISON
-    if x not in agg.groups or y not in agg.groups:
-        report.notes.append(f"probability of improvement needs both {x} and {y} runs: skipped")
         return
-    print(f"probability of improvement ({args.curve_reps:,} reps) ...")
-    pair = f"{x} > {y}"
-    point, interval = interval_estimates({pair: [agg.final[x], agg.final[y]]},
-                                         metrics.probability_of_improvement,
-                                         args.curve_reps, args.seed)
-    low, high = interval[pair].ravel()
-    runs = f"{agg.final[x].shape[0]} vs {agg.final[y].shape[0]}"
-    report.row("probability_of_improvement", "all", pair, "P(X > Y)", "", runs, point[pair],
-               low, high)
-    report.figure(plot_improvement(point[pair], (low, high), x, y, colors[x]),
-                  "probability_of_improvement")
-    report.section("Probability of improvement",
-                   f"P({label(x)} > {label(y)}) = {_ci(point[pair], low, high)}: the chance that "
-                   f"a run of {label(x)} scores higher than a run of {label(y)} on a task drawn "
-                   "at random (Mann-Whitney per task, averaged over tasks). It compares every "
-                   "run of one with every run of the other and so ignores the pairing (the same "
-                   "seed's actors from the same start states); the paired comparison is the "
-                   "headline's.")
-
-
-def few_runs_note(agg: Aggregate) -> str:
-    """With one task and few runs, what IQM is: a 25% trimmed mean keeps the middle runs only."""
-    if len(agg.tasks) > 1:
-        return ""
-    runs = sorted({scores.shape[0] for scores in agg.final.values()})
-    if max(runs) > FEW_SEEDS:
-        return ""
-    kept = ", ".join(f"the middle {n - 2 * int(0.25 * n)} of {n}" for n in runs)
-    return f"One task and {' or '.join(map(str, runs))} runs: IQM is the mean of {kept} runs"
-
-
-def report_paired(report: Report, args: Args, runs: Runs, tasks: dict[str, Task],
-                  differences: dict, norms: dict, colors: dict, derived: Sequence[str]) -> None:
-    """The headline: each evaluation action (the mode, the mean, q_best) minus tanh(mu) of the
-    same actors from the same start states (paired), per task and over tasks, with the share of
-    seeds where that action won; at the scored step and averaged over the last rounds."""
     print(f"paired differences ({args.reps:,} reps) ...")
     estimates = seed_mean_estimates({(t, g): d for t, by_group in differences.items()
                                      for g, d in by_group.items()}, args.reps, args.seed)
@@ -1318,12 +1265,12 @@ def report_paired(report: Report, args: Args, runs: Runs, tasks: dict[str, Task]
                        *(v / scale for v in t_values))
             report.row("paired_difference", task, group, "share_won", step, n, won / n,
                        math.nan, math.nan)
-            table.append([task, _fmt(step), label(algorithm_of(group)), selector_of(group), n,
-                          *seed_cells(diffs, values, 1), seed_cells(diffs / scale, scaled)[0],
-                          f"{won} of {n}"])
-            name = f"{label(algorithm_of(group))}: {selector_of(group)}, " \
+            table.append([task, format_step(step), labels(algorithm_of(group)),
+                          action_of(group), n, *seed_cells(diffs, values, 1),
+                          seed_cells(diffs / scale, scaled)[0], f"{won} of {n}"])
+            name = f"{labels(algorithm_of(group))}: {action_of(group)}, " \
                 if len(by_group) > 1 else ""
-            row_labels[task, group] = (f"{task}, {_fmt(step)}\n{name}n = {n} seeds"
+            row_labels[task, group] = (f"{task}, {format_step(step)}\n{name}n = {n} seeds"
                                        + (", one episode per seed" if single else ""))
     seeds = [d.size for by_group in differences.values() for d in by_group.values()]
     lines = ["Per seed, at each task's scored step: the return of an evaluation action minus "
@@ -1339,202 +1286,30 @@ def report_paired(report: Report, args: Args, runs: Runs, tasks: dict[str, Task]
                   "than the data allow (it resamples only the few values seen): read the "
                   "t-interval (with two seeds, the two values)."]
     for task in one_episode:
-        lines += ["", f"{task}: each seed's evaluation at {_fmt(tasks[task].scored_step)} is "
-                  "one episode (eval.csv's `distinct_episodes` = 1: the task resets without "
-                  "noise), so each seed's difference is one draw of that episode's noise."]
+        lines += ["", f"{task}: each seed's evaluation at "
+                  f"{format_step(tasks[task].scored_step)} is one episode (eval.csv's "
+                  "`distinct_episodes` = 1: the task resets without noise), so each seed's "
+                  "difference is one draw of that episode's noise."]
     lines += ["", markdown_table(["task", "step", "algorithm", "action", "seeds",
                                   "return difference (bootstrap CI)", "t-interval",
                                   "score difference (bootstrap CI)", "won"], table)]
-    lines += paired_aggregate_lines(report, args, differences, norms)
+    lines += paired_over_tasks(report, analysis, differences)
     steps = {tasks[t].scored_step for t in differences}
-    title = f"At {_fmt(steps.pop())}" if len(steps) == 1 else "At each task's scored step"
+    title = f"At {format_step(steps.pop())}" if len(steps) == 1 else "At each task's scored step"
     flat = {(t, g): d for t, by_group in differences.items() for g, d in by_group.items()}
     panels = [PairedPanel(title, flat, estimates)]
-    panels += report_last_rounds(report, args, runs, tasks, derived, estimates, lines)
+    panels += paired_last_rounds(report, analysis, estimates, lines)
     xlabel = f"Difference in {SCORE_NAMES[args.normalize].lower()}"
-    report.figure(plot_paired(panels, row_labels, norms, colors, xlabel), "paired_difference")
+    report.figure(plot_paired_difference(panels, row_labels, norms, analysis.colors, xlabel),
+                  "paired_difference")
     report.section("Headline: paired difference, each evaluation action minus tanh(mu) of the "
                    "same actors", *lines)
 
 
-def one_episode_per_seed(curves: Sequence[Curve], steps: np.ndarray) -> bool:
-    """Whether every run logged one distinct episode (eval.csv's distinct_episodes) at each of
-    `steps`, which all of them share: its return there is one draw of the episode's noise."""
-    for curve in curves:
-        if curve.episodes is None:
-            return False
-        if not np.all(curve.episodes[np.searchsorted(curve.steps, steps)] == 1):
-            return False
-    return bool(curves)
-
-
-def last_rounds_averages(tasks: dict[str, Task], curves: dict[str, dict[str, np.ndarray]]
-                         ) -> tuple[dict[tuple[str, str, int], np.ndarray],
-                                    dict[tuple[str, int], np.ndarray], list[str]]:
-    """Per seed, each paired difference averaged over the last k shared evaluation steps up to
-    the scored step, for each k of LAST_ROUNDS: (task, group, k) -> per-seed averages, (task, k)
-    -> the window's steps, and notes on the tasks with fewer steps than k."""
-    averages, windows, short = {}, {}, {}
-    for task, by_group in curves.items():
-        data = tasks[task]
-        rounds = int(np.searchsorted(data.steps, data.scored_step, side="right"))
-        if rounds < max(LAST_ROUNDS):
-            short[task] = rounds
-        for k in LAST_ROUNDS:
-            if k > rounds:
-                continue
-            windows[task, k] = data.steps[rounds - k:rounds]
-            for group, diffs in by_group.items():
-                averages[task, group, k] = diffs[:, rounds - k:rounds].mean(axis=1)
-    notes = [f"averages over the last {' / '.join(map(str, LAST_ROUNDS))} evaluation rounds left "
-             "out where a task has fewer shared rounds up to its scored step: "
-             + ", ".join(f"{task} ({rounds} rounds)" for task, rounds in short.items())
-             ] if short else []
-    return averages, windows, notes
-
-
-def report_last_rounds(report: Report, args: Args, runs: Runs, tasks: dict[str, Task],
-                       derived: Sequence[str], scored: dict, lines: list[str]
-                       ) -> list[PairedPanel]:
-    """Beside the scored step, each seed's paired difference averaged over its last 20 and 50
-    evaluation rounds: one round of a noisy task is one draw of its noise, and a headline read
-    at one step can be the extreme of its neighbours. `scored`: the scored step's bootstrap
-    estimates, (task, group) -> (mean, low, high). Appends summary.md's table to `lines`;
-    returns the figure's panel of the last LAST_ROUNDS[0] rounds, if any task has them."""
-    curves = paired_difference_curves(tasks, derived)
-    averages, windows, notes = last_rounds_averages(tasks, curves)
-    report.notes.extend(notes)
-    if not averages:
-        return []
-    estimates = seed_mean_estimates({(f"{t}|{k}", g): v for (t, g, k), v in averages.items()},
-                                    args.reps, args.seed)
-    table = []
-    for task, by_group in curves.items():
-        step = tasks[task].scored_step
-        for group, diffs in by_group.items():
-            last = diffs[:, np.searchsorted(tasks[task].steps, step)]
-            cells = seed_cells(last, scored[task, group], 1)
-            table.append([task, label(algorithm_of(group)), selector_of(group), last.size,
-                          f"last ({_fmt(step)})", *cells, f"{int((last > 0).sum())} of "
-                          f"{last.size}"])
-            for k in LAST_ROUNDS:
-                if (task, group, k) not in averages:
-                    continue
-                values, window = averages[task, group, k], windows[task, k]
-                estimate = estimates[f"{task}|{k}", group]
-                won = int((values > 0).sum())
-                report.row("paired_last_rounds", task, group, f"return_last{k}", step,
-                           values.size, *estimate)
-                report.row("paired_last_rounds", task, group, f"return_last{k}_t", step,
-                           values.size, *t_interval(values))
-                report.row("paired_last_rounds", task, group, f"share_won_last{k}", step,
-                           values.size, won / values.size, math.nan, math.nan)
-                episodes = one_episode_per_seed(
-                    [c for cs in runs[task].values() for c in cs], window)
-                rounds = f"last {k} ({_fmt(window[0])}-{_fmt(window[-1])})" + \
-                    (", one episode each" if episodes else "")
-                table.append([task, label(algorithm_of(group)), selector_of(group),
-                              values.size, rounds, *seed_cells(values, estimate, 1),
-                              f"{won} of {values.size}"])
-    lines += ["", "Averaged over the last rounds: per seed, the difference averaged over the "
-              "last " + " and the last ".join(map(str, LAST_ROUNDS)) + " shared evaluation "
-              "rounds up to the scored step, then the mean over seeds (bootstrap CI and "
-              "t-interval as above); 'won': seeds whose average is positive. Beside it, the "
-              "scored step's own difference.", "",
-              markdown_table(["task", "algorithm", "action", "seeds", "rounds",
-                              "return difference (bootstrap CI)", "t-interval", "won"], table)]
-    k = LAST_ROUNDS[0]
-    values = {(t, g): v for (t, g, kk), v in averages.items() if kk == k}
-    if not values:
-        return []
-    spans = {(int(w[0]), int(w[-1])) for (_, kk), w in windows.items() if kk == k}
-    span = f" ({_fmt(min(spans)[0])}-{_fmt(min(spans)[1])})" if len(spans) == 1 else ""
-    return [PairedPanel(f"Per seed, mean over the last {k} rounds{span}", values,
-                        {(t, g): estimates[f"{t}|{k}", g] for t, g in values},
-                        missing=f"fewer than {k} rounds")]
-
-
-def report_q_best_shares(report: Report, args: Args, runs: Runs, tasks: dict[str, Task]) -> None:
-    """How often the critic picked the mode, tanh(mu) and the mean, at each task's scored step
-    (mean over seeds), where q_best was evaluated."""
-    samples = {}
-    for task, data in tasks.items():
-        for group, curves in runs[task].items():
-            for column in Q_BEST_SHARE_COLUMNS:
-                values = np.array([c.shares[column][c.steps == data.scored_step][0]
-                                   for c in curves if column in c.shares])
-                if np.isfinite(values).any():
-                    samples[task, group, column] = values[np.isfinite(values)]
-    if not samples:
-        return
-    estimates = seed_mean_estimates({(f"{t}|{g}", c): v for (t, g, c), v in samples.items()},
-                                    args.reps, args.seed)
-    table = {}
-    for (task, group, column), values in samples.items():
-        step = tasks[task].scored_step
-        estimate = estimates[f"{task}|{group}", column]
-        name = column.removeprefix("q_best_share_")
-        report.row("q_best_share", task, group, name, step, values.size, *estimate)
-        row = table.setdefault((task, group), [task, _fmt(step), label(algorithm_of(group)),
-                                               values.size, "-", "-", "-"])
-        row[4 + ("mode", "tanh_mu", "mean").index(name)] = _ci(*estimate)
-    report.section(
-        "q_best: which action the critic picked",
-        "Share of q_best's evaluation steps at which the critic preferred each candidate, at "
-        "each task's scored step; mean over seeds with a 95% bootstrap CI.", "",
-        markdown_table(["task", "step", "algorithm", "seeds", "mode", "tanh(mu)", "mean"],
-                       list(table.values())))
-
-
-def paired_aggregate_lines(report: Report, args: Args, differences: dict, norms: dict
-                           ) -> list[str]:
-    """Over tasks: the mean normalised paired difference (rliable's stratified bootstrap over
-    seeds within tasks) and the share of (task, seed) pairs won, per evaluation action."""
-    lines = []
-    found = {group for by_group in differences.values() for group in by_group}
-    for algorithm in sorted(found, key=group_rank):
-        per_task = {t: d[algorithm] / norms[t][1] for t, d in differences.items()
-                    if algorithm in d}
-        if len(per_task) < 2:
-            continue
-        seeds = min(d.size for d in per_task.values())
-        scores = np.stack([d[:seeds] for d in per_task.values()], axis=1)  # (seeds, tasks)
-        point, interval = interval_estimates({algorithm: scores}, metrics.aggregate_mean,
-                                             args.reps, args.seed)
-        low, high = interval[algorithm].ravel()
-        won = sum(int((d > 0).sum()) for d in per_task.values())
-        pairs = sum(d.size for d in per_task.values())
-        t_values = stratified_t_interval(list(scores.T))
-        report.row("paired_difference", "all", algorithm, "mean_score", "", seeds,
-                   point[algorithm], low, high)
-        report.row("paired_difference", "all", algorithm, "mean_score_t", "", seeds, *t_values)
-        report.row("paired_difference", "all", algorithm, "share_won", "", pairs, won / pairs,
-                   math.nan, math.nan)
-        action = selector_of(algorithm)
-        lines += ["", f"Over {len(per_task)} tasks, {label(algorithm_of(algorithm))}, {action} "
-                  f"minus tanh(mu): mean {SCORE_NAMES[args.normalize].lower()} difference "
-                  f"{_ci(float(point[algorithm]), low, high)} ({seeds} seeds per task, "
-                  f"stratified bootstrap CI), t-interval [{t_values[1]:.3f}, "
-                  f"{t_values[2]:.3f}] (Welch, the tasks' seeds independent); the {action} won "
-                  f"in {won} of {pairs} (task, seed) pairs."]
-    return lines
-
-
-# ----------------------------------------------------------------------------- dimensions
-# ----------------------------------------------------------------------------- over training
+# ------------------------------------------------------------------------- 3. over training
 OVER_TRAINING_TABLE_STEPS = 11  # rows of summary.md's over-training table; summary.csv has all
-
-
-def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
-                             ) -> dict[str, dict[str, np.ndarray]]:
-    """task -> group -> per-seed difference (group minus tanh(mu) of the same actors) at every
-    shared step, (seeds, steps): the headline's paired difference over the whole of training."""
-    curves: dict[str, dict[str, np.ndarray]] = {}
-    for task, data in tasks.items():
-        for group, baseline in paired_groups(data, task in derived):
-            own, paired = paired_values(data, group, baseline, data.steps)
-            curves.setdefault(task, {})[group] = own - paired
-    return curves
+# The over-training figure's rolling mean, over this many rounds (drawn with twice as many).
+ROLLING_ROUNDS = 10
 
 
 def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.ndarray]]:
@@ -1553,7 +1328,7 @@ def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.n
 
 
 def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dict,
-                       shifts: dict, colors: dict) -> plt.Figure:
+                       shifts: dict, colors: dict, labels: GroupLabels) -> plt.Figure:
     """A row per task. Left: each evaluation action minus tanh(mu) over training; with many
     rounds each round's mean over seeds (thin) and its rolling mean (thick), with few the mean,
     its 95% CI and each seed. Right, each on its own axes: the measured shift, sigma and the
@@ -1566,7 +1341,7 @@ def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dic
                              layout="constrained")
     for row, task in zip(axes, shown, strict=True):
         data = tasks[task]
-        unit, xlabel = _steps_axis(data.steps[-1])
+        unit, xlabel = steps_axis(data.steps[-1])
         x = data.steps / unit
         ax = row[0]
         rolling = x.size >= 2 * ROLLING_ROUNDS
@@ -1574,7 +1349,7 @@ def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dic
         for group, diffs in differences.get(task, {}).items():
             mean, (low, high) = estimates[task][group]
             seeds.add(diffs.shape[0])
-            name = f"{selector_of(group)} ({label(algorithm_of(group))})"
+            name = f"{action_of(group)} ({labels(algorithm_of(group))})"
             if rolling:  # a round is one draw of the evaluation noise: the trend needs a window
                 ax.plot(x, mean, color=colors[group], lw=0.7, alpha=0.45)
                 window = np.convolve(mean, np.ones(ROLLING_ROUNDS) / ROLLING_ROUNDS, "valid")
@@ -1609,11 +1384,15 @@ def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dic
     return fig
 
 
-def report_over_training(report: Report, args: Args, runs: Runs, tasks: dict[str, Task],
-                         derived: Sequence[str], colors: dict) -> None:
-    """The paired differences and the measured shift at every shared step, not only the last:
-    how the mode's worth changes as the policy sharpens."""
-    differences = paired_difference_curves(tasks, derived)
+def report_over_training(report: Report, analysis: Analysis) -> None:
+    """Figure `over_training`: the paired differences and the measured shift at every shared
+    step, not only the last: how the mode's worth changes as the policy sharpens. Estimator: at
+    every step at once, rliable's get_interval_estimates of metrics.aggregate_mean over the
+    seeds (one task), with --curve-reps replications as for every curve, and Student's
+    t-interval per step beside it (few seeds); the shift is the mean over runs with their range
+    (a description of the runs, not an estimate)."""
+    args, runs, tasks = analysis.args, analysis.runs, analysis.tasks
+    differences = paired_difference_curves(tasks, analysis.derived)
     if not differences:
         return
     print(f"paired differences over training ({args.curve_reps:,} reps) ...")
@@ -1623,8 +1402,8 @@ def report_over_training(report: Report, args: Args, runs: Runs, tasks: dict[str
                                              metrics.aggregate_mean, args.curve_reps, args.seed)
         estimates[task] = {g: (point[g], interval[g]) for g in by_group}
     shifts = shift_curves(runs, tasks)
-    report.figure(plot_over_training(tasks, differences, estimates, shifts, colors),
-                  "over_training")
+    report.figure(plot_over_training(tasks, differences, estimates, shifts, analysis.colors,
+                                     analysis.labels), "over_training")
     lines = ["Per seed, at every step all runs of a task share: each evaluation action's return "
              "minus tanh(mu)'s, same actor, same start states; mean over seeds with a 95% "
              f"bootstrap CI ({args.curve_reps:,} replications) and the 95% t-interval (with two "
@@ -1653,13 +1432,407 @@ def report_over_training(report: Report, args: Args, runs: Runs, tasks: dict[str
                            values[:, i].max())
                 cells.append(f"{values[:, i].mean():.3f}")
             if i in shown:
-                table.append([_fmt(step), *cells])
+                table.append([format_step(step), *cells])
         header = ["step", *(name for g in by_group
-                            for name in (f"{selector_of(g)} minus tanh(mu)", "t-interval")),
+                            for name in (f"{action_of(g)} minus tanh(mu)", "t-interval")),
                   *task_shift]
         lines += [f"**{task}**", "", markdown_table(header, table), ""]
     report.section("Over training: paired differences and the measured shift", *lines)
 
+
+# ---------------------------------------------------------- 4. q_best's choices (no figure)
+def report_choice_shares(report: Report, analysis: Analysis) -> None:
+    """q_best's choices (no figure): how often the critic picked the mode, tanh(mu) and the
+    mean, at each task's scored step, for each evaluation action that logs its choice_shares.
+    Estimator: the mean over seeds with rliable's bootstrap CI (seed_mean_estimates:
+    get_interval_estimates of per_task_mean), a share per seed being one value per seed."""
+    for action in EVALUATION_ACTIONS:
+        if action.choice_shares:
+            report_choice_shares_of(report, analysis, action)
+
+
+def report_choice_shares_of(report: Report, analysis: Analysis, action: EvaluationAction
+                            ) -> None:
+    """One action's choice shares (q_best's: mode, tanh(mu), mean), where it was evaluated."""
+    args, runs, tasks = analysis.args, analysis.runs, analysis.tasks
+    samples = {}
+    for task, data in tasks.items():
+        for group, curves in runs[task].items():
+            if action_of(group) != action.name:
+                continue
+            for column in action.choice_shares:
+                values = np.array([c.shares[column][c.steps == data.scored_step][0]
+                                   for c in curves if column in c.shares])
+                if np.isfinite(values).any():
+                    samples[task, group, column] = values[np.isfinite(values)]
+    if not samples:
+        return
+    estimates = seed_mean_estimates({(f"{t}|{g}", c): v for (t, g, c), v in samples.items()},
+                                    args.reps, args.seed)
+    prefix = f"{action.name}_share_"
+    candidates = [column.removeprefix(prefix) for column in action.choice_shares]
+    titles = {a.name: a.title or a.name for a in EVALUATION_ACTIONS}
+    table = {}
+    for (task, group, column), values in samples.items():
+        step = tasks[task].scored_step
+        estimate = estimates[f"{task}|{group}", column]
+        name = column.removeprefix(prefix)
+        report.row(f"{action.name}_share", task, group, name, step, values.size, *estimate)
+        row = table.setdefault((task, group), [task, format_step(step),
+                                               analysis.labels(algorithm_of(group)),
+                                               values.size, *["-"] * len(candidates)])
+        row[4 + candidates.index(name)] = format_ci(*estimate)
+    report.section(
+        f"{action.name}: which action the critic picked",
+        f"Share of {action.name}'s evaluation steps at which the critic preferred each "
+        "candidate, at each task's scored step; mean over seeds with a 95% bootstrap CI.", "",
+        markdown_table(["task", "step", "algorithm", "seeds",
+                        *(titles.get(c, c) for c in candidates)], list(table.values())))
+
+
+# ------------------------------------------------- 5. reward curves and final returns (Fig. 5)
+# A success bar further above the returns than this factor would squash them into the floor of
+# the reward-curve axes: it is then named in the title instead of drawn.
+SUCCESS_BAR_DRAWN_WITHIN = 1.5
+
+
+def success_bar_drawn(bar: float, top: float) -> bool:
+    """Whether a task's success bar is drawn on its reward-curve axes: only where it is within
+    SUCCESS_BAR_DRAWN_WITHIN of the returns' top, so that returns a fraction of it keep the
+    axes; otherwise the title names it."""
+    return top > 0 and bar <= SUCCESS_BAR_DRAWN_WITHIN * top
+
+
+def reward_curve_estimates(tasks: dict[str, Task], reps: int, seed: int) -> dict:
+    """task -> group -> (mean, (low, high)) over seeds at every shared step: rliable's
+    get_interval_estimates of metrics.aggregate_mean on one task, every step at once."""
+    estimates = {}
+    for task, data in tasks.items():
+        scores = {g: r[:, None, :] for g, r in data.returns.items()}  # (seeds, 1 task, steps)
+        point, interval = interval_estimates(scores, metrics.aggregate_mean, reps, seed)
+        estimates[task] = {g: (point[g], interval[g]) for g in scores}
+    return estimates
+
+
+def plot_reward_curves(
+    tasks: dict[str, Task], curves: dict, colors: dict, groups: list[str], labels: GroupLabels
+) -> plt.Figure:
+    """Figure 5: mean evaluation return per task with its 95% CI over seeds."""
+    ncols = math.ceil(math.sqrt(len(tasks)))
+    nrows = math.ceil(len(tasks) / ncols)
+    # At least 9 inches wide, so that the legend below fits in a few rows beside one panel.
+    width = max(5.6 * ncols, 9.0)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(width, 4.0 * nrows + 0.9), squeeze=False)
+    for ax in axes.flat[len(tasks) :]:
+        ax.set_visible(False)
+    for ax, (task, data) in zip(axes.flat, tasks.items(), strict=False):
+        unit, xlabel = steps_axis(data.steps[-1])
+        width_line = 1.8 if data.steps.size <= 200 else 1.0  # dense curves: thin lines show CIs
+        top = -math.inf
+        for group in [g for g in groups if g in data.returns]:
+            mean, (low, high) = curves[task][group]
+            style = "-" if is_algorithm(group) else "--"
+            ax.plot(data.steps / unit, mean, style, color=colors[group], lw=width_line,
+                    label=labels(group))
+            ax.fill_between(data.steps / unit, low, high, color=colors[group], alpha=0.2, lw=0)
+            top = max(top, float(np.max(high)))
+        title = task
+        if task in SUCCESS_BARS:
+            bar = SUCCESS_BARS[task]
+            if success_bar_drawn(bar, top):
+                ax.axhline(bar, color="0.4", ls=":", lw=1.2, label="success bar")
+            else:
+                title += f"\nsuccess bar {bar:g} (above)"
+        ax.set_title(title)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("Evaluation return")
+        ax.grid(alpha=0.25)
+    handles = {h.get_label(): h for ax in axes.flat for h in ax.get_lines()}
+    ncol = max(1, min(len(handles), int(width // 3.0)))
+    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=ncol,
+               frameon=False)
+    legend_rows = math.ceil(len(handles) / ncol)
+    fig.suptitle("Mean evaluation return over seeds, 95% bootstrap CI")
+    fig.tight_layout(rect=(0, (0.27 * legend_rows + 0.05) / fig.get_figheight(), 1, 1))
+    return fig
+
+
+def report_reward_curves(report: Report, analysis: Analysis) -> None:
+    """Figure 5 (`reward_curves`) and the per-task final returns. Estimators: the curves, the
+    mean over seeds at every step with a bootstrap CI (reward_curve_estimates, --curve-reps);
+    the final returns, the mean over seeds at the scored step with rliable's bootstrap CI
+    (seed_mean_estimates, --reps), raw returns, so that a task's numbers read in its own units,
+    and normalised beside them."""
+    args, tasks, norms = analysis.args, analysis.tasks, analysis.norms
+    groups, colors, labels = analysis.groups, analysis.colors, analysis.labels
+    print(f"per-task curves ({args.curve_reps:,} reps) and final returns ({args.reps:,}) ...")
+    curves = reward_curve_estimates(tasks, args.curve_reps, args.seed)
+    report.figure(plot_reward_curves(tasks, curves, colors, groups, labels), "reward_curves")
+    finals = seed_mean_estimates({(t, g): data.scored(g) for t, data in tasks.items()
+                                  for g in data.returns}, args.reps, args.seed)
+    table = []
+    for task, data in tasks.items():
+        for group in [g for g in groups if g in data.returns]:
+            point, low, high = finals[task, group]
+            runs, step = data.returns[group].shape[0], data.scored_step
+            scores = normalize(np.array([point, low, high]), norms[task])
+            report.row("task_final", task, group, "return", step, runs, point, low, high)
+            report.row("task_final", task, group, "score", step, runs, *scores)
+            table.append([task, format_step(step), labels(group), runs,
+                          format_ci(point, low, high, 1), format_ci(*scores)])
+    report.section("Final evaluation return per task (mean over seeds, 95% CI)",
+                   markdown_table(["task", "step", "group", "seeds", "return", "score"], table))
+
+
+# ------------------------------------------------------------ 6. aggregate metrics (Fig. 6)
+AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
+
+
+def aggregate_metrics(scores: np.ndarray, gap: bool = True) -> np.ndarray:
+    """IQM, median, mean (and optimality gap) of a (runs x tasks) score matrix."""
+    values = [
+        metrics.aggregate_iqm(scores),
+        metrics.aggregate_median(scores),
+        metrics.aggregate_mean(scores),
+    ]
+    return np.array(values + [metrics.aggregate_optimality_gap(scores)] * gap)
+
+
+def few_runs_note(agg: Aggregate) -> str:
+    """With one task and few runs, what IQM is: a 25% trimmed mean keeps the middle runs only."""
+    if len(agg.tasks) > 1:
+        return ""
+    runs = sorted({scores.shape[0] for scores in agg.final.values()})
+    if max(runs) > FEW_SEEDS:
+        return ""
+    kept = ", ".join(f"the middle {n - 2 * int(0.25 * n)} of {n}" for n in runs)
+    return f"One task and {' or '.join(map(str, runs))} runs: IQM is the mean of {kept} runs"
+
+
+def plot_aggregate_metrics(point: dict, interval: dict, names: Sequence[str], colors: dict,
+                           xlabel: str, labels: GroupLabels, note: str = "") -> plt.Figure:
+    """Figure 6: aggregate metrics with their stratified-bootstrap CIs (rliable's own plot), and
+    `note` under it."""
+    # rliable's defaults (4 ticks at xx-large on 3.4-inch panels, its x label a fixed share of
+    # the height below) make tick labels collide with each other and, with two groups, with the
+    # label: wider panels, smaller ticks, a figure at least 2.2 inches high, the label placed
+    # in inches.
+    height = max(0.55 * len(point), 2.2)
+    fig, axes = plot_utils.plot_interval_estimates(
+        {labels(g): v for g, v in point.items()},
+        {labels(g): v for g, v in interval.items()},
+        metric_names=list(names),
+        algorithms=[labels(g) for g in point],
+        colors={labels(g): colors[g] for g in point},
+        xlabel=xlabel,
+        row_height=height / len(point),
+        xlabel_y_coordinate=-0.6 / height,
+        max_ticks=4,
+        subfigure_width=4.0,
+        wspace=0.2,
+    )
+    for ax in np.atleast_1d(axes):
+        ax.tick_params(axis="x", labelsize="x-large")
+    if note:
+        fig.text(0.4, -1.0 / height, note, ha="center", va="top", fontsize="x-large",
+                 color="0.3")
+    return fig
+
+
+def report_aggregate_metrics(report: Report, analysis: Analysis) -> None:
+    """Figure 6 (`aggregate_metrics`) and its table: IQM, median, mean and optimality gap of the
+    normalised final scores over the tasks every algorithm ran. Estimator: rliable's
+    get_interval_estimates of metrics.aggregate_iqm / _median / _mean / _optimality_gap, its
+    stratified bootstrap resampling runs within each task (the tasks are fixed), as the paper
+    reports them; IQM first, since it is robust to outlying runs yet uses half of them."""
+    agg, args = analysis.aggregate, analysis.args
+    if agg is None:
+        return
+    score_name = SCORE_NAMES[args.normalize]
+    names = AGGREGATE_METRICS if args.normalize != "none" else AGGREGATE_METRICS[:3]
+    print(f"aggregate metrics over {len(agg.tasks)} task(s) ({args.reps:,} reps) ...")
+    gap = args.normalize != "none"  # the optimality gap's threshold 1 needs normalised scores
+    point, interval = interval_estimates(
+        agg.final, functools.partial(aggregate_metrics, gap=gap), args.reps, args.seed)
+    note = few_runs_note(agg)
+    report.figure(plot_aggregate_metrics(point, interval, names, analysis.colors, score_name,
+                                         analysis.labels, note), "aggregate_metrics")
+    table = []
+    for g in agg.groups:
+        runs = agg.final[g].shape[0]
+        for i, name in enumerate(names):
+            report.row("aggregate", "all", g, name, "", runs, point[g][i], *interval[g][:, i])
+        table.append([analysis.labels(g), runs, *[format_ci(point[g][i], *interval[g][:, i])
+                                                  for i in range(len(names))]])
+    report.section(f"Aggregate metrics over {len(agg.tasks)} task(s)",
+                   f"{score_name}s at each task's scored step; tasks: {', '.join(agg.tasks)}."
+                   + (f" {note}." if note else ""),
+                   "", markdown_table(["group", "runs per task", *names], table))
+
+
+# ---------------------------------------------------------- 7. performance profiles (Fig. 7)
+def profile_thresholds(final: dict[str, np.ndarray]) -> np.ndarray:
+    """The profile's 101 values of tau: the scores' own range (from 0 where all are positive),
+    not the bar's, since scores that are a fraction of the bar would otherwise crowd the left of
+    the axis."""
+    everything = np.concatenate([s.ravel() for s in final.values()])
+    low, high = min(everything.min(), 0.0), everything.max()
+    return np.linspace(low, high + (0.05 * (high - low) or 0.05), 101)
+
+
+def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, colors: dict,
+                              xlabel: str, labels: GroupLabels) -> plt.Figure:
+    """Figure 7: performance profiles (share of runs scoring above tau) with CIs."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    plot_utils.plot_performance_profiles(
+        {labels(g): v for g, v in profiles.items()},
+        taus,
+        performance_profile_cis={labels(g): v for g, v in cis.items()},
+        colors={labels(g): colors[g] for g in profiles},
+        xlabel=rf"{xlabel} ($\tau$)",
+        ax=ax,
+        legend=True,
+        legendsize="large",
+        labelsize="large",
+        ticklabelsize="large",
+    )
+    return fig
+
+
+def report_performance_profiles(report: Report, analysis: Analysis) -> None:
+    """Figure 7 (`performance_profiles`; no table): the share of runs scoring above tau, the
+    whole distribution of the final scores rather than one statistic of it. Estimator: rliable's
+    create_performance_profile, with its stratified-bootstrap CIs (--curve-reps, 2,000 by
+    default as in rliable)."""
+    agg, args = analysis.aggregate, analysis.args
+    if agg is None:
+        return
+    print(f"performance profiles ({args.curve_reps:,} reps) ...")
+    taus = profile_thresholds(agg.final)
+    seed_bootstrap(args.seed)
+    profiles, cis = rly.create_performance_profile(agg.final, taus, reps=args.curve_reps)
+    report.figure(plot_performance_profiles(taus, profiles, cis, analysis.colors,
+                                            SCORE_NAMES[args.normalize], analysis.labels),
+                  "performance_profiles")
+
+
+# ------------------------------------------------------------ 8. sample efficiency (Fig. 8)
+def iqm_per_step(scores: np.ndarray) -> np.ndarray:
+    """metrics.aggregate_iqm at each step of a (runs x tasks x steps) score array.
+
+    aggregate_iqm is scipy's 25% trimmed mean over all runs and tasks; one call along the step
+    axis gives the same numbers as a call per step, 6x (21 steps) to 15x (51) faster.
+    """
+    return scipy.stats.trim_mean(scores.reshape(-1, scores.shape[-1]), 0.25, axis=0)
+
+
+def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colors: dict,
+                           ylabel: str, labels: GroupLabels, by_fraction: bool = False
+                           ) -> plt.Figure:
+    """Figure 8: aggregate IQM against environment steps (or fractions of each task's budget)
+    with CIs."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    unit, xlabel = steps_axis(frames[-1])
+    if by_fraction:
+        unit, xlabel = 1.0, "Fraction of each task's budget (total_timesteps)"
+    plot_utils.plot_sample_efficiency_curve(
+        frames / unit,
+        {labels(g): v for g, v in point.items()},
+        {labels(g): v for g, v in interval.items()},
+        colors={labels(g): colors[g] for g in point},
+        xlabel=xlabel,
+        ylabel=ylabel,
+        ax=ax,
+        labelsize="large",
+        ticklabelsize="large",
+        legend=True,
+        legendsize="large",
+        marker=".",
+    )
+    return fig
+
+
+def report_sample_efficiency(report: Report, analysis: Analysis) -> None:
+    """Figure 8 (`sample_efficiency`; no table): the aggregate IQM against steps, or fractions
+    of each task's budget (build_aggregate chose the frames). Estimator: rliable's
+    get_interval_estimates of metrics.aggregate_iqm at every frame at once (iqm_per_step), the
+    paper's robust aggregate, with --curve-reps replications as for every curve."""
+    agg, args = analysis.aggregate, analysis.args
+    if agg is None:
+        return
+    if agg.frames.size == 1:
+        where = f"{agg.frames[0]:g} of the budget" if agg.by_fraction \
+            else format_step(agg.frames[0])
+        report.notes.append(
+            "sample-efficiency curve left out: the aggregated tasks share one evaluation point "
+            f"({where}), so its axis would hold a single step")
+    elif agg.frames.size:
+        print(f"sample-efficiency curves ({args.curve_reps:,} reps) ...")
+        point, interval = interval_estimates(agg.curves, iqm_per_step, args.curve_reps, args.seed)
+        score_name = SCORE_NAMES[args.normalize]
+        report.figure(plot_sample_efficiency(agg.frames, point, interval, analysis.colors,
+                                             f"IQM {score_name.lower()}", analysis.labels,
+                                             agg.by_fraction),
+                      "sample_efficiency")
+
+
+# ---------------------------------------------------------- 9. probability of improvement
+def plot_probability_of_improvement(probability: float, ci: np.ndarray, x: str, y: str,
+                                    color: tuple, labels: GroupLabels) -> plt.Figure:
+    """Probability that a run of x beats a run of y on a random task (rliable's own plot)."""
+    fig, ax = plt.subplots(figsize=(6, 1.4))
+    pair = f"{labels(x)};{labels(y)}"
+    plot_utils.plot_probability_of_improvement(
+        {pair: probability}, {pair: ci}, pair_separator=";", ax=ax, colors=[color],
+        xticks=[0, 0.25, 0.5, 0.75, 1.0], xlabel="P(X > Y)", ticklabelsize="large",
+        labelsize="large",
+    )
+    ax.set_xlim(0, 1)
+    ax.axvline(0.5, color="0.5", ls=":", lw=1)
+    ax.text(0.5, -0.72, "Mann-Whitney: every run of X against every run of Y. It ignores the "
+            "pairing\n(the same seed's actors, the same start states); the paired comparison is "
+            "paired_difference.", transform=ax.transAxes, ha="center", va="top",
+            fontsize="medium", color="0.3")
+    return fig
+
+
+def report_probability_of_improvement(report: Report, analysis: Analysis) -> None:
+    """Figure `probability_of_improvement` and its paragraph: P(corrected > standard), the
+    chance that a run of one beats a run of the other on a task drawn at random. Estimator:
+    rliable's get_interval_estimates of metrics.probability_of_improvement (Mann-Whitney per
+    task, averaged over tasks), as the paper reports it; it compares every run with every run,
+    so it ignores the pairing, which the paired difference uses."""
+    agg, args, labels = analysis.aggregate, analysis.args, analysis.labels
+    if agg is None:
+        return
+    x, y = COMPARISON
+    if x not in agg.groups or y not in agg.groups:
+        report.notes.append(f"probability of improvement needs both {x} and {y} runs: skipped")
+        return
+    print(f"probability of improvement ({args.curve_reps:,} reps) ...")
+    pair = f"{x} > {y}"
+    point, interval = interval_estimates({pair: [agg.final[x], agg.final[y]]},
+                                         metrics.probability_of_improvement,
+                                         args.curve_reps, args.seed)
+    low, high = interval[pair].ravel()
+    runs = f"{agg.final[x].shape[0]} vs {agg.final[y].shape[0]}"
+    report.row("probability_of_improvement", "all", pair, "P(X > Y)", "", runs, point[pair],
+               low, high)
+    report.figure(plot_probability_of_improvement(point[pair], (low, high), x, y,
+                                                  analysis.colors[x], labels),
+                  "probability_of_improvement")
+    report.section("Probability of improvement",
+                   f"P({labels(x)} > {labels(y)}) = {format_ci(point[pair], low, high)}: the "
+                   f"chance that a run of {labels(x)} scores higher than a run of {labels(y)} on "
+                   "a task drawn at random (Mann-Whitney per task, averaged over tasks). It "
+                   "compares every run of one with every run of the other and so ignores the "
+                   "pairing (the same seed's actors from the same start states); the paired "
+                   "comparison is the headline's.")
+
+
+# ---------------------------------------------------------------------- 10. the dimension study
+# Paired differences at these fractions of each task's shared steps.
+TRAINING_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
 
 
 @dataclasses.dataclass
@@ -1697,7 +1870,7 @@ def shift_at(curves: list[Curve], step: int) -> dict[str, np.ndarray]:
 def dimension_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
                     ) -> tuple[dict[str, Dimension], list[str]]:
     """Each evaluation action's paired difference and the measured shift per task, keyed by
-    action dimension."""
+    action dimension, and notes on the tasks left out."""
     study, notes = {}, []
     for task, data in tasks.items():
         pairs = paired_groups(data, task in derived)
@@ -1750,13 +1923,15 @@ def _errorbar(ax, x: float, estimate: tuple[float, float, float], **style) -> No
 
 
 def study_actions(study: dict[str, Dimension]) -> list[str]:
-    """The evaluation actions compared with tanh(mu) in the study: mode, mean, q_best first."""
-    found = {selector_of(g) for d in study.values() for g in d.differences}
-    known = [a for a in ("mode", "mean", "q_best") if a in found]
+    """The evaluation actions compared with tanh(mu) in the study, in EVALUATION_ACTIONS' order
+    (mode, mean, q_best), then any other."""
+    found = {action_of(g) for d in study.values() for g in d.differences}
+    known = [a.name for a in EVALUATION_ACTIONS if a.name in found]
     return known + sorted(found - set(known))
 
 
-def plot_dimensions(study: dict[str, Dimension], estimates: dict, colors: list):
+def plot_dimension_study(study: dict[str, Dimension], estimates: dict, colors: list,
+                         labels: GroupLabels) -> plt.Figure:
     """Per evaluation action, a row: its paired difference against the action dimension and
     against training; last row: the measured shift beside mode_search's theory curve, and
     sigma / bimodal share against the dimension."""
@@ -1770,13 +1945,13 @@ def plot_dimensions(study: dict[str, Dimension], estimates: dict, colors: list):
     xs = dimension_positions(study)
     markers = {CORRECTED: "o", STANDARD: "s"}
     for (ax_dim, ax_progress), action in zip(axes[:-1], actions, strict=True):
-        groups = {g for d in study.values() for g in d.differences if selector_of(g) == action}
+        groups = {g for d in study.values() for g in d.differences if action_of(g) == action}
         several = len({algorithm_of(g) for g in groups}) > 1
         for (task, d), color in zip(study.items(), colors, strict=False):
             for group in sorted(d.differences, key=group_rank):
-                if selector_of(group) != action:
+                if action_of(group) != action:
                     continue
-                name = f"{task} ({d.action_dim})" + (f", {label(algorithm_of(group))}"
+                name = f"{task} ({d.action_dim})" + (f", {labels(algorithm_of(group))}"
                                                      if several else "")
                 _plot_difference(ax_dim, ax_progress, xs[task], d, estimates, (task, group),
                                  color=color, marker=markers.get(algorithm_of(group), "D"),
@@ -1839,10 +2014,16 @@ def _plot_difference(ax_dim, ax_progress, x: float, d: Dimension, estimates: dic
                              [estimates[key, f][2] for f in fractions], color=color, alpha=0.15)
 
 
-def report_dimensions(report: Report, args: Args, runs: Runs, tasks: dict[str, Task],
-                      derived: Sequence[str]) -> None:
-    """Beyond the paper: what each evaluation action is worth as the action dimension grows."""
-    study, notes = dimension_study(runs, tasks, derived)
+def report_dimension_study(report: Report, analysis: Analysis) -> None:
+    """Beyond the paper (figure `dimension_study`): what each evaluation action is worth as the
+    action dimension grows, one task per dimension. Estimator: the mean over seeds with
+    rliable's bootstrap CI (seed_mean_estimates: get_interval_estimates of per_task_mean) of
+    each task's per-seed paired difference, normalised by the range of its tanh(mu) returns so
+    that tasks of different reward scales share an axis, and of the measured shift; beside it
+    Student's t-interval of the raw difference (few seeds). Tasks are not pooled: each point is
+    a different task."""
+    args, labels = analysis.args, analysis.labels
+    study, notes = dimension_study(analysis.runs, analysis.tasks, analysis.derived)
     report.notes.extend(notes)
     dims = sorted({d.action_dim for d in study.values()})
     if len(dims) < 2:
@@ -1871,17 +2052,17 @@ def report_dimensions(report: Report, args: Args, runs: Runs, tasks: dict[str, T
                 report.row("dimension", task, group, f"raw_difference_t@{f:g}", step, runs_n,
                            *t_values)
                 raw, t_cell = seed_cells(diffs, [v * d.scale for v in (point, low, high)], 1)
-                table.append([task, d.action_dim, label(algorithm_of(group)), selector_of(group),
-                              runs_n, f"{f:g} ({_fmt(step)})", raw, t_cell,
+                table.append([task, d.action_dim, labels(algorithm_of(group)), action_of(group),
+                              runs_n, f"{f:g} ({format_step(step)})", raw, t_cell,
                               seed_cells(diffs / d.scale, (point, low, high))[0],
                               f"{int((diffs > 0).sum())} of {runs_n}"])
         for column, values in d.shift.items():
             report.row("dimension_shift", task, CORRECTED, column, d.steps[1.0], values.size,
                        *estimates[task, column])
-        shift_table.append([task, d.action_dim, *(_ci(*estimates[task, c]) if c in d.shift
+        shift_table.append([task, d.action_dim, *(format_ci(*estimates[task, c]) if c in d.shift
                                                   else "-" for c in SHIFT_COLUMNS)])
     colors = sns.color_palette("viridis", n_colors=len(study))
-    report.figure(plot_dimensions(study, estimates, colors), "dimension_study")
+    report.figure(plot_dimension_study(study, estimates, colors, labels), "dimension_study")
     report.section(
         "Beyond the paper: the paired difference against the action dimension",
         "Each evaluation action (the mode, and where logged the mean and q_best) minus tanh(mu) "
@@ -1898,6 +2079,63 @@ def report_dimensions(report: Report, args: Args, runs: Runs, tasks: dict[str, T
         "mean over seeds with a 95% bootstrap CI), beside the theory curve of mode_search.py "
         "(figure, last row):", "",
         markdown_table(["task", "action dims", *SHIFT_COLUMNS], shift_table))
+
+
+# ============================================================================== the pipeline
+# The report's sections, in the order summary.md prints them (its figures too).
+REPORT_SECTIONS: tuple[Callable[[Report, Analysis], None], ...] = (
+    report_standard_provenance,
+    report_paired_difference,
+    report_over_training,
+    report_choice_shares,
+    report_reward_curves,
+    report_aggregate_metrics,
+    report_performance_profiles,
+    report_sample_efficiency,
+    report_probability_of_improvement,
+    report_dimension_study,
+)
+
+
+def validate(args: Args) -> None:
+    """Every flag's valid range, checked before anything is read or written."""
+    rules = (
+        ("reps", args.reps >= 1, "at least 1"),
+        ("curve_reps", args.curve_reps >= 1, "at least 1"),
+        ("curve_points", args.curve_points >= 2, "at least 2"),
+        ("at_step", args.at_step is None or args.at_step >= 1, "a step of at least 1"),
+        ("seed", 0 <= args.seed < 2**32, "in [0, 2**32) (NumPy's seed range)"),
+        ("format", len(args.format) >= 1, "one or more of png, pdf"),
+    )
+    for name, ok, allowed in rules:
+        if not ok:
+            value = getattr(args, name)
+            shown = " ".join(value) if isinstance(value, tuple) else value
+            raise AnalysisError(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
+
+
+def analyze(args: Args) -> Report:
+    """The whole analysis: the data layer (load, pair, align, normalise) once, then each report
+    section of REPORT_SECTIONS in turn, then summary.md and summary.csv."""
+    validate(args)
+    runs, notes = load_runs(args.runs_dir)
+    pairing = standard_from_paired(runs)
+    groups = ordered_groups(runs)
+    found = found_text(args.runs_dir, runs, groups)
+    print(found + "\n")
+    tasks, align_notes = align(runs, args.at_step)
+    normalization, chosen = resolve_normalization(args.normalize, list(tasks))
+    args = dataclasses.replace(args, normalize=normalization)
+    norms = normalizers(tasks, args.normalize)
+    aggregate, aggregate_notes = build_aggregate(tasks, norms, groups, args.curve_points)
+    analysis = Analysis(args, runs, tasks, groups, pairing, norms, aggregate,
+                        GroupLabels(standard_label(pairing, list(runs))), group_colors(groups))
+    args.out.mkdir(parents=True, exist_ok=True)
+    report = Report(args.out, args.format, notes=notes + align_notes + aggregate_notes)
+    for section in REPORT_SECTIONS:
+        section(report, analysis)
+    report.write(summary_header(analysis, chosen, found))
+    return report
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -835,3 +835,128 @@ def test_success_bar_is_drawn_only_near_the_returns():
     assert analyze.success_bar_drawn(800.0, 600.0)
     assert not analyze.success_bar_drawn(2000.0, 650.0)  # bookshelf_simple at 1M: named instead
     assert not analyze.success_bar_drawn(800.0, -5.0)
+
+
+TOY_TASK, TOY_BAR = "toy-reach-v0", 50.0
+
+
+def write_toy_folder(root: Path) -> dict[tuple[str, int], dict[str, float]]:
+    """Corrected runs with the paired tanh(mu) block and a `median_` block (a new evaluation
+    action) on a new task (2 action dimensions) and on cube (61). Returns, per (task, seed), each
+    action's return at the last step."""
+    steps = 10_000 * np.arange(1, 5)
+    rng = np.random.default_rng(11)
+    final = {}
+    for task, dims in ((TOY_TASK, 2), (TASKS[1], 61)):
+        for seed in range(3):
+            base = 10.0 * np.arange(1, 5) + seed
+            mode, median = (base + rng.normal(0, 2, 4) for _ in range(2))
+            final[task, seed] = {"mode": mode[-1], "tanh_mu": base[-1], "median": median[-1]}
+            write_selector_run(root, task, "corrected", seed, steps,
+                               {"": mode, "tanh_mu_": base, "median_": median}, dims)
+    return final
+
+
+def test_a_new_task_and_a_new_evaluation_action_are_one_entry_each(tmp_path, monkeypatch):
+    """docs/analyze.md: a task with a success bar is one entry in SUCCESS_BARS, an evaluation
+    action one entry in EVALUATION_ACTIONS; with them, both go through every report."""
+    final = write_toy_folder(tmp_path / "runs")
+    # Without the two entries: the toy task has no bar (auto falls back to min-max) and the
+    # median_ columns are not read.
+    assert run_analysis(tmp_path / "runs", tmp_path / "before") == 0
+    assert "`auto` chose `min-max`: no HumanoidBench success bar for toy-reach-v0" in \
+        (tmp_path / "before" / "summary.md").read_text()
+    assert not any("median" in key[2] for key in read_summary(tmp_path / "before"))
+
+    monkeypatch.setitem(analyze.SUCCESS_BARS, TOY_TASK, TOY_BAR)
+    monkeypatch.setattr(analyze, "EVALUATION_ACTIONS",
+                        (*analyze.EVALUATION_ACTIONS, analyze.EvaluationAction("median")))
+    out = tmp_path / "out"
+    assert run_analysis(tmp_path / "runs", out) == 0
+    summary = read_summary(out)
+    text = (out / "summary.md").read_text()
+    # The task: scored against its bar, in every table.
+    assert "`auto` chose `success-bar`" in text and f"{TOY_TASK} {TOY_BAR:g}" in text
+    mode = np.mean([final[TOY_TASK, s]["mode"] for s in range(3)])
+    assert np.isclose(estimate(summary, "task_final", TOY_TASK, "corrected", "return")[0], mode)
+    assert np.isclose(estimate(summary, "task_final", TOY_TASK, "corrected", "score")[0],
+                      mode / TOY_BAR)
+    # The action: its own group, compared with tanh(mu) of the same actors everywhere.
+    group = "corrected (median eval)"
+    by_hand = np.mean([final[TOY_TASK, s]["median"] - final[TOY_TASK, s]["tanh_mu"]
+                       for s in range(3)])
+    assert np.isclose(estimate(summary, "paired_difference", TOY_TASK, group, "return")[0],
+                      by_hand)
+    assert np.isclose(estimate(summary, "paired_difference", TOY_TASK, group, "score")[0],
+                      by_hand / TOY_BAR)
+    for key in [("paired_difference", "all", group, "mean_score"),
+                ("paired_over_training", TOY_TASK, group, "return"),
+                ("task_final", TOY_TASK, group, "return"),
+                ("aggregate", "all", group, "IQM"),
+                ("dimension", TOY_TASK, group, "normalised_difference@1")]:
+        assert key in summary, key
+    assert f"| {TOY_TASK} | 40k | Corrected SAC | median | 3 |" in text  # the headline table
+    assert "median minus tanh(mu)" in text  # the over-training table
+    assert f"| {TOY_TASK} | 2 | Corrected SAC | median | 3 | 1 (40k) |" in text  # dimensions
+    assert {"paired_difference.png", "over_training.png", "reward_curves.png",
+            "dimension_study.png"} <= {p.name for p in out.iterdir()}
+
+
+def test_an_analysis_changes_no_module_state(tmp_path):
+    """The standard group's label ("Standard SAC (tanh(mu), paired)" here) is passed to the
+    reports, not written into the module: every module-level setting is the same afterwards."""
+    import copy
+
+    def settings() -> dict:
+        return {name: copy.deepcopy(value) for name, value in vars(analyze).items()
+                if name.isupper() and not callable(value)}
+
+    before = settings()
+    steps = 10_000 * np.arange(1, 4)
+    for seed in range(2):
+        write_run(tmp_path / "runs", TASKS[0], "corrected", seed, steps, steps / 1e3 + seed,
+                  steps / 1e3 - 1)
+    assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
+    assert "Standard SAC (tanh(mu), paired)" in (tmp_path / "out" / "summary.md").read_text()
+    assert settings() == before
+
+
+def test_no_report_section_calls_another():
+    """analyze.py's layout (docs/analyze.md): within it, a report's section (a `# --- N. title`
+    banner under `# === the reports`) uses the data layer and the shared tools, never another
+    report's section; neither the data layer nor the shared tools use a report's."""
+    import ast
+    import re
+
+    source = Path(analyze.__file__).read_text()
+    banners = [(i + 1, line) for i, line in enumerate(source.splitlines())
+               if re.match(r"# [=-]{5,} ", line)]
+
+    def part(lineno: int) -> str:
+        major = minor = ""
+        for start, line in banners:
+            if start > lineno:
+                break
+            if line.startswith("# ="):
+                major, minor = line.split("= ", 1)[1], ""
+            else:
+                minor = line.split("- ", 1)[1]
+        return f"report {minor}" if major == "the reports" else major
+
+    defined = {}
+    for node in ast.parse(source).body:
+        targets = [node] if isinstance(node, ast.FunctionDef | ast.ClassDef) else \
+            getattr(node, "targets", [getattr(node, "target", None)])
+        for target in targets:
+            name = getattr(target, "name", None) or getattr(target, "id", None)
+            if name:
+                defined[name] = (part(node.lineno), node)
+    sections = {where for where, _ in defined.values() if where.startswith("report ")}
+    assert len(sections) >= 9 and "the data layer" in {w for w, _ in defined.values()}
+    crossings = []
+    for name, (where, node) in defined.items():
+        for used in {n.id for n in ast.walk(node) if isinstance(n, ast.Name)} & set(defined):
+            other = defined[used][0]
+            if other.startswith("report ") and other != where and where != "the pipeline":
+                crossings.append(f"{name} ({where}) uses {used} ({other})")
+    assert not crossings, crossings
