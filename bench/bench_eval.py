@@ -11,7 +11,6 @@ tanh(mu)) and with four (`--eval-selectors mean q_best`), every episode at its t
     python bench/bench_eval.py                              # the protocol's setting, GPU node
 """
 
-import copy
 import os
 import statistics
 import subprocess
@@ -22,14 +21,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import gymnasium as gym
+import torch
 import tyro
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bench.endless  # noqa: E402, F401  (registers the Endless-* envs)
+import sac_corrected  # noqa: E402
 from eval_runner import Round, eval_seeds, run_round  # noqa: E402
-from sac_corrected import Actor  # noqa: E402
 
 
 @dataclass
@@ -81,18 +81,18 @@ def run_grid(args: Args, task: str, eval_flags: list[str], out: Path) -> list[fl
 
 
 def worst_round_seconds(task: str, actions: dict[str, str], episodes: int) -> tuple[float, int]:
+    """Seconds and env steps of one worst-case round, in-process, of an untrained actor (and
+    critic, for q_best) as sac_corrected.py builds them (make_learner, its default sizes)."""
     env = gym.make(task)
-    actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
-    critic = None
-    if "q_best" in actions.values():
-        from sac_corrected import TwinQ
-
-        critic = TwinQ(env.observation_space.shape[0], env.action_space.shape[0], (256, 256))
+    learner = sac_corrected.make_learner(sac_corrected.Args(env_id=task),
+                                         env.observation_space.shape[0], env.action_space,
+                                         torch.device("cpu"))
+    critic = learner["qf"] if "q_best" in actions.values() else None
     round_ = Round(f"bench.endless:Endless-{task}", eval_seeds(0, 1, episodes), actions,
-                   copy.deepcopy(actor), critic)
+                   learner["actor"], critic)
     start = time.perf_counter()
     result = run_round(round_)
-    return time.perf_counter() - start, sum(sum(r["lengths"]) for r in result.values())
+    return time.perf_counter() - start, sum(sum(result[p]["lengths"]) for p in actions)
 
 
 def main(args: Args) -> None:

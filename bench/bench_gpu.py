@@ -7,11 +7,13 @@
 Parts (--parts); the runs' figures are steps/s of the update phase (median of a run's train.csv
 rows after the first, which holds the CUDA-graph captures) per run and in all:
 - micro: in-process wall-clock timings on --micro-env-id (the GPU is asynchronous: each timing
-  ends with a synchronize), medians over --repeats: one gradient update eager and as a CUDA
-  graph (batch sampling from the GPU buffer included), the graph with the buffer in host
-  memory, the compiled update in a graph, acting on one observation (host to GPU and back
-  included), the mode of one action; one env step on this CPU; an evaluation round (CPU, as
-  eval_runner.py runs it).
+  ends with a synchronize), medians over --repeats, each set up as sac_standard.py's main block
+  does (bench_sac.py's script_update and script_act): one training step's learning as its loop
+  does it (a batch from the GPU buffer and the policy noise, drawn eagerly, then the update)
+  with the update eager and as a CUDA graph, the graph with the buffer in host memory, the
+  compiled update in a graph; acting on one observation (host to GPU and back included) eager,
+  as a graph and compiled in a graph; the mode of one action; one env step on this CPU; an
+  evaluation round (CPU, as eval_runner.py runs it).
 - single: one run of --micro-env-id on the CPU, GPU eager, GPU graphs, graphs with the buffer in
   host memory.
 - mps: for each of --env-ids, one run alone and --processes runs sharing the GPU under MPS (as
@@ -20,14 +22,13 @@ rows after the first, which holds the CUDA-graph captures) per run and in all:
 
 import copy
 import csv
-import functools
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -38,21 +39,21 @@ import tyro
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bench_sac import random_buffer  # noqa: E402  (bench/ is on the path: the script's folder)
+from bench_sac import (  # noqa: E402  (bench/ is on the path: the script's folder)
+    random_buffer,
+    script_act,
+    script_learner,
+    script_update,
+    training_step,
+)
 
-from compiled import compile_update, cuda_graph, make_train_step  # noqa: E402
+import sac_standard  # noqa: E402
+from compiled import cuda_graph  # noqa: E402
 from eval_runner import Round, eval_seeds, run_round  # noqa: E402
 from mode_search import mode_action  # noqa: E402
-from sac_standard import (  # noqa: E402
-    Actor,
-    TwinQ,
-    learner_tensors,
-    make_env,
-    sac_update,
-)
 from sweep import mps_daemon  # noqa: E402
 
-CUDA = torch.device("cuda")
+CUDA, CPU = torch.device("cuda"), torch.device("cpu")
 Part = Literal["micro", "single", "mps"]
 
 
@@ -109,57 +110,60 @@ def cuda_time(fn: Callable, repeats: int, calls: int) -> float:
     return statistics.median(times)
 
 
-def build_train_step(env, graphs: bool, batch_size: int, buffer_device: torch.device = CUDA,
-                     compiled: bool = False) -> tuple[Callable, Actor]:
-    """The scripts' learner at the paper's sizes on the GPU, a buffer of 20k random
-    transitions, its update compiled or eager."""
+def script_args(args: Args, **changes) -> sac_standard.Args:
+    """sac_standard.py's arguments (its defaults: the paper's sizes, compiled, CUDA graphs, the
+    buffer on the GPU) for the micro task and batch size; `changes` on top."""
+    return replace(sac_standard.Args(env_id=args.micro_env_id, seed=0),
+                   batch_size=args.batch_size, **changes)
+
+
+def build_train_step(args: Args, env, **changes) -> tuple[Callable, sac_standard.Actor]:
+    """What the scripts' training loop does per step to learn (draw a batch and the noise, then
+    the update), on the GPU, set up as sac_standard.py's main block does with these flags
+    (compile, cudagraphs, gpu_buffer); a buffer of 20k random transitions. Returns it and the
+    actor."""
+    script = script_args(args, **changes)
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    actor = Actor(obs_dim, (256, 256), env.action_space, -10.0, 2.0).to(CUDA)
-    qf, qf_target = (TwinQ(obs_dim, action_dim, (256, 256)).to(CUDA) for _ in range(2))
-    qf_target.load_state_dict(qf.state_dict())
-    log_alpha = torch.zeros((), device=CUDA, requires_grad=True)
-    optimizers = tuple(torch.optim.Adam(p, lr=3e-4, fused=True, capturable=True) for p in (
-        actor.parameters(), qf.parameters(), [log_alpha]))
-    rb = random_buffer(20_000, obs_dim, action_dim, buffer_device)
-    state = (actor, qf, qf_target, log_alpha, *optimizers)
-    tensors = learner_tensors(*state)
-    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=0.99, tau=0.005,
-                               target_entropy=-action_dim / 2)
-    if compiled:
-        update = compile_update(update, tensors, rb.zero_batch(batch_size, CUDA), state)
-    return make_train_step(rb, lambda batch, noise: update(tensors, batch, noise), batch_size,
-                           CUDA, graphs, state), actor
+    rb = random_buffer(20_000, obs_dim, action_dim, CUDA if script.gpu_buffer else CPU)
+    training = script_learner(script, obs_dim, env.action_space, CUDA)
+    update = script_update(script, training, rb, CUDA)
+    return training_step(script, rb, update, CUDA), training["actor"]
 
 
-def time_updates(args: Args, env) -> Actor:
+def time_updates(args: Args, env) -> sac_standard.Actor:
     """Prints the update's times; returns the actor (for the acting timings)."""
     for graphs in (False, True):
-        step, actor = build_train_step(env, graphs, args.batch_size)
+        step, actor = build_train_step(args, env, compile=False, cudagraphs=graphs)
         print(f"update, {'CUDA graph' if graphs else 'eager':<10} (GPU buffer): "
               f"{cuda_time(step, args.repeats, args.calls) * 1e3:7.3f} ms", flush=True)
-    step, _ = build_train_step(env, True, args.batch_size, torch.device("cpu"))
+    step, _ = build_train_step(args, env, compile=False, gpu_buffer=False)
     print(f"update, CUDA graph (host buffer): "
           f"{cuda_time(step, args.repeats, args.calls) * 1e3:7.3f} ms", flush=True)
-    step, _ = build_train_step(env, True, args.batch_size, compiled=True)
+    step, _ = build_train_step(args, env)
     print(f"update, compiled, CUDA graph (GPU buffer): "
           f"{cuda_time(step, args.repeats, args.calls) * 1e3:7.3f} ms", flush=True)
     return actor
 
 
-def time_acting(args: Args, env, actor: Actor) -> None:
-    """Acting as the scripts do (one observation, copies in and out) and the mode."""
+def time_acting(args: Args, env, actor: sac_standard.Actor) -> None:
+    """Acting as the scripts' loop does (one observation and its noise, copies in and out;
+    their act, eager, as a CUDA graph, compiled in a graph) and the mode."""
     obs = env.observation_space.sample()[None].astype(np.float32)
-    sample = torch.no_grad()(lambda o: actor.get_action(o)[0])
+    obs_dim, action_dim = obs.shape[1], env.action_space.shape[0]
     mu, log_std = (t.detach() for t in actor(torch.as_tensor(obs, device=CUDA)))
-    for graphs in (False, True):
-        act = cuda_graph(sample) if graphs else sample
-        mode = cuda_graph(mode_action) if graphs else mode_action
-        acting = cuda_time(lambda act=act: act(torch.as_tensor(obs, device=CUDA)).cpu().numpy(),
-                           args.repeats, args.calls)
-        mode_time = cuda_time(lambda mode=mode: mode(mu, log_std), args.repeats, args.calls)
-        label = "CUDA graph" if graphs else "eager"
-        print(f"act, one obs, {label:<10} (copies in and out): {acting * 1e3:7.3f} ms; mode of "
-              f"one action (exact): {mode_time * 1e3:7.3f} ms", flush=True)
+    for compiled, graphs in ((False, False), (False, True), (True, True)):
+        act = script_act(script_args(args, compile=compiled, cudagraphs=graphs), actor, obs_dim,
+                         action_dim, CUDA)
+        acting = cuda_time(lambda act=act: act(torch.as_tensor(obs, device=CUDA),
+                                               torch.randn((1, action_dim), device=CUDA)
+                                               ).cpu().numpy(), args.repeats, args.calls)
+        label = ("compiled, " if compiled else "") + ("CUDA graph" if graphs else "eager")
+        line = f"act, one obs, {label:<10} (copies in and out): {acting * 1e3:7.3f} ms"
+        if not compiled:
+            mode = cuda_graph(mode_action) if graphs else mode_action
+            mode_time = cuda_time(lambda mode=mode: mode(mu, log_std), args.repeats, args.calls)
+            line += f"; mode of one action (exact): {mode_time * 1e3:7.3f} ms"
+        print(line, flush=True)
 
 
 def time_env_step(env, repeats: int) -> float:
@@ -181,7 +185,7 @@ def time_env_step(env, repeats: int) -> float:
 
 
 def micro(args: Args) -> None:
-    env = make_env(args.micro_env_id)
+    env = sac_standard.make_env(args.micro_env_id)
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
     print(f"micro: {args.micro_env_id}: obs {obs_dim}, actions {action_dim}, batch "
           f"{args.batch_size}", flush=True)
@@ -190,9 +194,10 @@ def micro(args: Args) -> None:
     print(f"env step on this CPU: {time_env_step(env, args.repeats) * 1e3:7.3f} ms", flush=True)
     # Evaluation runs on CPU workers (eval_runner.py); one round, in-process, one thread.
     start = time.perf_counter()
-    result = run_round(Round(args.micro_env_id, eval_seeds(0, 1, args.eval_episodes),
-                             {"": "mode", "tanh_mu_": "tanh_mu"}, copy.deepcopy(actor).cpu()))
-    steps = sum(sum(r["lengths"]) for r in result.values())
+    actions = {"": "mode", "tanh_mu_": "tanh_mu"}
+    result = run_round(Round(args.micro_env_id, eval_seeds(0, 1, args.eval_episodes), actions,
+                             copy.deepcopy(actor).cpu()))
+    steps = sum(sum(result[p]["lengths"]) for p in actions)
     print(f"eval round, mode and tanh(mu), CPU: {args.eval_episodes} episodes each, {steps} "
           f"steps in {time.perf_counter() - start:.2f} s", flush=True)
 

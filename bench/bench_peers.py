@@ -184,14 +184,15 @@ def print_matmul_gflops(library: str = "torch", calls: str = "4000", repeats: st
 
 def print_update_ms(env_id: str, path: str) -> None:
     """Prints the milliseconds of one gradient update of the scripts alone (batch sampling and
-    noise included; bench_sac.time_update), "compiled" or "eager": medians of 5 x 200 updates."""
+    noise included; bench_sac.time_update), "compiled" or "eager": medians of 5 x 200 updates,
+    in the process's CPU seconds (bench_sac's clock: on its pinned core, with one thread, the
+    wall clock of an idle core)."""
     import torch
 
     sys.path.insert(0, str(ROOT / "bench"))
     import bench_sac
 
     torch.set_num_threads(1)
-    bench_sac.clock = time.perf_counter
     seconds = bench_sac.time_update(bench_sac.Args(env_id=env_id), make_env(env_id),
                                     compiled=path == "compiled")
     print(1e3 * seconds)

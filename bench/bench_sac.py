@@ -12,6 +12,7 @@ differenced); an evaluation round of 10 episodes; and the resident memory of a f
 1M-transition replay buffer with 308-dim observations (bookshelf's size).
 """
 
+import copy
 import functools
 import resource
 import statistics
@@ -19,7 +20,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,18 +32,26 @@ import tyro
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from compiled import compile_update, make_train_step  # noqa: E402
+import flags  # noqa: E402
+import sac_standard  # noqa: E402
+from compiled import compile_at_start, cuda_graph  # noqa: E402
 from eval_runner import Round, eval_seeds, run_round  # noqa: E402
 from sac_standard import (  # noqa: E402
-    Actor,
     ReplayBuffer,
     TwinQ,
     ends_without_bootstrap,
+    eval_actions,
     learner_tensors,
     make_env,
+    make_learner,
     make_vector_env,
+    physics_blow_up,
     sac_update,
+    tanh_mu,
 )
+
+# The timings' clock: process CPU seconds; the main block sets wall-clock seconds on --wall-clock.
+clock = time.process_time
 
 
 @dataclass
@@ -58,7 +67,7 @@ class Args:
     updates: int = 200
     """updates per timing repeat"""
     loop_steps: int = 3000
-    """training-loop steps timed after the start steps"""
+    """training-loop steps timed after the start steps (the whole loop, and its parts in place)"""
     eval_episodes: int = 10
     """episodes of the timed evaluation round"""
     compile: bool = True
@@ -87,9 +96,10 @@ class BatchedTwinQ(nn.Module):
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """(batch, dim) inputs; (2, batch) out, as TwinQ's."""
         x = torch.cat([obs, action], -1).expand(2, -1, -1)
-        for w, b in zip(self.weights[:-1], self.biases[:-1], strict=True):
-            x = torch.relu(torch.baddbmm(b, x, w))
-        return torch.baddbmm(self.biases[-1], x, self.weights[-1]).squeeze(-1)
+        last = len(self.weights) - 1  # indexed: a slice of a ParameterList does not compile
+        for i in range(last):
+            x = torch.relu(torch.baddbmm(self.biases[i], x, self.weights[i]))
+        return torch.baddbmm(self.biases[last], x, self.weights[last]).squeeze(-1)
 
 
 def median_time(fn, repeats: int, calls: int) -> float:
@@ -104,18 +114,65 @@ def median_time(fn, repeats: int, calls: int) -> float:
     return statistics.median(times)
 
 
-def build_learner(env, critic_class=TwinQ) -> tuple:
-    """The scripts' networks at the paper's sizes: actor, qf, qf_target, log_alpha and the actor's,
-    critics' and temperature's optimizers."""
-    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    hidden = (256, 256)
-    actor = Actor(obs_dim, hidden, env.action_space, -10.0, 2.0)
-    qf, qf_target = (critic_class(obs_dim, action_dim, hidden) for _ in range(2))
-    qf_target.load_state_dict(qf.state_dict())
-    log_alpha = torch.zeros((), requires_grad=True)
-    optimizers = tuple(torch.optim.Adam(params, lr=3e-4, fused=True) for params in (
-        actor.parameters(), qf.parameters(), [log_alpha]))
-    return actor, qf, qf_target, log_alpha, optimizers
+def script_args(args: Args, **changes) -> sac_standard.Args:
+    """sac_standard.py's arguments (its defaults: the paper's sizes) for this bench's task, batch
+    size, threads and --compile; `changes` on top."""
+    return replace(sac_standard.Args(env_id=args.env_id, seed=0), **{
+        "batch_size": args.batch_size, "torch_threads": args.torch_threads,
+        "compile": args.compile, **changes})
+
+
+def script_learner(script: sac_standard.Args, obs_dim: int, action_space,
+                   device: torch.device, critic_class=TwinQ) -> dict:
+    """The script's make_learner; with another critic_class (BatchedTwinQ), its critics, their
+    target and their optimizer swapped for that class's."""
+    training = make_learner(script, obs_dim, action_space, device)
+    if critic_class is not TwinQ:
+        qf = critic_class(obs_dim, action_space.shape[0], script.hidden_sizes).to(device)
+        training |= {"qf": qf, "qf_target": copy.deepcopy(qf),
+                     "q_optimizer": torch.optim.Adam(qf.parameters(), lr=script.q_lr, fused=True,
+                                                     capturable=device.type == "cuda")}
+    return training
+
+
+def script_update(script: sac_standard.Args, training: dict, rb: ReplayBuffer,
+                  device: torch.device):
+    """update(batch, noise) of this learner (script_learner), set up as sac_standard.py's main
+    block does: compiled at start-up with --compile, a CUDA graph on CUDA with --cudagraphs."""
+    actor, qf = training["actor"], training["qf"]
+    learner = learner_tensors(*training.values())
+    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=script.gamma, tau=script.tau,
+                               target_entropy=-script.target_entropy_scale * rb.action_dim)
+    noise_shape = (2, script.batch_size, rb.action_dim)
+    restore = tuple(training.values())
+    if script.compile:
+        update = compile_at_start(update, (learner, rb.zero_batch(script.batch_size, device),
+                                           torch.zeros(noise_shape, device=device)),
+                                  restore, "the update")
+    update = functools.partial(update, learner)
+    if device.type == "cuda" and script.cudagraphs:
+        update = cuda_graph(update, restore)
+    return update
+
+
+def script_act(script: sac_standard.Args, actor, obs_dim: int, action_dim: int,
+               device: torch.device):
+    """act(obs, noise), a sampled action, as sac_standard.py's main block builds it."""
+    act = torch.no_grad()(lambda obs, noise: actor.squash(*actor(obs), noise)[0])
+    if script.compile:
+        act = compile_at_start(act, (torch.zeros((1, obs_dim), device=device),
+                                     torch.zeros((1, action_dim), device=device)), (), "acting")
+    if device.type == "cuda" and script.cudagraphs:
+        act = cuda_graph(act)
+    return act
+
+
+def training_step(script: sac_standard.Args, rb: ReplayBuffer, update, device: torch.device):
+    """What the training loop does per step to learn, as a function of nothing: draw a batch and
+    the policy noise, and update."""
+    noise_shape = (2, script.batch_size, rb.action_dim)  # the next action's and the action's
+    return lambda: update(rb.sample(script.batch_size, device),
+                          torch.randn(noise_shape, device=device))
 
 
 def random_buffer(size: int, obs_dim: int, action_dim: int,
@@ -129,25 +186,16 @@ def random_buffer(size: int, obs_dim: int, action_dim: int,
     return rb
 
 
-def learner_update(learner: tuple, rb: ReplayBuffer, batch_size: int, compiled: bool):
-    """The scripts' update(batch, noise) of this learner (build_learner), compiled or eager."""
-    actor, qf, qf_target, log_alpha, optimizers = learner
-    tensors = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
-    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=0.99, tau=0.005,
-                               target_entropy=-rb.action_dim / 2)
-    if compiled:
-        update = compile_update(update, tensors, rb.zero_batch(batch_size, torch.device("cpu")),
-                                (actor, qf, qf_target, log_alpha, *optimizers))
-    return lambda batch, noise: update(tensors, batch, noise)
-
-
 def time_update(args: Args, env, critic_class=TwinQ, compiled: bool = True) -> float:
-    """Seconds per gradient update, batch sampling and policy noise included (make_train_step)."""
+    """Seconds per training step's learning, as the loop does it: batch sampling, policy noise and
+    the script's update (compiled or eager)."""
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    rb = random_buffer(20_000, obs_dim, action_dim, torch.device("cpu"))
-    update = learner_update(build_learner(env, critic_class), rb, args.batch_size, compiled)
-    return median_time(make_train_step(rb, update, args.batch_size, torch.device("cpu"), False,
-                                       ()), args.repeats, args.updates)
+    cpu = torch.device("cpu")
+    script = script_args(args, compile=compiled)
+    rb = random_buffer(20_000, obs_dim, action_dim, cpu)
+    update = script_update(script, script_learner(script, obs_dim, env.action_space, cpu,
+                                                  critic_class), rb, cpu)
+    return median_time(training_step(script, rb, update, cpu), args.repeats, args.updates)
 
 
 def time_env_step(env, steps: int, repeats: int) -> tuple[float, float]:
@@ -168,14 +216,17 @@ def time_env_step(env, steps: int, repeats: int) -> tuple[float, float]:
     return median_time(step, repeats, steps), (np.mean(lengths) if lengths else float(length))
 
 
-def time_actor_forward(env, repeats: int) -> float:
-    actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
+def time_actor_forward(args: Args, env, repeats: int) -> float:
+    """Seconds of one evaluation action of the script's untrained actor on one observation:
+    tanh(mu) (sac_standard.tanh_mu), scaled to the env's bounds."""
+    script = script_args(args)
+    actor = script_learner(script, env.observation_space.shape[0], env.action_space,
+                           torch.device("cpu"))["actor"]
     obs = torch.as_tensor(env.observation_space.sample(), dtype=torch.float32)[None]
 
     def forward():
         with torch.no_grad():
-            mu, _ = actor(obs)
-            actor.scale(torch.tanh(mu))[0].numpy()
+            actor.scale(tanh_mu(*actor(obs), script.mode_solver))[0].numpy()
 
     return median_time(forward, repeats, 500)
 
@@ -205,41 +256,46 @@ def loop_seconds_per_step(args: Args) -> float:
         for _ in range(max(1, args.repeats // 2)))
 
 
-def time_loop_parts(args: Args, steps: int = 3000, start: int = 1000) -> dict[str, float]:
+def time_loop_parts(args: Args, start: int = 1000) -> dict[str, float]:
     """Seconds per step of each part of the training loop, timed in place (interleaved as in
-    the scripts, so each part pays for the caches the others evict): the scripts' vector env of
-    one (in-process)."""
-    torch.manual_seed(0)
+    sac_standard.py's loop, so each part pays for the caches the others evict): its vector env
+    of one (in-process), its act, its buffer, its update; not its logging and bookkeeping.
+    --loop-steps steps after `start` random ones."""
+    cpu, steps = torch.device("cpu"), args.loop_steps
+    script = script_args(args)
+    torch.manual_seed(script.seed)
     space = make_env(args.env_id).action_space
-    space.seed(0)
+    space.seed(script.seed)
     envs = make_vector_env(args.env_id)
     obs_dim, action_dim = envs.single_observation_space.shape[0], space.shape[0]
-    learner = build_learner(make_env(args.env_id))
-    actor = learner[0]
-    rb = ReplayBuffer(1_000_000, obs_dim, action_dim, torch.device("cpu"))
-    update = learner_update(learner, rb, args.batch_size, args.compile)
-    noise_shape = (2, args.batch_size, action_dim)
+    training = script_learner(script, obs_dim, space, cpu)
+    rb = ReplayBuffer(script.buffer_size, obs_dim, action_dim, cpu)
+    act = script_act(script, training["actor"], obs_dim, action_dim, cpu)
+    update = script_update(script, training, rb, cpu)
+    noise_shape = (2, script.batch_size, action_dim)
     parts = dict.fromkeys(("act", "env step", "buffer add", "batch sample", "update"), 0.0)
-    obs, _ = envs.reset(seed=0)
+    obs, _ = envs.reset(seed=script.seed)
     for step in range(start + steps):
         t0 = clock()
         if step < start:
             action = space.sample()[None]
         else:
-            with torch.no_grad():
-                action = actor.get_action(torch.as_tensor(obs, dtype=torch.float32))[0].numpy()
+            action = act(torch.as_tensor(obs, dtype=torch.float32, device=cpu),
+                         torch.randn((1, action_dim), device=cpu)).cpu().numpy()
+            flags.check_finite(action, "action")
         t1 = clock()
         next_obs, reward, terminated, truncated, info = envs.step(action)
         t2 = clock()
         episode_end = bool(terminated[0] or truncated[0])
         final_obs = info["final_obs"][0] if episode_end else next_obs[0]
         rb.add(obs[0], action[0], reward[0], ends_without_bootstrap(terminated, truncated)[0],
-               final_obs, episode_end)
+               final_obs, episode_end, physics_blow_up(info, episode_end))
         obs = next_obs
         t3 = clock()
         if step < start:
             continue
-        batch, noise = rb.sample(args.batch_size, torch.device("cpu")), torch.randn(noise_shape)
+        batch = rb.sample(script.batch_size, cpu)
+        noise = torch.randn(noise_shape, device=cpu)
         t4 = clock()
         update(batch, noise)
         t5 = clock()
@@ -250,11 +306,15 @@ def time_loop_parts(args: Args, steps: int = 3000, start: int = 1000) -> dict[st
     return {name: total / steps for name, total in parts.items()}
 
 
-def time_eval_round(env, episodes: int) -> tuple[float, float]:
-    """Seconds of one evaluation round with tanh(mu) of an untrained actor, and its steps."""
-    actor = Actor(env.observation_space.shape[0], (256, 256), env.action_space, -10.0, 2.0)
+def time_eval_round(args: Args, env, episodes: int) -> tuple[float, float]:
+    """Seconds of one evaluation round with tanh(mu) of the script's untrained actor, and its
+    steps."""
+    script = script_args(args)
+    actor = script_learner(script, env.observation_space.shape[0], env.action_space,
+                           torch.device("cpu"))["actor"]
     start = clock()
-    result = run_round(Round(env.spec.id, eval_seeds(0, 1, episodes), {"": "tanh_mu"}, actor))
+    result = run_round(Round(env.spec.id, eval_seeds(script.seed, 1, episodes),
+                             eval_actions(script), actor, mode_solver=script.mode_solver))
     return clock() - start, sum(result[""]["lengths"])
 
 
@@ -270,7 +330,8 @@ def replay_buffer_memory_gb() -> float:
 
 if __name__ == "__main__":
     args = tyro.cli(Args)
-    clock = time.perf_counter if args.wall_clock else time.process_time
+    if args.wall_clock:
+        clock = time.perf_counter
     torch.set_num_threads(args.torch_threads)
     env = make_env(args.env_id)
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
@@ -284,7 +345,7 @@ if __name__ == "__main__":
     batched = time_update(args, env, BatchedTwinQ, compiled=args.compile)
     print(f"  with batched-matmul twin critics:   {batched * 1e3:6.2f} ms")
     env_step, episode_length = time_env_step(env, 1000, args.repeats)
-    actor_forward = time_actor_forward(env, args.repeats)
+    actor_forward = time_actor_forward(args, env, args.repeats)
     print(f"env step:                             {env_step * 1e3:6.2f} ms "
           f"(random-action episodes of {episode_length:.0f} steps)")
     print(f"actor forward (1 obs):                {actor_forward * 1e3:6.2f} ms")
@@ -296,7 +357,7 @@ if __name__ == "__main__":
     parts = time_loop_parts(args)
     print("  in place: " + ", ".join(f"{k} {v * 1e3:.2f} ms" for k, v in parts.items())
           + f" (sum {sum(parts.values()) * 1e3:.2f} ms)")
-    seconds, steps = time_eval_round(make_env(args.env_id), args.eval_episodes)
+    seconds, steps = time_eval_round(args, make_env(args.env_id), args.eval_episodes)
     predicted = steps * (env_step + actor_forward)
     print(f"eval round: {args.eval_episodes} episodes, {steps} steps in {seconds:.2f} s CPU; "
           f"steps x (env step + actor forward) = {predicted:.2f} s "
