@@ -9,6 +9,7 @@ What a checkpoint holds is checkpoints.py's; the flags' checks are flags.py's. N
 algorithm. The folder's layout is described in docs/scripts.md ("The run folder").
 """
 
+import copy
 import csv
 import dataclasses
 import fcntl
@@ -30,7 +31,15 @@ from torch.utils.tensorboard import SummaryWriter
 
 import checkpoints
 from checkpoints import atomic_write, save_tensors
-from eval_runner import eval_columns, shift_measured_at
+from eval_runner import (
+    EvalPool,
+    Round,
+    default_workers,
+    eval_columns,
+    eval_seeds,
+    round_row,
+    shift_measured_at,
+)
 from flags import check_checkpoint_args, check_finite, fail
 
 INTERRUPTED_EXIT_CODE = 3
@@ -61,13 +70,15 @@ class StopRequest:
 
 
 class RunFolder:
-    """One run's folder and bookkeeping. Created first thing (a finished run exits here, code 0);
-    `open` locks the folder, starts it or resumes it and opens its logs; the training loop then
-    reports to it (count_step, log_train, log_eval, print_progress) and asks it to keep state
+    """One run's folder and bookkeeping. Created first thing (a finished run exits here, code 0)
+    with the script's evaluation actions; `open` locks the folder, starts it or resumes it and
+    opens its logs and evaluation workers; the training loop then reports to it (count_step,
+    log_train, print_progress), has it evaluate (evaluate, poll_evaluations) and keep state
     (save_snapshot, checkpoint); `stop` or `finish` ends the run."""
 
     def __init__(self, args, algorithm: str, script: str, eval_actions: dict):
         self.args, self.algorithm, self.script = args, algorithm, script
+        self.eval_actions = eval_actions
         self.eval_columns = ["global_step", "wall_time", "eval_round", *eval_columns(
             eval_actions, shift=shift_measured_at(eval_actions) is not None)]
         self.dir = run_dir(args, algorithm)
@@ -107,14 +118,46 @@ class RunFolder:
                               global_step, ckpt is not None, self.algorithm)
         self.session_start = self.row_start = time.time()
         self.row_step = global_step
+        workers = args.eval_workers
+        self.eval_pool = EvalPool(default_workers() if workers is None else workers,
+                                  self.log_round)
+        for state in self.pending_rounds:  # the rounds a stop left unfinished, rerun first
+            self.eval_pool.submit(self.evaluation_round(
+                state["global_step"], state["wall_time"],
+                *checkpoints.pending_round_networks(training["actor"], training["qf"], state)))
         return global_step, obs
 
-    def unfinished_rounds(self, actor: nn.Module, qf: nn.Module) -> list[tuple]:
-        """The evaluation rounds that a stop checkpointed before they finished, to rerun first:
-        (step, wall time, the actor and critic as they were then)."""
-        return [(state["global_step"], state["wall_time"],
-                 *checkpoints.pending_round_networks(actor, qf, state))
-                for state in self.pending_rounds]
+    def evaluate(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
+        """Submits this step's evaluation round: a worker runs it while training goes on
+        (eval_runner.py), and its eval.csv row is written in step order (log_round)."""
+        self.eval_pool.submit(self.evaluation_round(global_step, self.wall_time(), actor, qf))
+
+    def poll_evaluations(self) -> None:
+        """Logs the rounds that have finished, in step order (never waits)."""
+        self.eval_pool.poll()
+
+    def evaluation_round(self, global_step: int, wall_time: float, actor: nn.Module,
+                         qf: nn.Module) -> Round:
+        """The evaluation round at this step, on CPU copies of the networks: every evaluation
+        action from the same start states (eval_runner.Round)."""
+        args, actions = self.args, self.eval_actions
+        eval_round = global_step // args.eval_interval
+        return Round(args.env_id, eval_seeds(args.seed, eval_round, args.eval_episodes), actions,
+                     copy.deepcopy(actor).cpu(),
+                     copy.deepcopy(qf).cpu() if "q_best" in actions.values() else None,
+                     mode_solver=args.mode_solver, reset_noise=args.eval_reset_noise,
+                     shift_of=shift_measured_at(actions),
+                     videos={"": self.video_path(global_step)} if args.capture_video else {},
+                     label=f"evaluation of seed {args.seed} at step {global_step}",
+                     info={"global_step": global_step, "wall_time": wall_time,
+                           "eval_round": eval_round})
+
+    def log_round(self, round_: Round, result: dict) -> None:
+        """A finished evaluation round's eval.csv row (EvalPool hands them back in step order)."""
+        row = round_.info | round_row(result, round_.actions)
+        write_row(*self.logs["eval"], self.logs["tb"], self.logs["tracker"], "eval", row,
+                  round_.videos.get(""))
+        self.progress["last_eval"] = (row["global_step"], row["return_mean"])
 
     def wall_time(self) -> float:
         """Seconds of training so far, over every session of the run."""
@@ -155,11 +198,6 @@ class RunFolder:
         write_row(*self.logs["train"], self.logs["tb"], self.logs["tracker"], "train", row)
         self.row_start, self.row_step = now, global_step
 
-    def log_eval(self, row: dict, video: Path | None = None) -> None:
-        """An evaluation round's eval.csv row (rounds are logged in step order)."""
-        write_row(*self.logs["eval"], self.logs["tb"], self.logs["tracker"], "eval", row, video)
-        self.progress["last_eval"] = (row["global_step"], row["return_mean"])
-
     def print_progress(self, global_step: int) -> None:
         last = self.progress["last_eval"]
         print(f"step {global_step:,}/{self.args.total_timesteps:,} | "
@@ -185,8 +223,13 @@ class RunFolder:
                      self.policy_weights(actor, qf))
 
     def checkpoint(self, global_step: int, training: dict, buffer, action_space: gym.Space,
-                   envs: gym.vector.VectorEnv, unfinished: list) -> None:
-        """checkpoint.pt (checkpoints.checkpoint_state), atomically."""
+                   envs: gym.vector.VectorEnv, stopping: bool) -> None:
+        """checkpoint.pt (checkpoints.checkpoint_state), atomically. A stop checkpoints at once,
+        recording the evaluation rounds still running (the resumed run reruns them), so that it
+        needs seconds of grace; otherwise every round before the checkpoint is in eval.csv
+        first."""
+        unfinished = self.eval_pool.abandon() if stopping else []
+        self.eval_pool.drain()
         save_tensors(self.dir / "checkpoint.pt", checkpoints.checkpoint_state(
             self.args, global_step, self.wall_time(), self.progress, training, buffer,
             action_space, envs.get_attr("record")[0], checkpoints.rng_states(self.device),
@@ -201,6 +244,8 @@ class RunFolder:
     def finish(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
         """final_model.pt, the logs closed, and done.json last: a folder with done.json is a
         finished run (sweep.py skips it)."""
+        self.eval_pool.drain()
+        self.eval_pool.close()
         wall_time = self.wall_time()
         save_tensors(self.dir / "final_model.pt", self.policy_weights(actor, qf))
         close_logs(self.logs)

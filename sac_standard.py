@@ -26,7 +26,6 @@ import flags
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
 from checkpoints import EpisodeRecord
 from compiled import ReLU, adam_state, adam_step, compile_at_start, cuda_graph, grad
-from eval_runner import EvalPool, Round, default_workers, eval_seeds, round_row, shift_measured_at
 from run_folder import RunFolder, StopRequest
 
 ALGORITHM = "standard"
@@ -106,7 +105,7 @@ class Args:
     """compile the gradient update (one function: sac_update) with torch.compile at start-up; on
     a CPU core it runs ~1.6x faster (docs/speed.md); needs a C++ compiler (g++)"""
     cudagraphs: bool = True
-    """on CUDA: capture the update (batch sampling included) and the actions as CUDA graphs"""
+    """on CUDA: replay the update and the training action as CUDA graphs"""
     gpu_buffer: bool = True
     """on CUDA: keep the replay buffer in GPU memory (1.2 GB per 1M observations of 308 floats);
     --no-gpu-buffer keeps it in host memory and copies each batch over"""
@@ -414,22 +413,6 @@ def learner_tensors(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.
             "adam": [adam_state(o) for o in (actor_optimizer, q_optimizer, alpha_optimizer)]}
 
 
-def evaluation_round(args: Args, actor: Actor, qf: TwinQ, global_step: int, wall_time: float,
-                     run: RunFolder) -> Round:
-    """The evaluation round at this step, on CPU copies of the networks: training goes on while
-    a worker runs it (eval_runner.py)."""
-    eval_round, actions = global_step // args.eval_interval, eval_actions(args)
-    return Round(args.env_id, eval_seeds(args.seed, eval_round, args.eval_episodes), actions,
-                 copy.deepcopy(actor).cpu(),
-                 copy.deepcopy(qf).cpu() if "q_best" in actions.values() else None,
-                 mode_solver=args.mode_solver, reset_noise=args.eval_reset_noise,
-                 shift_of=shift_measured_at(actions),
-                 videos={"": run.video_path(global_step)} if args.capture_video else {},
-                 label=f"evaluation of seed {args.seed} at step {global_step}",
-                 info={"global_step": global_step, "wall_time": wall_time,
-                       "eval_round": eval_round})
-
-
 def ends_without_bootstrap(terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
     """Whether the target of a transition drops the next state's value. HumanoidBench bootstraps
     one that is both terminated and truncated (its mask is `not terminated or truncated`)."""
@@ -464,8 +447,7 @@ if __name__ == "__main__":
     obs_dim, action_dim = envs.single_observation_space.shape[0], action_space.shape[0]
 
     training = make_learner(args, obs_dim, action_space, device)
-    actor, qf, qf_target, log_alpha = (training[k] for k in ("actor", "qf", "qf_target",
-                                                             "log_alpha"))
+    actor, qf = training["actor"], training["qf"]
     target_entropy = -args.target_entropy_scale * action_dim
     rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim,
                       device if args.gpu_buffer else torch.device("cpu"))
@@ -489,15 +471,6 @@ if __name__ == "__main__":
     update = functools.partial(update, learner)  # the learner's tensors change in place
     if device.type == "cuda" and args.cudagraphs:
         act, update = cuda_graph(act), cuda_graph(update, restore)
-
-    def log_evaluation(round_: Round, result: dict) -> None:
-        """An evaluation round's eval.csv row; EvalPool calls this in step order."""
-        run.log_eval(round_.info | round_row(result, round_.actions), round_.videos.get(""))
-
-    eval_pool = EvalPool(default_workers() if args.eval_workers is None else args.eval_workers,
-                         log_evaluation)
-    for step, wall_time, round_actor, round_qf in run.unfinished_rounds(actor, qf):
-        eval_pool.submit(evaluation_round(args, round_actor, round_qf, step, wall_time, run))
 
     losses = None
     while global_step < args.total_timesteps:
@@ -524,23 +497,16 @@ if __name__ == "__main__":
         if global_step % args.log_interval == 0:
             run.log_train(global_step, losses)
         if global_step % args.eval_interval == 0:
-            eval_pool.submit(evaluation_round(args, actor, qf, global_step, run.wall_time(), run))
-        eval_pool.poll()
+            run.evaluate(global_step, actor, qf)  # eval_actions(args), in a worker process
+        run.poll_evaluations()
         if global_step % args.print_interval == 0:
             run.print_progress(global_step)
         if args.snapshot_interval > 0 and global_step % args.snapshot_interval == 0:
             run.save_snapshot(global_step, actor, qf)
         if stop.requested or (args.checkpoint_interval > 0
                               and global_step % args.checkpoint_interval == 0):
-            # A stop checkpoints at once, recording the rounds still running (the resumed run
-            # reruns them), so that it needs seconds of grace; otherwise every round before
-            # the checkpoint is in eval.csv first.
-            unfinished = eval_pool.abandon() if stop.requested else []
-            eval_pool.drain()
-            run.checkpoint(global_step, training, rb, action_space, envs, unfinished)
+            run.checkpoint(global_step, training, rb, action_space, envs, stop.requested)
             if stop.requested:
                 run.stop(global_step)
 
-    eval_pool.drain()
-    eval_pool.close()
     run.finish(global_step, actor, qf)
