@@ -22,8 +22,9 @@ import torch.nn as nn
 from torch.func import functional_call
 
 # What is not the algorithm sits behind named calls (docs/scripts.md): flags.py (the command
-# line, bad input), run_folder.py (RunFolder: the run folder, its logs, checkpoints and resume),
-# compiled.py (speed: torch.compile, CUDA graphs) and eval_runner.py (evaluation rounds).
+# line, bad input), run_folder.py (RunFolder: the run folder, its logs, the evaluation rounds
+# that eval_runner.py runs, checkpoints and resume, with checkpoints.py) and compiled.py (speed:
+# torch.compile, CUDA graphs).
 import flags
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
 from checkpoints import EpisodeRecord
