@@ -20,6 +20,8 @@ import gymnasium as gym
 import numpy as np
 import tyro
 
+from eval_runner import action_name
+
 # Flags that may differ when resuming: they change where and how fast, not what is computed.
 TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
 RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "snapshot_interval",
@@ -119,10 +121,9 @@ def check_args(args, eval_actions: Callable) -> None:
     """Every flag's valid range, checked before anything is created or written. eval_actions:
     the script's own (it names the evaluation actions that --eval-selectors may add to)."""
     finite = math.isfinite
-    # An evaluation action is a name (eval_runner.ACTIONS) or the script's function of that name.
-    own_actions = [getattr(a, "__name__", a) for a in
+    own_actions = [action_name(a) for a in
                    eval_actions(dataclasses.replace(args, eval_selectors=())).values()]
-    actions = [getattr(a, "__name__", a) for a in eval_actions(args).values()]
+    actions = [action_name(a) for a in eval_actions(args).values()]
     rules = (
         ("seed", args.seed >= 0, "a non-negative integer"),
         ("total_timesteps", args.total_timesteps >= 1, "at least 1"),
