@@ -1,11 +1,8 @@
-"""What a run keeps on disk as tensors, and what an exact resume needs: checkpoint.pt (the
-networks, temperature, optimizers, replay buffer, random states, the episode under way and the
-evaluation rounds a stop left unfinished), read back and checked; the weights files
-(final_model.pt, snapshots), all written atomically as CPU tensors.
-
-An exact resume: a run killed at any point and resumed from its last checkpoint computes what the
-uninterrupted run computes, bit for bit (tests/test_sac.py). RunFolder (run_folder.py) calls
-this module; the scripts do not.
+"""What a run keeps on disk as CPU tensors, written atomically: the weights files (final_model.pt,
+snapshots) and checkpoint.pt, with all that an exact resume needs (networks, optimizers, buffer,
+random states, the episode under way, unfinished evaluation rounds): a run killed at any point
+and resumed computes what the uninterrupted run computes, bit for bit. RunFolder's, not the
+scripts'.
 """
 
 import copy
@@ -19,6 +16,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn as nn
+import torch.utils._pytree as pytree
 
 from flags import fail
 
@@ -35,15 +33,8 @@ def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
 
 
 def on_cpu(tree):
-    """A copy of nested dicts, lists and tuples with every tensor moved to the CPU: what the run
-    folder's .pt files hold, so that a plain torch.load reads them on a machine without a GPU."""
-    if torch.is_tensor(tree):
-        return tree.cpu()
-    if isinstance(tree, dict):
-        return {k: on_cpu(v) for k, v in tree.items()}
-    if isinstance(tree, list | tuple):
-        return type(tree)(on_cpu(v) for v in tree)
-    return tree
+    """The tree with every tensor on the CPU: a plain torch.load then reads it without a GPU."""
+    return pytree.tree_map_only(torch.Tensor, torch.Tensor.cpu, tree)
 
 
 def save_tensors(path: Path, tree: dict) -> None:
@@ -80,10 +71,8 @@ def find_checkpoint(run_dir: Path) -> dict | None:
 
 
 def rng_states(device: torch.device) -> dict:
-    """The process's random streams: torch draws the actions and the batches. Nothing of ours
-    uses the global numpy and python generators; libraries might. The CUDA generators only for a
-    run on CUDA: reading them elsewhere would create a CUDA context (and fail on a GPU in
-    exclusive-process mode that another process holds)."""
+    """The random streams (torch's draws the actions and batches; libraries might use the others).
+    The CUDA generators only on CUDA: reading them creates a CUDA context."""
     name, keys, pos, has_gauss, gauss = np.random.get_state()  # noqa: NPY002
     # Plain lists, not arrays: a checkpoint then loads with torch.load(weights_only=True).
     return {"python": random.getstate(), "numpy": (name, keys.tolist(), pos, has_gauss, gauss),
@@ -101,10 +90,8 @@ def set_rng_states(states: dict, device: torch.device) -> None:
 
 
 class EpisodeRecord(gym.Wrapper):
-    """Remembers how the current episode began (its reset seed, or the env's random state before
-    an unseeded reset) and every action since, so that a checkpoint taken mid-episode rebuilds
-    the episode exactly: `replay` resets the same way and steps the same actions (MuJoCo is
-    deterministic). Any gymnasium env, whatever state it keeps."""
+    """Remembers how the episode began (its reset seed, or the env's random state) and every action
+    since, so that a checkpoint taken mid-episode rebuilds it exactly (`replay`): any env."""
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         rng = None if seed is not None else self.env.unwrapped.np_random.bit_generator.state
@@ -116,8 +103,7 @@ class EpisodeRecord(gym.Wrapper):
         return self.env.step(action)
 
     def replay(self) -> np.ndarray:
-        """Rebuilds the episode of `self.record` (a checkpoint's, put there by the vector env's
-        set_attr) and returns its current observation."""
+        """Rebuilds the episode of `self.record` (a checkpoint's); returns its observation."""
         seed, rng = self.record["seed"], self.record["rng"]
         actions = [np.asarray(a) for a in self.record["actions"]]
         if rng is not None:
@@ -130,16 +116,14 @@ class EpisodeRecord(gym.Wrapper):
 
 
 def episode_state(record: dict, action_dim: int) -> dict:
-    """An EpisodeRecord's record for a checkpoint: the actions as one tensor (weights_only), in
-    the dtype numpy promotes them to, which holds each exactly (a float32 policy action and a
-    float64 random one in one episode: float64), so the replay steps the very same actions."""
+    """An EpisodeRecord's record for a checkpoint: the actions as one tensor, in the dtype numpy
+    promotes them to (float64 where random and policy actions mix), which holds each exactly."""
     actions = np.array(record["actions"]).reshape(len(record["actions"]), action_dim)
     return {"seed": record["seed"], "rng": record["rng"], "actions": torch.from_numpy(actions)}
 
 
 def replay_episode(envs: gym.vector.VectorEnv, seed: int, ckpt: dict) -> np.ndarray:
-    """The episode so far, replayed (the checkpoint may fall mid-episode); returns the
-    observations the run goes on from."""
+    """The episode so far, replayed; returns the observations the run goes on from."""
     envs.reset(seed=seed)
     envs.set_attr("record", [ckpt["rng"]["episode"]])
     return np.stack(envs.call("replay"))
@@ -149,9 +133,7 @@ def replay_episode(envs: gym.vector.VectorEnv, seed: int, ckpt: dict) -> np.ndar
 
 
 def pending_round_state(round_) -> dict:
-    """An evaluation round that a stop left unfinished, as its checkpoint keeps it: everything
-    the resumed run needs to rerun it exactly (the round is a function of these and the run's
-    arguments)."""
+    """An evaluation round a stop left unfinished: with the run's arguments, all a rerun needs."""
     return {"global_step": round_.info["global_step"], "wall_time": round_.info["wall_time"],
             "actor": round_.actor.state_dict(),
             "qf": None if round_.critic is None else round_.critic.state_dict()}
@@ -159,8 +141,7 @@ def pending_round_state(round_) -> dict:
 
 def pending_round_networks(actor: nn.Module, qf: nn.Module,
                            state: dict) -> tuple[nn.Module, nn.Module]:
-    """CPU copies of the networks as an unfinished evaluation round had them
-    (pending_round_state)."""
+    """CPU copies of the networks as an unfinished round had them (pending_round_state)."""
     round_actor, round_qf = copy.deepcopy(actor).cpu(), copy.deepcopy(qf).cpu()
     round_actor.load_state_dict(fit_shapes(state["actor"], round_actor.state_dict()))
     if state["qf"] is not None:
@@ -178,18 +159,29 @@ def fit_shapes(state: dict, like: dict) -> dict:
 # The checkpoint as a whole.
 
 
+def buffer_state(buffer) -> dict:
+    """A script's ReplayBuffer: its filled slots as CPU tensors of their own (torch.save of a view
+    would write the whole storage), so that a checkpoint loads on any device."""
+    return {"ptr": buffer.ptr, "filled": buffer.filled,
+            **{a: getattr(buffer, a)[: buffer.filled].to("cpu", copy=True) for a in buffer.ARRAYS}}
+
+
+def load_buffer_state(buffer, state: dict) -> None:
+    buffer.ptr, buffer.filled = state["ptr"], state["filled"]
+    for a in buffer.ARRAYS:
+        getattr(buffer, a)[: buffer.filled].copy_(state[a])
+
+
 def checkpoint_state(args, global_step: int, elapsed: float, progress: dict, training: dict,
                      buffer, action_space: gym.Space, episode: dict, rng: dict,
                      unfinished: list) -> dict:
-    """checkpoint.pt: the networks, temperature and optimizers (`training`, by their names in the
-    file: modules and optimizers by state_dict, log_alpha as a tensor), the replay buffer, and what
-    an exact resume needs besides (the random states, the episode under way, the evaluation
-    rounds a stop left unfinished)."""
+    """checkpoint.pt: `training` by name (modules and optimizers by state_dict), the replay
+    buffer, the random states, the episode under way and the unfinished evaluation rounds."""
     return {"args": dataclasses.asdict(args), "global_step": global_step, "elapsed": elapsed,
             "progress": progress,
             **{name: obj.detach().clone() if torch.is_tensor(obj) else obj.state_dict()
                for name, obj in training.items()},
-            "buffer": buffer.state_dict(),
+            "buffer": buffer_state(buffer),
             "rng": rng | {"action_space": action_space.np_random.bit_generator.state,
                           "episode": episode_state(episode, action_space.shape[0])},
             "pending_rounds": [pending_round_state(r) for r in unfinished]}
@@ -212,7 +204,7 @@ def load_checkpoint(ckpt: dict, training: dict, buffer, action_space: gym.Space,
                 for i, s in state["state"].items()}, "param_groups": state["param_groups"]})
             for group in obj.param_groups:
                 group["capturable"] = device.type == "cuda"  # the checkpoint's is its device's
-    buffer.load_state_dict(ckpt["buffer"])
+    load_buffer_state(buffer, ckpt["buffer"])
     action_space.np_random.bit_generator.state = ckpt["rng"]["action_space"]
     set_rng_states(ckpt["rng"], device)
     return ckpt["global_step"], ckpt["elapsed"], ckpt["progress"]

@@ -1,8 +1,7 @@
-"""Speed, for both SAC scripts: torch.compile at start-up (compile_at_start), CUDA graphs
-(cuda_graph), and the update's building blocks written so that the whole update compiles into one
-graph and still runs fast uncompiled: the gradient (grad), Adam's step as foreach ops (adam_step,
-the same arithmetic as torch.optim.Adam) and a ReLU whose backward inductor runs fast (ReLU, the
-same numbers as torch.relu). The algorithm itself is in the scripts (docs/speed.md).
+"""Speed, for both SAC scripts (docs/speed.md): torch.compile at start-up (compile_at_start), CUDA
+graphs (cuda_graph), and building blocks with which the whole update compiles into one graph and
+still runs fast eager: the gradient (grad), torch.optim.Adam's step as foreach ops (adam_step) and
+a ReLU whose backward inductor runs fast (ReLU). The algorithm itself is in the scripts.
 """
 
 import time
@@ -42,11 +41,10 @@ class ReLU(nn.Module):
 
 
 def grad(f: Callable) -> Callable:
-    """torch.func.grad(f, has_aux=True): a function that returns the gradient of f's first output
-    with respect to f's first argument (a pytree of tensors), and f's second output, detached.
-    Compiled, it is torch.func's (torch.autograd.grad would break the graph in two); eager, it is
-    torch.autograd's, which computes the same numbers ~1.3x faster on a CPU core, as torch.func
-    wraps each of the update's ~300 small ops in its own dispatch."""
+    """torch.func.grad(f, has_aux=True): the gradient of f's first output with respect to its first
+    argument (a pytree of tensors), and its second output, detached. Compiled, torch.func's
+    (torch.autograd.grad would break the graph); eager, torch.autograd's: the same numbers ~1.3x
+    faster on a CPU, without torch.func's dispatch around each of the update's ~300 small ops."""
     if torch.compiler.is_compiling():
         return torch.func.grad(f, has_aux=True)
 
@@ -61,9 +59,8 @@ def grad(f: Callable) -> Callable:
 
 
 def adam_step(params: list[torch.Tensor], grads: list[torch.Tensor], state: dict) -> None:
-    """torch.optim.Adam's step (eps outside the square root, as optax's too), in place, on the
-    moments and step count of `state` (adam_state): as foreach ops, so that it compiles with the
-    rest of the update into one function."""
+    """torch.optim.Adam's step (eps outside the square root, as optax's), in place on `state`
+    (adam_state), as foreach ops that compile with the rest of the update."""
     beta1, beta2 = state["betas"]
     torch._foreach_add_(state["steps"], 1)
     torch._foreach_lerp_(state["exp_avgs"], grads, 1 - beta1)
@@ -80,9 +77,8 @@ def adam_step(params: list[torch.Tensor], grads: list[torch.Tensor], state: dict
 
 
 def adam_state(optimizer: torch.optim.Optimizer) -> dict:
-    """The tensors of a torch.optim.Adam (created if it has not stepped yet, as its first step
-    would) and its settings. The optimizer holds the state, so that checkpoints keep its
-    state_dict; adam_step applies the step."""
+    """A torch.optim.Adam's tensors (created as its first step would) and settings, for adam_step:
+    the optimizer keeps holding them, for checkpoints."""
     group = optimizer.param_groups[0]
     for p in group["params"]:
         if not optimizer.state[p]:
@@ -113,14 +109,11 @@ def training_state(*objects: nn.Module | torch.optim.Optimizer | torch.Tensor) -
 
 
 def cuda_graph(fn: Callable, restore: tuple = ()) -> Callable:
-    """fn, captured as a CUDA graph at its first call and replayed at every call.
-
-    The returned function copies the tensors of its arguments (tensors, or tuples of them) into
-    the graph's inputs and returns the graph's outputs (overwritten by the next replay). A capture
-    needs a few eager warm-up calls first; so that they do not change the run, the tensors of
-    `restore` (modules, optimizers, tensors) and the random generators are put back afterwards,
-    and optimizer states that the warm-up created are zeroed, as a fresh optimizer's are. A run is
-    then the same whenever the capture happens (at the start of learning, or after a resume)."""
+    """fn, captured as a CUDA graph at its first call and replayed at every call: the tensors of
+    the arguments are copied into the graph's inputs; the outputs are overwritten by the next
+    replay. So that the capture's eager warm-up calls do not change the run, the tensors of
+    `restore` and the random generators are put back afterwards (optimizer states the warm-up
+    created zeroed): a run is the same whenever the capture happens (at start or after a resume)."""
     graph, inputs, outputs = None, (), None
 
     def replay(*args):
@@ -154,11 +147,9 @@ def cuda_graph(fn: Callable, restore: tuple = ()) -> Callable:
 
 
 def compile_at_start(fn: Callable, example: tuple, restore: tuple, name: str) -> Callable:
-    """fn compiled whole (torch.compile, fullgraph: one graph, no breaks) and called once, at
-    start-up, on the `example` arguments, so that the compile's cost and any failure show at
-    once, not after learning_starts steps; the tensors of `restore` are put back afterwards.
-    Inductor caches what it compiled (in /tmp by default): a second run or a resume on the same
-    machine compiles in a fraction of the time."""
+    """fn compiled whole (fullgraph) and called once on `example` at start-up, so that the cost and
+    any failure show at once (the tensors of `restore` are put back). Inductor caches its work (in
+    /tmp): a second run on the machine compiles in a fraction of the time."""
     compiled = torch.compile(fn, fullgraph=True)
     saved = [(t, t.detach().clone()) for t in training_state(*restore)]
     start = time.time()

@@ -1,9 +1,7 @@
-"""Bad input, for the SAC scripts and evaluate.py: the one-line error (`fail`), each flag's valid
-range, the rules of --resume (a run's stored arguments are the defaults; a flag may change where
-and how fast, never what is computed), the checks of --env-id and of a run's config.json, and a
-non-finite action or loss. Both scripts call parse_args with their own Args.
-
-None of it is the algorithm; the flags themselves, with a docstring each, are the scripts' Args.
+"""Bad input, for the SAC scripts and evaluate.py: the one-line error (`fail`), each flag's range,
+--resume's rules (the run's stored arguments are the defaults; a flag may change where and how
+fast, never what is computed), --env-id, a run's config.json, a non-finite action or loss. The
+flags themselves are the scripts' Args.
 """
 
 import dataclasses
@@ -27,10 +25,8 @@ TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
 RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "snapshot_interval",
                   "print_interval", "cuda", "compile", "cudagraphs", "gpu_buffer", "torch_threads",
                   "capture_video", "eval_workers", *TRACKING_FIELDS)
-# Of those, what a resume keeps unless told otherwise: a tracked run goes on being tracked, to
-# the same W&B run; a compiled run stays compiled and an eager one eager (they round apart); a
-# run keeps its checkpoints and snapshots as often as it was started with (sweep.py resumes
-# with --resume alone).
+# What a resume keeps unless told otherwise (sweep.py resumes with --resume alone): the W&B run,
+# compiled or eager (they round apart), the checkpoint and snapshot intervals.
 KEPT_FIELDS = (*TRACKING_FIELDS, "compile", "checkpoint_interval", "snapshot_interval")
 
 
@@ -173,8 +169,8 @@ def check_args(args, eval_actions: Callable) -> None:
 
 
 def check_checkpoint_args(run_dir: Path, ckpt: dict, args) -> None:
-    """A resume's checkpoint must have been made with the arguments config.json holds (those
-    the script still has: an older checkpoint's num_seeds, say, is no argument now)."""
+    """A resume's checkpoint must have been made with the arguments config.json holds (those the
+    script still has)."""
     wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}
     if {k: v for k, v in ckpt["args"].items() if k in wanted} != wanted:
         fail(f"{run_dir / 'checkpoint.pt'} was made with other arguments than "

@@ -1,12 +1,8 @@
-"""A run folder, from start to finish, behind one object (RunFolder) that sac_standard.py and
-sac_corrected.py hold: named, locked (one writer), written fresh (config.json) or resumed from its
-checkpoint, logged to (eval.csv and train.csv row by row, TensorBoard, W&B with --track),
-checkpointed, snapshotted and finished (final_model.pt, then done.json). Also the training's
-bookkeeping that train.csv and the progress line report (episodes, steps per second), and the
-graceful stop on a signal (StopRequest).
-
-What a checkpoint holds is checkpoints.py's; the flags' checks are flags.py's. None of it is the
-algorithm. The folder's layout is described in docs/scripts.md ("The run folder").
+"""A run folder from start to finish, behind the one object the SAC scripts hold (RunFolder):
+named, locked (one writer), started (config.json) or resumed, logged to (eval.csv, train.csv,
+TensorBoard, W&B), checkpointed, snapshotted and finished (final_model.pt, then done.json); the
+training episodes and steps per second it reports; the graceful stop on a signal (StopRequest).
+What a checkpoint holds is checkpoints.py's. The layout: docs/scripts.md ("The run folder").
 """
 
 import copy
@@ -30,16 +26,9 @@ import torch.nn as nn
 from torch.utils.tensorboard import SummaryWriter
 
 import checkpoints
+import eval_runner
 from checkpoints import atomic_write, save_tensors
-from eval_runner import (
-    EvalPool,
-    Round,
-    default_workers,
-    eval_columns,
-    eval_seeds,
-    round_row,
-    shift_measured_at,
-)
+from eval_runner import Round, shift_measured_at
 from flags import check_checkpoint_args, check_finite, fail
 
 INTERRUPTED_EXIT_CODE = 3
@@ -79,7 +68,7 @@ class RunFolder:
     def __init__(self, args, algorithm: str, script: str, eval_actions: dict):
         self.args, self.algorithm, self.script = args, algorithm, script
         self.eval_actions = eval_actions
-        self.eval_columns = ["global_step", "wall_time", "eval_round", *eval_columns(
+        self.eval_columns = ["global_step", "wall_time", "eval_round", *eval_runner.eval_columns(
             eval_actions, shift=shift_measured_at(eval_actions) is not None)]
         self.dir = run_dir(args, algorithm)
         if (self.dir / "done.json").exists():
@@ -89,10 +78,9 @@ class RunFolder:
 
     def open(self, training: dict, buffer, action_space: gym.Space,
              envs: gym.vector.VectorEnv, device: torch.device) -> tuple[int, np.ndarray]:
-        """Locks the folder (one writer) and checks it before anything in it is written; then a
-        fresh start (config.json, the env reset with the seed) or a resume from checkpoint.pt
-        (in place into `training`, the buffer, the action space's and torch's random streams,
-        the episode under way replayed), or a restart where there is no checkpoint yet. Returns
+        """Locks the folder (one writer) and checks it before writing; then a fresh start
+        (config.json, the env reset with the seed) or a resume from checkpoint.pt (in place into
+        `training`, the buffer and the random streams, the episode under way replayed). Returns
         the step and the observation the run goes on from."""
         args, self.device = self.args, device
         lock = lock_run_folder(self.dir)
@@ -110,17 +98,20 @@ class RunFolder:
             global_step, self.elapsed = 0, 0.0
             self.progress = {"episode_returns": [], "episode_lengths": [], "last_eval": None,
                              "episode_return": 0.0, "episode_length": 0}
-            write_config(args, self.dir, envs.single_observation_space.shape[0],
-                         action_space.shape[0], self.algorithm, self.script, device)
+            for old in self.dir.glob("events.out.tfevents.*"):  # a restart from step 0
+                old.unlink()
+            config = run_metadata(args, envs.single_observation_space.shape[0],
+                                  action_space.shape[0], self.algorithm, self.script, device)
+            atomic_write(self.dir / "config.json",
+                         lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
             obs, _ = envs.reset(seed=args.seed)
         record_holder(lock)
         self.logs = open_logs(args, self.dir, self.eval_columns, list(TRAIN_COLUMNS),
                               global_step, ckpt is not None, self.algorithm)
         self.session_start = self.row_start = time.time()
         self.row_step = global_step
-        workers = args.eval_workers
-        self.eval_pool = EvalPool(default_workers() if workers is None else workers,
-                                  self.log_round)
+        workers = eval_runner.default_workers() if args.eval_workers is None else args.eval_workers
+        self.eval_pool = eval_runner.EvalPool(workers, self.log_round)
         for state in self.pending_rounds:  # the rounds a stop left unfinished, rerun first
             self.eval_pool.submit(self.evaluation_round(
                 state["global_step"], state["wall_time"],
@@ -128,8 +119,8 @@ class RunFolder:
         return global_step, obs
 
     def evaluate(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
-        """Submits this step's evaluation round: a worker runs it while training goes on
-        (eval_runner.py), and its eval.csv row is written in step order (log_round)."""
+        """Submits this step's evaluation round to a worker (eval_runner.py); its eval.csv row
+        is written in step order (log_round)."""
         self.eval_pool.submit(self.evaluation_round(global_step, self.wall_time(), actor, qf))
 
     def poll_evaluations(self) -> None:
@@ -138,11 +129,12 @@ class RunFolder:
 
     def evaluation_round(self, global_step: int, wall_time: float, actor: nn.Module,
                          qf: nn.Module) -> Round:
-        """The evaluation round at this step, on CPU copies of the networks: every evaluation
-        action from the same start states (eval_runner.Round)."""
+        """The round at this step, on CPU copies of the networks: every action from the same
+        starts."""
         args, actions = self.args, self.eval_actions
         eval_round = global_step // args.eval_interval
-        return Round(args.env_id, eval_seeds(args.seed, eval_round, args.eval_episodes), actions,
+        seeds = eval_runner.eval_seeds(args.seed, eval_round, args.eval_episodes)
+        return Round(args.env_id, seeds, actions,
                      copy.deepcopy(actor).cpu(),
                      copy.deepcopy(qf).cpu() if "q_best" in actions.values() else None,
                      mode_solver=args.mode_solver, reset_noise=args.eval_reset_noise,
@@ -154,7 +146,7 @@ class RunFolder:
 
     def log_round(self, round_: Round, result: dict) -> None:
         """A finished evaluation round's eval.csv row (EvalPool hands them back in step order)."""
-        row = round_.info | round_row(result, round_.actions)
+        row = round_.info | eval_runner.round_row(result, round_.actions)
         write_row(*self.logs["eval"], self.logs["tb"], self.logs["tracker"], "eval", row,
                   round_.videos.get(""))
         self.progress["last_eval"] = (row["global_step"], row["return_mean"])
@@ -175,9 +167,8 @@ class RunFolder:
             progress["episode_return"], progress["episode_length"] = 0.0, 0
 
     def log_train(self, global_step: int, losses: tuple[torch.Tensor, ...] | None) -> None:
-        """A train.csv row: the steps per second since the last row, the last update's losses
-        (sac_losses's logs; none before learning starts) and the training episodes that ended
-        since the last row."""
+        """A train.csv row: the steps per second, the last update's losses (none before learning
+        starts) and the training episodes that ended since the last row."""
         now = time.time()
         returns, lengths = self.progress["episode_returns"], self.progress["episode_lengths"]
         row = {"global_step": global_step, "wall_time": self.wall_time(),
@@ -215,19 +206,16 @@ class RunFolder:
                 "config": {f: getattr(self.args, f) for f in MODEL_FIELDS}}
 
     def save_snapshot(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
-        """snapshots/step<N>.pt, as final_model.pt holds the weights. Written atomically, so a run
-        killed mid-write leaves the last whole one; a resumed run rewrites the snapshots after
-        its checkpoint with the same numbers."""
+        """snapshots/step<N>.pt, as final_model.pt (a resumed run rewrites the later ones with
+        the same numbers)."""
         (self.dir / "snapshots").mkdir(exist_ok=True)
         save_tensors(self.dir / "snapshots" / f"step{global_step}.pt",
                      self.policy_weights(actor, qf))
 
     def checkpoint(self, global_step: int, training: dict, buffer, action_space: gym.Space,
                    envs: gym.vector.VectorEnv, stopping: bool) -> None:
-        """checkpoint.pt (checkpoints.checkpoint_state), atomically. A stop checkpoints at once,
-        recording the evaluation rounds still running (the resumed run reruns them), so that it
-        needs seconds of grace; otherwise every round before the checkpoint is in eval.csv
-        first."""
+        """checkpoint.pt (checkpoints.checkpoint_state). A stop checkpoints at once, keeping the
+        rounds still running for the resumed run to rerun; otherwise they finish first."""
         unfinished = self.eval_pool.abandon() if stopping else []
         self.eval_pool.drain()
         save_tensors(self.dir / "checkpoint.pt", checkpoints.checkpoint_state(
@@ -258,8 +246,8 @@ class RunFolder:
 
 
 def run_dir(args, algorithm: str) -> Path:
-    """With --resume, the folder given (wherever it is now: a copy resumes the copy); else a
-    fresh one, --run-name or the default name under --output-dir, which must not hold a run."""
+    """With --resume, the folder given (a copy resumes the copy); else a fresh one under
+    --output-dir, named --run-name or by default."""
     if args.resume is not None:
         return Path(args.resume)
     name = args.run_name or (f"{args.env_id}__{algorithm}__seed{args.seed}__"
@@ -272,11 +260,9 @@ def run_dir(args, algorithm: str) -> Path:
 
 
 def lock_run_folder(run_dir: Path) -> int:
-    """An exclusive OS lock on run_dir/lock, held while this process lives: one writer per run
-    folder (a Slurm requeue racing a job that has not died yet, a sweep started twice). The
-    kernel drops it when the process dies, SIGKILL included, so it is never stale. Returns the
-    fd, for record_holder once the folder has been checked. A refusal changes nothing: a folder
-    and lock file made here for it are removed again."""
+    """An OS lock on run_dir/lock while this process lives: one writer per folder (a Slurm requeue
+    racing a live job, a sweep started twice), never stale (the kernel drops it at any death). A
+    refusal removes the folder and lock file it made. Returns the fd (record_holder)."""
     made = not run_dir.exists()
     run_dir.mkdir(parents=True, exist_ok=True)
     fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
@@ -302,9 +288,8 @@ def record_holder(lock_fd: int) -> None:
 
 def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: str,
                  device: torch.device) -> dict:
-    """config.json: every argument, the algorithm, the library versions, the git commit, and
-    under "used" what the run started with where flags only ask (--cuda on a machine without a
-    GPU trains on the CPU, without CUDA graphs or a GPU buffer)."""
+    """config.json: every argument, the algorithm, the versions, the git commit, and under "used"
+    what the run started with where flags only ask (--cuda without a GPU trains on the CPU)."""
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
                                 capture_output=True, text=True, check=True).stdout.strip()
@@ -320,17 +305,6 @@ def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: st
                      "cudagraphs": device.type == "cuda" and args.cudagraphs,
                      "gpu_buffer": device.type == "cuda" and args.gpu_buffer,
                      "torch_threads": args.torch_threads}}
-
-
-def write_config(args, run_dir: Path, obs_dim: int, action_dim: int, algorithm: str,
-                 script: str, device: torch.device) -> None:
-    """config.json (run_metadata), at a fresh start; TensorBoard files of an earlier start are
-    removed (a restart from step 0)."""
-    for old in run_dir.glob("events.out.tfevents.*"):
-        old.unlink()
-    config = run_metadata(args, obs_dim, action_dim, algorithm, script, device)
-    atomic_write(run_dir / "config.json",
-                 lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
 
 
 # The logs: CSVs, TensorBoard, W&B.
@@ -381,10 +355,8 @@ def write_row(f, writer: csv.DictWriter, tb: SummaryWriter, tracker, group: str,
 
 
 def start_tracking(args, run_dir: Path, algorithm: str):
-    """With --track, the W&B run, as CleanRL logs it: the config, every scalar that goes to
-    TensorBoard (against global_step) and the evaluation videos. wandb is imported only here.
-    Its id is kept in the run folder, so a resumed run continues the same W&B run; with
-    WANDB_MODE=offline it writes to run_dir/wandb, for `wandb sync` later."""
+    """With --track, the W&B run (imported only then), as CleanRL logs it: the config, every
+    TensorBoard scalar and the videos. Its id is kept in the folder: a resume continues it."""
     if not args.track:
         return None
     import wandb

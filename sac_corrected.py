@@ -1,11 +1,9 @@
 """Soft Actor-Critic, corrected: evaluates with the mode of the tanh-squashed Gaussian policy.
 
-Defaults are the paper's protocol (its Tables I and II) and HumanoidBench's SAC details. The run
-folder layout (config.json, eval.csv, train.csv, TensorBoard, checkpoint.pt, final_model.pt,
-done.json) is described in docs/scripts.md. Training is sac_standard.py's, step for step; only the
-evaluation action changes: `diff` the two files to see the correction. Each evaluation round also
-acts with tanh(mu) from the same start states (a paired comparison on the same actor) and logs how
-far the mode is from tanh(mu): the paper's distribution shift, measured during training.
+Defaults are the paper's protocol (its Tables I and II) and HumanoidBench's SAC; the run folder
+is described in docs/scripts.md. Training is sac_standard.py's, step for step: `diff` the two files
+to see the correction. Each evaluation round also acts with tanh(mu) from the same starts (paired)
+and logs how far the mode is from it: the paper's distribution shift, measured during training.
 """
 
 import copy
@@ -21,10 +19,8 @@ import torch
 import torch.nn as nn
 from torch.func import functional_call
 
-# What is not the algorithm sits behind named calls (docs/scripts.md): flags.py (the command
-# line, bad input), run_folder.py (RunFolder: the run folder, its logs, the evaluation rounds
-# that eval_runner.py runs, checkpoints and resume, with checkpoints.py) and compiled.py (speed:
-# torch.compile, CUDA graphs).
+# Not the algorithm (docs/scripts.md): flags.py (bad input), run_folder.py (RunFolder: the folder,
+# logs, evaluation rounds, checkpoints; with checkpoints.py), compiled.py (compile, CUDA graphs).
 import flags
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
 from checkpoints import EpisodeRecord
@@ -74,20 +70,15 @@ class Args:
     eval_episodes: int = 10
     """episodes per evaluation round"""
     eval_reset_noise: float | None = None
-    """half-width of the uniform noise on every qpos entry at each evaluation reset (h1hand
-    tasks; default: the task's own, the paper's protocol). 0.01 is HumanoidBench's, which it turns
-    off on bookshelf and cube, whose evaluation is then one deterministic episode per action:
-    with it, every episode starts elsewhere (episode k of every action from the same state)"""
+    """h1hand tasks: uniform noise of this half-width on qpos at each evaluation reset (default:
+    the task's own, the paper's protocol; 0.01 is HumanoidBench's, off on bookshelf and cube)"""
     eval_selectors: tuple[Literal["mode", "tanh_mu", "mean", "q_best"], ...] = ()
-    """more evaluation actions, each paired (same start states) with the script's own: "mean"
-    (E[tanh(u)]), "q_best" (the critic's pick of tanh(mu), mode and mean at each state), "mode",
-    "tanh_mu" (see eval_runner.py); eval.csv columns <name>_*"""
+    """more evaluation actions, paired with the script's own (same starts; eval_runner.py): "mean"
+    (E[tanh(u)]), "q_best" (the critic's pick), "mode", "tanh_mu"; eval.csv columns <name>_*"""
     mode_solver: Literal["exact", "grid"] = "exact"
-    """how to find the mode (for the evaluation actions that use it): "exact" (iterative solve)
-    or "grid" (the paper's Algorithm 1)"""
+    """how to find the mode: "exact" (iterative solve) or "grid" (the paper's Algorithm 1)"""
     eval_workers: int | None = None
-    """processes that run evaluation rounds while training goes on (default: the cores that
-    training leaves free); 0 runs each round in-process, training waiting"""
+    """processes running evaluation rounds beside training (default: the free cores; 0: inline)"""
     log_interval: int = 1000
     """write a train.csv / TensorBoard row every this many steps"""
     print_interval: int = 10_000
@@ -101,22 +92,17 @@ class Args:
     checkpoint_interval: int = 100_000
     """checkpoint every this many steps (0: off)"""
     snapshot_interval: int = 0
-    """keep the actor and critic every this many steps as snapshots/step<N>.pt (final_model.pt's
-    format, ~2 MB on h1hand), for evaluate.py to evaluate the run at several depths (0: off)"""
+    """keep the actor and critic every this many steps in snapshots/ for evaluate.py (0: off)"""
     cuda: bool = True
     """use a CUDA GPU if there is one"""
     compile: bool = True
-    """compile the gradient update (one function: sac_update) with torch.compile at start-up; on
-    a CPU core it runs ~1.6x faster (docs/speed.md); needs a C++ compiler (g++)"""
+    """torch.compile the update and the acting at start-up (~1.6x faster on a CPU; needs g++)"""
     cudagraphs: bool = True
     """on CUDA: replay the update and the training action as CUDA graphs"""
     gpu_buffer: bool = True
-    """on CUDA: keep the replay buffer in GPU memory (1.2 GB per 1M observations of 308 floats);
-    --no-gpu-buffer keeps it in host memory and copies each batch over"""
+    """on CUDA: keep the replay buffer in GPU memory (1.2 GB per 1M h1hand observations)"""
     torch_threads: int = 1
     """torch CPU threads (1 is fastest for batch 64 on small CPUs; see docs/speed.md)"""
-    torch_deterministic: bool = True
-    """if toggled, `torch.backends.cudnn.deterministic=True`"""
     capture_video: bool = False
     """write a video of the first episode of each evaluation round into the run folder"""
     track: bool = False
@@ -131,8 +117,7 @@ class Args:
 
 def mode(mu: torch.Tensor, log_std: torch.Tensor, solver: str) -> torch.Tensor:
     """The action this script evaluates with, in (-1, 1)^A before the env's scaling: the mode of
-    the tanh-squashed Gaussian, its most probable action (mode_search.py; --mode-solver), not
-    tanh(mu)."""
+    the tanh-squashed Gaussian, its most probable action (mode_search.py), not tanh(mu)."""
     return mode_action(mu, log_std, solver)
 
 
@@ -143,17 +128,15 @@ def eval_actions(args: Args) -> dict:
 
 
 def make_env(env_id: str, render: bool = False) -> gym.Env:
-    """The gymnasium env; an unknown id, or spaces SAC cannot use, end the run in one line that
-    names the problem (flags.py)."""
+    """The gymnasium env; an unknown id or spaces SAC cannot use end the run in one line."""
     render_mode = {"render_mode": "rgb_array"} if render else {}
     env = gym.make(flags.registered_env_id(env_id), **render_mode)
     return flags.check_spaces(env, env_id)
 
 
 def make_vector_env(env_id: str) -> gym.vector.VectorEnv:
-    """The training env, as a vector env of one (CleanRL's way): an episode's end resets it in
-    the same step, its final observation in info["final_obs"] (gymnasium's SAME_STEP
-    autoreset)."""
+    """The training env, a vector env of one (CleanRL's way) that resets in the step that ends an
+    episode, its final observation in info["final_obs"]."""
     return gym.vector.SyncVectorEnv([lambda: EpisodeRecord(gym.make(env_id))],
                                     autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
 
@@ -168,15 +151,13 @@ class Linear(nn.Module):
         self.bias = nn.Parameter(torch.zeros(out_features))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        # A batched matmul of one, not addmm: compiled, inductor sums the gradient of a one-output
-        # layer (the critics') in another order for mm than for bmm, and runs trained before the
-        # seed axis went (issue 37) would no longer be reproduced bit for bit.
+        # bmm, not addmm: compiled, inductor sums a one-output layer's gradient in another order
+        # for mm, and runs made before issue 37 would no longer be reproduced bit for bit.
         return torch.baddbmm(self.bias, x[None], self.weight[None])[0]
 
 
 def mlp(sizes: tuple[int, ...]) -> nn.Sequential:
-    """An MLP with ReLU between the layers, none after the last (compiled.ReLU: torch.relu,
-    with a backward that inductor compiles into faster code)."""
+    """An MLP with ReLU (compiled.ReLU: torch.relu, faster compiled) between layers, not after."""
     layers = [m for i, o in zip(sizes, sizes[1:], strict=False) for m in (Linear(i, o), ReLU())]
     return nn.Sequential(*layers[:-1])
 
@@ -191,12 +172,10 @@ def init_glorot(module: nn.Module, generator: torch.Generator | None) -> None:
 
 class Actor(nn.Module):
     def __init__(self, obs_dim: int, hidden: tuple[int, ...], action_space: gym.spaces.Box,
-                 log_std_min: float, log_std_max: float,
-                 generator: torch.Generator | None = None):
+                 log_std_min: float, log_std_max: float, generator: torch.Generator | None = None):
         super().__init__()
         sizes, action_dim = (obs_dim, *hidden), int(np.prod(action_space.shape))
-        self.trunk = nn.Sequential(*[m for i, o in zip(sizes, sizes[1:], strict=False)
-                                     for m in (Linear(i, o), ReLU())])
+        self.trunk = nn.Sequential(*mlp(sizes), ReLU())
         self.fc_mean = Linear(sizes[-1], action_dim)
         self.fc_logstd = Linear(sizes[-1], action_dim)
         low, high = (torch.as_tensor(b, dtype=torch.float32) for b in (action_space.low,
@@ -211,15 +190,9 @@ class Actor(nn.Module):
         h = self.trunk(obs)
         return self.fc_mean(h), self.fc_logstd(h).clamp(self.log_std_min, self.log_std_max)
 
-    def get_action(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """A sampled action and its log-density (see squash)."""
-        mu, log_std = self(obs)
-        return self.squash(mu, log_std, torch.randn_like(mu))
-
     def squash(self, mu: torch.Tensor, log_std: torch.Tensor,
                noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The reparameterised sample scale * tanh(u) + bias, u = mu + sigma * noise, and its
-        log-density."""
+        """The sample scale * tanh(u) + bias, u = mu + sigma * noise, and its log-density."""
         u = mu + noise * log_std.exp()
         # log N(u) - log|d tanh(u)/du| - log(scale), with the stable form of log(1 - tanh(u)^2).
         log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * np.log(2 * np.pi)
@@ -233,8 +206,7 @@ class Actor(nn.Module):
 
 
 class TwinQ(nn.Module):
-    """The twin critics Q1 and Q2 (the target takes their minimum). Two plain MLPs: fusing them
-    into one batched matmul measured no faster on CPU (bench/bench_sac.py)."""
+    """The twin critics Q1 and Q2, two MLPs (one batched matmul measured no faster on a CPU)."""
 
     def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...],
                  generator: torch.Generator | None = None):
@@ -249,17 +221,13 @@ class TwinQ(nn.Module):
 
 
 class ReplayBuffer:
-    """The replay buffer, float32 tensors on `device`, storing every observation once: slot i's
-    next observation is in slot i + 1.
+    """The replay buffer, float32 tensors on `device`, each observation stored once: slot i's
+    next observation is in slot i + 1. An episode's last transition is followed by a slot that
+    holds only its final observation (never sampled): a truncated episode bootstraps from its
+    true final observation, and no transition spans a reset."""
 
-    An episode's last transition is followed by a slot holding only its final observation (never
-    sampled), so a truncated episode keeps its true final observation for bootstrapping and no
-    transition spans a reset. On a GPU the buffer lives there and a batch is drawn without a
-    host synchronisation."""
-
-    # Slots drawn per batch row; the row takes the first that holds a transition (see sample).
-    CANDIDATES = 16
-    ARRAYS = ("obs", "actions", "rewards", "terminated", "valid")
+    CANDIDATES = 16  # slots drawn per batch row (see sample)
+    ARRAYS = ("obs", "actions", "rewards", "terminated", "valid")  # what a checkpoint keeps
 
     def __init__(self, size: int, obs_dim: int, action_dim: int, device: torch.device):
         self.size, self.obs_dim, self.action_dim = size, obs_dim, action_dim
@@ -272,12 +240,9 @@ class ReplayBuffer:
 
     def add(self, obs: np.ndarray, action: np.ndarray, reward: float, terminated: bool,
             next_obs: np.ndarray, episode_end: bool, invented: bool = False) -> None:
-        """One transition, in one copy to the buffer's device.
-
-        An `invented` one (a physics blow-up: the env could not step, and reports its previous
-        observation) is not stored: its episode ends at the slot holding that observation, the
-        last it reached soundly, which the transition before it keeps as its next observation
-        (an episode blowing up at its first step leaves nothing)."""
+        """One transition, in one copy to the buffer's device. An `invented` one (a physics
+        blow-up, reporting the previous observation) is not stored: its episode ends at the slot
+        of that observation, the last it reached soundly."""
         i, j = self.ptr, (self.ptr + 1) % self.size
         if invented:  # rare
             self.ptr = j if self.valid[(i - 1) % self.size] else i
@@ -293,12 +258,9 @@ class ReplayBuffer:
 
     def sample(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
         """Uniform over the stored transitions: obs, actions, rewards, next_obs, 1 - terminated.
-
-        Each row draws CANDIDATES slots from the torch generator of the buffer's device and keeps
-        the first that holds a transition (rejection sampling with a fixed number of tries, so
-        no data-dependent loop). If all of them are final-observation slots, which has
-        probability (episodes / slots)^16 (below 1e-16 for episodes of 10 steps or more), the row
-        takes the slot before: that episode's last transition."""
+        Each row keeps the first of CANDIDATES random slots that holds a transition (no
+        data-dependent loop, no host sync on a GPU); if none does (probability (episodes /
+        slots)^16), the slot before, that episode's last transition."""
         slots = torch.randint(2**62, (self.CANDIDATES, batch_size),
                               device=self.obs.device) % self.filled
         first = self.valid[slots].byte().argmax(0)  # argmax returns the first maximum
@@ -313,28 +275,14 @@ class ReplayBuffer:
         return tuple(torch.zeros((batch_size, *shape), device=device) for shape in (
             (self.obs_dim,), (self.action_dim,), (), (self.obs_dim,), ()))
 
-    def state_dict(self) -> dict:
-        """The filled slots as CPU tensors of their own (torch.save of a view would write the
-        whole storage): a checkpoint loads on any device."""
-        n = self.filled
-        return {"ptr": self.ptr, "filled": n,
-                **{a: getattr(self, a)[:n].to("cpu", copy=True) for a in self.ARRAYS}}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.ptr, self.filled = state["ptr"], state["filled"]
-        for a in self.ARRAYS:
-            getattr(self, a)[: self.filled].copy_(state[a])
-
 
 def sac_losses(params: tuple[dict, dict, torch.Tensor], qf_target_params: dict,
                batch: tuple[torch.Tensor, ...], noise: torch.Tensor, actor: Actor, qf: TwinQ,
                gamma: float, target_entropy: float) -> tuple[torch.Tensor, tuple]:
-    """The critic, actor and temperature losses, summed into one number whose gradient holds
-    each one's: the critics' parameters get the critic loss's (the actor loss sees them
-    detached), the actor's the actor loss's, log alpha the temperature loss's. noise:
-    (2, batch, A), the next action's and the action's. Also returns what train.csv logs."""
-    # The networks stay nn.Modules, defined as usual; functional_call runs one on the parameters
-    # given here, which is what grad differentiates.
+    """The critic, actor and temperature losses, summed: the critics' parameters get the critic
+    loss's gradient (the actor loss sees them detached), the actor's the actor loss's, log alpha
+    the temperature loss's. noise: (2, batch, A). Also returns what train.csv logs."""
+    # functional_call runs an nn.Module on the parameters given here, which grad differentiates.
     actor_params, qf_params, log_alpha = params
 
     def policy(obs: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -359,19 +307,14 @@ def sac_losses(params: tuple[dict, dict, torch.Tensor], qf_target_params: dict,
     return total, (qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi)
 
 
-# grad turns gradients on for the losses alone; nothing else here needs autograd's records (and,
-# compiled, AOTAutograd then makes an inference graph: no autograd wrapper around each call).
-@torch.no_grad()
+@torch.no_grad()  # grad turns gradients on for the losses alone
 def sac_update(learner: dict, batch: tuple[torch.Tensor, ...], noise: torch.Tensor,
                actor: Actor, qf: TwinQ, gamma: float, tau: float,
                target_entropy: float) -> tuple[torch.Tensor, ...]:
-    """One gradient step of the twin critics, actor and temperature, and the critics'
-    Polyak-averaged targets, in place on the tensors of `learner` (learner_tensors): a function of
-    tensors only (the modules lend their forward passes), so that it compiles whole, once.
-
-    As HumanoidBench's jaxrl_m: all three losses use the parameters from before this update
-    (the actor is scored by the pre-update critic), and the target moves towards that critic.
-    Returns the tensors that train.csv logs."""
+    """One gradient step of the critics, actor and temperature, and the critics' Polyak-averaged
+    targets, in place on the tensors of `learner` (learner_tensors): tensors in, so that it
+    compiles whole, once. As HumanoidBench's jaxrl_m, all three losses use the parameters from
+    before this update, and the target moves towards that critic. Returns train.csv's logs."""
     params = (learner["actor"], learner["qf"], learner["log_alpha"])
     # grad: torch.func.grad's (compiled.py: torch.autograd's when not compiled, the same numbers).
     grads, logs = grad(sac_losses)(params, learner["qf_target"], batch, noise, actor, qf, gamma,
@@ -387,18 +330,16 @@ def sac_update(learner: dict, batch: tuple[torch.Tensor, ...], noise: torch.Tens
 
 def make_learner(args: Args, obs_dim: int, action_space: gym.spaces.Box,
                  device: torch.device) -> dict:
-    """The actor, twin critics and their target, log alpha and their Adam optimizers: everything
-    training changes, by its name in checkpoint.pt. The networks draw their initial weights from
-    a generator of their own: torch's, which draws the actions and the batches, starts from the
-    seed alone."""
+    """The actor, twin critics and their target, log alpha and their Adam optimizers, by their
+    names in checkpoint.pt. The initial weights come from a generator of their own, so torch's
+    (the actions and the batches) starts from the seed alone."""
     generator = torch.Generator().manual_seed(args.seed)
     actor = Actor(obs_dim, args.hidden_sizes, action_space, args.log_std_min, args.log_std_max,
                   generator).to(device)
     qf = TwinQ(obs_dim, action_space.shape[0], args.hidden_sizes, generator).to(device)
     log_alpha = torch.tensor(float(np.log(args.alpha_init)), device=device, requires_grad=True)
-    # The optimizers hold Adam's state (checkpoints keep their state_dict); sac_update steps it.
-    # fused: a loaded state_dict puts the step counts on the parameters' device, as the update,
-    # one function (a CUDA graph on a GPU), needs.
+    # The optimizers hold Adam's state (for checkpoints); sac_update steps it. fused: a loaded
+    # state_dict puts the step counts on the parameters' device, as a CUDA graph needs.
     adam = functools.partial(torch.optim.Adam, fused=True, capturable=device.type == "cuda")
     return {"actor": actor, "qf": qf, "qf_target": copy.deepcopy(qf), "log_alpha": log_alpha,
             "actor_optimizer": adam(actor.parameters(), lr=args.policy_lr),
@@ -409,23 +350,21 @@ def make_learner(args: Args, obs_dim: int, action_space: gym.spaces.Box,
 def learner_tensors(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.Tensor,
                     actor_optimizer: torch.optim.Optimizer, q_optimizer: torch.optim.Optimizer,
                     alpha_optimizer: torch.optim.Optimizer) -> dict:
-    """What sac_update reads and changes: the networks' parameters by name, log alpha, and the
-    Adam states. The tensors are the modules' and optimizers' own: an update changes them in
-    place (a checkpoint's load replaces the optimizers' tensors: call this after it)."""
+    """What sac_update reads and changes, make_learner's own tensors (so an update changes them in
+    place; call this after a checkpoint's load, which replaces the optimizers' tensors)."""
     return {"actor": dict(actor.named_parameters()), "qf": dict(qf.named_parameters()),
             "qf_target": dict(qf_target.named_parameters()), "log_alpha": log_alpha,
             "adam": [adam_state(o) for o in (actor_optimizer, q_optimizer, alpha_optimizer)]}
 
 
 def ends_without_bootstrap(terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
-    """Whether the target of a transition drops the next state's value. HumanoidBench bootstraps
-    one that is both terminated and truncated (its mask is `not terminated or truncated`)."""
+    """Whether a transition's target drops the next state's value (HumanoidBench's mask is
+    `not terminated or truncated`)."""
     return terminated & ~truncated
 
 
 def physics_blow_up(info: dict, episode_end: bool) -> bool:
-    """Whether the env's last step was a physics blow-up (h1hand's info["physics_unstable"]):
-    the episode ended without a real transition."""
+    """Whether the env's last step was a physics blow-up (h1hand's info["physics_unstable"])."""
     final = info.get("final_info", {})
     return episode_end and bool(final.get("physics_unstable", [False])[0])
 
@@ -438,10 +377,8 @@ if __name__ == "__main__":
     random.seed(args.seed)
     np.random.seed(args.seed)  # noqa: NPY002
     torch.manual_seed(args.seed)
-    torch.backends.cudnn.deterministic = args.torch_deterministic
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
-    print(f"device: {device}" + (" (no CUDA GPU found)" if args.cuda and device.type == "cpu"
-                                 else ""), flush=True)
+    print(f"device: {device}", flush=True)
 
     env = make_env(args.env_id)  # checks the id and the spaces
     flags.check_reset_noise(env, args.env_id, args.eval_reset_noise)
@@ -459,7 +396,7 @@ if __name__ == "__main__":
 
     # Acting: a sampled action from the observation and the noise, (1, obs) -> (1, A).
     act = torch.no_grad()(lambda obs, noise: actor.squash(*actor(obs), noise)[0])
-    learner = learner_tensors(*training.values())
+    learner = learner_tensors(**training)
     update = functools.partial(sac_update, actor=actor, qf=qf, gamma=args.gamma, tau=args.tau,
                                target_entropy=target_entropy)
     noise_shape = (2, args.batch_size, action_dim)  # the next action's and the action's

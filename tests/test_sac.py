@@ -193,6 +193,7 @@ def test_replay_buffer_keeps_episode_boundaries():
 def test_replay_buffer_state_round_trip():
     import numpy as np
 
+    from checkpoints import buffer_state, load_buffer_state
     from sac_standard import ReplayBuffer
 
     cpu = torch.device("cpu")
@@ -200,7 +201,7 @@ def test_replay_buffer_state_round_trip():
     for i in range(30):
         rb.add(np.full(3, i), np.array([i, -i]), float(i), False, np.full(3, i + 1), i % 7 == 6)
     copy = ReplayBuffer(size=50, obs_dim=3, action_dim=2, device=cpu)
-    copy.load_state_dict(rb.state_dict())
+    load_buffer_state(copy, buffer_state(rb))
     torch.manual_seed(3)
     original = rb.sample(16, cpu)
     torch.manual_seed(3)  # the buffer draws from torch's generator, saved in the checkpoint
