@@ -1,6 +1,7 @@
 """From a folder of SAC runs to the paper's statistics and figures (its Figures 5-8), with rliable.
 
     python analyze.py runs/ --out report/
+    python analyze.py runs/ --out report/ --robust robust/   # with evaluate.py's campaign
 
 Finds every run folder (a `config.json` next to an `eval.csv`, at any depth), groups the runs by
 task, algorithm and seed, aligns them on the evaluation steps they share, normalises the scores
@@ -20,12 +21,14 @@ The file, top to bottom (docs/analyze.md maps each figure to its section and fun
 - What to edit: SUCCESS_BARS (a task's success bar) and EVALUATION_ACTIONS (an action the same
   actor is also evaluated with). Adding either is one entry there; every report follows.
 - The data layer: load -> pair -> align -> paired differences -> normalise, run folders in,
-  arrays out. It writes no report.
+  arrays out; and --robust's evaluate.py folders, read into episodes and per-seed paired
+  differences. It writes no report.
 - Shared tools: the rliable estimators (and the Student-t interval beside them) and the report
   writer (summary.csv rows, summary.md sections, figures, group labels and colours).
 - One section per report, in the order summary.md prints them, each with its computation, its
   figure and its table: the header and where the standard numbers come from; the paired
-  difference (the headline); over training; q_best's choices; reward curves and final returns;
+  difference (the headline); the robust evaluation (--robust: the headline from evaluate.py's
+  many noisy starts per seed); over training; q_best's choices; reward curves and final returns;
   aggregate metrics; performance profiles; sample efficiency; probability of improvement; the
   dimension study. A section calls the data layer and the shared tools, never another section.
 - The pipeline: analyze() runs the data layer once and then REPORT_SECTIONS in order.
@@ -49,6 +52,7 @@ import numpy as np
 import scipy.stats
 import seaborn as sns
 import tyro
+from matplotlib.patches import Patch
 from rliable import library as rly
 from rliable import metrics, plot_utils
 
@@ -172,6 +176,9 @@ class Args:
     """seeds NumPy's global generator before every bootstrap (rliable ignores random_state)"""
     format: tuple[Literal["png", "pdf"], ...] = ("png",)
     """figure formats, e.g. `--format pdf` or `--format png pdf`"""
+    robust: tuple[Path, ...] = ()
+    """folders evaluate.py wrote over a campaign (evaluation.json + one episodes.csv per run; one
+    per task, or several tasks in one): adds the robust evaluation's section and figure"""
 
 
 class AnalysisError(Exception):
@@ -611,6 +618,148 @@ def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
     return curves
 
 
+# ------------------------------------------------------------- robust evaluation (evaluate.py)
+# evaluate.py's campaign folders (--robust): every policy (a run's final weights or snapshot)
+# played with each selector from the same many noisy starts, one row per episode. Episode k of
+# every selector starts from the same state, so the pairing is episode by episode.
+ROBUST_SETTINGS_FILE = "evaluation.json"
+ROBUST_EPISODES_FILE = "episodes.csv"
+ROBUST_COLUMNS = ("step", "selector", "episode", "return")  # of evaluate.py's EPISODE_COLUMNS
+
+
+@dataclasses.dataclass
+class RobustEpisodes:
+    """The --robust folders' episodes: (task, seed, step) -> selector -> returns in episode
+    order, and what each folder's evaluation.json says (episodes, reset noise, selectors)."""
+
+    returns: dict[tuple[str, int, int], dict[str, np.ndarray]]
+    selectors: list[str]  # every selector: the evaluation.json files' order, then any unlisted
+    settings: dict[Path, dict]
+
+
+def read_robust_settings(folder: Path) -> dict:
+    """A --robust folder's evaluation.json, checked for its runs (run name -> env_id, seed)."""
+    path = folder / ROBUST_SETTINGS_FILE
+    if not path.is_file():
+        raise AnalysisError(
+            f"--robust {folder}: no {ROBUST_SETTINGS_FILE} there; pass a folder that "
+            "`evaluate.py RUNS_DIR --out FOLDER` wrote over a campaign of runs")
+    try:
+        settings = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise AnalysisError(f"{path} is not valid JSON ({error}); evaluate again") from None
+    runs = settings.get("runs") if isinstance(settings, dict) else None
+    if not isinstance(runs, dict) or not all(
+            isinstance(run, dict) and isinstance(run.get("env_id"), str)
+            and isinstance(run.get("seed"), int) for run in runs.values()):
+        raise AnalysisError(f"{path}: 'runs' must map each run folder's name to its env_id "
+                            "and seed, as evaluate.py writes it")
+    return settings
+
+
+def read_episodes_csv(path: Path) -> dict[int, dict[str, tuple[np.ndarray, np.ndarray]]]:
+    """A run's episodes.csv: step -> selector -> (episode numbers, returns), by episode."""
+    if not path.is_file():
+        raise AnalysisError(f"{path} is missing: {path.parent.parent} is incomplete; evaluate "
+                            "the campaign again")
+    with path.open(newline="", encoding="utf-8", errors="replace") as file:
+        rows = [row for row in csv.reader(file) if row]
+    header = [name.strip() for name in rows[0]] if rows else []
+    missing = [name for name in ROBUST_COLUMNS if name not in header]
+    if missing:
+        raise AnalysisError(f"{path}: its header {header} lacks {missing}; evaluate.py writes "
+                            f"{ROBUST_EPISODES_FILE} with at least {list(ROBUST_COLUMNS)}")
+    where = [header.index(name) for name in ROBUST_COLUMNS]
+    found: dict[tuple[int, str], list[tuple[float, float]]] = {}
+    for i, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise AnalysisError(f"{path}, row {i}: {len(row)} fields where the header has "
+                                f"{len(header)}; evaluate the campaign again")
+        step, selector, episode, value = (row[j].strip() for j in where)
+        number = functools.partial(_parse_number, path=path, row=i, optional=False)
+        found.setdefault((int(number(step, column="step")), selector), []).append(
+            (number(episode, column="episode"), number(value, column="return")))
+    by_step: dict[int, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
+    for (step, selector), pairs in found.items():
+        episodes, returns = np.array(sorted(pairs)).T
+        by_step.setdefault(step, {})[selector] = (episodes, returns)
+    return by_step
+
+
+def load_robust(folders: Sequence[Path]) -> RobustEpisodes:
+    """Every --robust folder's episodes by task, seed, step and selector. Each selector must have
+    played the episodes tanh(mu) played (its baseline), and a (task, seed, step) may come from
+    one folder only."""
+    robust = RobustEpisodes({}, [], {})
+    sources: dict[tuple[str, int, int], Path] = {}
+    for folder in folders:
+        settings = read_robust_settings(folder)
+        robust.settings[folder] = settings
+        listed = settings.get("selectors")
+        robust.selectors += [s for s in listed if s not in robust.selectors] \
+            if isinstance(listed, list) else []
+        for run, info in settings["runs"].items():
+            path = folder / run / ROBUST_EPISODES_FILE
+            by_step = read_episodes_csv(path)
+            if not by_step:
+                raise AnalysisError(f"{path} holds no episode; evaluate the campaign again")
+            for step, selectors in sorted(by_step.items()):
+                key = (info["env_id"], info["seed"], step)
+                if key in sources:
+                    raise AnalysisError(
+                        f"{key[0]}, seed {key[1]}, step {format_step(step)} is in two --robust "
+                        f"folders ({sources[key]} and {path}); pass each evaluation once")
+                sources[key] = path
+                robust.returns[key] = robust_selectors(path, step, selectors)
+                robust.selectors += [s for s in selectors if s not in robust.selectors]
+    return robust
+
+
+def robust_selectors(path: Path, step: int, selectors: dict[str, tuple[np.ndarray, np.ndarray]]
+                     ) -> dict[str, np.ndarray]:
+    """One policy's returns by selector, checked to be paired with its tanh(mu) episodes."""
+    if TANH_MU.name not in selectors:
+        raise AnalysisError(
+            f"{path}: no {TANH_MU.name} episodes at step {format_step(step)}; every action is "
+            f"compared with tanh(mu) of the same actor, so evaluate with --selectors ... "
+            f"{TANH_MU.name}")
+    baseline = selectors[TANH_MU.name][0]
+    for selector, (episodes, _) in selectors.items():
+        if not np.array_equal(episodes, baseline):
+            raise AnalysisError(
+                f"{path}, step {format_step(step)}: {selector} and {TANH_MU.name} played "
+                "different episodes, so they are not paired; evaluate the campaign again")
+    return {selector: returns for selector, (_, returns) in selectors.items()}
+
+
+@dataclasses.dataclass
+class RobustStep:
+    """One task's robust evaluation at one step, one value per seed (in seed order)."""
+
+    seeds: dict[str, list[int]]  # selector -> the seeds that played it
+    returns: dict[str, np.ndarray]  # selector -> mean return over each seed's episodes
+    differences: dict[str, np.ndarray]  # selector but tanh_mu -> mean of (it - tanh_mu) per seed
+    episodes: np.ndarray  # episodes per seed (of tanh_mu, which every seed played)
+
+
+def robust_paired_differences(robust: RobustEpisodes) -> dict[str, dict[int, RobustStep]]:
+    """task -> step -> RobustStep: per seed, the mean over its episodes of each selector's
+    return minus tanh(mu)'s from the same start (evaluate.py's difference_mean)."""
+    by_task: dict[str, dict[int, RobustStep]] = {}
+    for (task, seed, step), selectors in sorted(robust.returns.items()):
+        at = by_task.setdefault(task, {}).setdefault(step, RobustStep({}, {}, {}, np.empty(0)))
+        baseline = selectors[TANH_MU.name]
+        at.episodes = np.append(at.episodes, baseline.size)
+        for selector in (s for s in robust.selectors if s in selectors):
+            at.seeds.setdefault(selector, []).append(seed)
+            at.returns[selector] = np.append(at.returns.get(selector, []),
+                                             selectors[selector].mean())
+            if selector != TANH_MU.name:
+                at.differences[selector] = np.append(at.differences.get(selector, []),
+                                                     (selectors[selector] - baseline).mean())
+    return by_task
+
+
 # ------------------------------------------------------------------------------------- normalise
 def resolve_normalization(mode: str, tasks: Sequence[str]) -> tuple[str, str]:
     """`auto` made concrete, and a sentence for summary.md saying what was chosen and why."""
@@ -934,6 +1083,7 @@ class Analysis:
     aggregate: Aggregate | None  # the normalised scores of the groups compared across tasks
     labels: GroupLabels
     colors: dict[str, tuple]
+    robust: RobustEpisodes | None = None  # the --robust folders' episodes, if given
 
     @property
     def derived(self) -> list[str]:
@@ -1306,7 +1456,283 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
                    "same actors", *lines)
 
 
-# ------------------------------------------------------------------------- 3. over training
+# --------------------------------------------------- 3. the robust evaluation (evaluate.py)
+# The headline's decisive version: the same paired difference, from evaluate.py's many noisy
+# starts per seed instead of the training log's few evaluation episodes.
+ROBUST_METRICS = ("IQM", "Median", "Mean")
+
+
+def robust_metrics(scores: np.ndarray) -> np.ndarray:
+    """IQM, median and mean of a (runs x tasks) matrix of normalised returns."""
+    return np.array([metrics.aggregate_iqm(scores), metrics.aggregate_median(scores),
+                     metrics.aggregate_mean(scores)])
+
+
+def robust_action_colors(selectors: Sequence[str]) -> dict[str, tuple]:
+    """Each action's colour: that of the corrected runs' group evaluated with it (the mode is
+    Corrected SAC's own), so that it matches the paired-difference figure."""
+    actions = {action.name: action for action in EVALUATION_ACTIONS}
+    groups = {s: CORRECTED if s == OWN_ACTIONS[CORRECTED] else
+              CORRECTED + actions.get(s, EvaluationAction(s)).suffix for s in selectors}
+    colors = group_colors(list(groups.values()))
+    return {s: colors[g] for s, g in groups.items()}
+
+
+def episodes_span(episodes: np.ndarray) -> str:
+    """Episodes per seed as the labels write them: "300", or "100-300" where seeds differ."""
+    low, high = int(episodes.min()), int(episodes.max())
+    return f"{low}" if low == high else f"{low}-{high}"
+
+
+def robust_shared_step(by_task: dict[str, dict[int, RobustStep]]) -> int | None:
+    """The last step every task's robust evaluation has (normally the final weights)."""
+    shared = functools.reduce(set.intersection, [set(steps) for steps in by_task.values()])
+    return max(shared) if shared else None
+
+
+@dataclasses.dataclass
+class RobustOverTasks:
+    """Each action's paired difference over tasks at their shared last step, divided by each
+    task's success bar: (seeds, tasks) values, their bootstrap and Welch t (mean, low, high)."""
+
+    step: int
+    tasks: list[str]
+    values: dict[str, np.ndarray]
+    bootstrap: dict[str, tuple[float, float, float]]
+    t: dict[str, tuple[float, float, float]]
+
+
+def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[int, RobustStep]]
+                    ) -> tuple[list[list], dict]:
+    """Per task, step and action: the mean return over seeds and the mean paired difference
+    against tanh(mu), with its bootstrap CI and t-interval; writes summary.csv's rows, returns
+    summary.md's table rows and the differences' bootstrap estimates keyed ("task|step",
+    action)."""
+    args = analysis.args
+    differences = {(f"{t}|{s}", a): d for t, steps in by_task.items()
+                   for s, at in steps.items() for a, d in at.differences.items()}
+    returns = {(f"{t}|{s}", a): r for t, steps in by_task.items()
+               for s, at in steps.items() for a, r in at.returns.items()}
+    estimates = seed_mean_estimates(differences, args.reps, args.seed)
+    return_estimates = seed_mean_estimates(returns, args.reps, args.seed)
+    table = []
+    for task, steps in by_task.items():
+        bar = SUCCESS_BARS.get(task)
+        for step, at in steps.items():
+            key, episodes = f"{task}|{step}", episodes_span(at.episodes)
+            for action, action_returns in at.returns.items():
+                n = action_returns.size
+                mean_return = return_estimates[key, action]
+                report.row("robust_return", task, action, "return", step, n, *mean_return)
+                cells = [task, format_step(step), action, n, episodes, f"{mean_return[0]:.1f}"]
+                if action not in at.differences:
+                    table.append([*cells, "(the baseline)", "", ""])
+                    continue
+                diffs, boot = at.differences[action], estimates[key, action]
+                t_values, won = t_interval(diffs), int((diffs > 0).sum())
+                report.row("robust_difference", task, action, "return", step, n, *boot)
+                report.row("robust_difference_t", task, action, "return", step, n, *t_values)
+                if bar is not None:
+                    report.row("robust_difference", task, action, "score", step, n,
+                               *(v / bar for v in boot))
+                    report.row("robust_difference_t", task, action, "score", step, n,
+                               *(v / bar for v in t_values))
+                report.row("robust_difference", task, action, "share_won", step, n, won / n,
+                           math.nan, math.nan)
+                table.append([*cells, *seed_cells(diffs, boot, 1), f"{won} of {n}"])
+    return table, estimates
+
+
+def robust_over_tasks(report: Report, analysis: Analysis,
+                      by_task: dict[str, dict[int, RobustStep]], step: int
+                      ) -> tuple[RobustOverTasks, list[str]]:
+    """At the tasks' shared last step, each action's paired difference divided by each task's
+    success bar, over the tasks that have one: rliable's stratified bootstrap of
+    metrics.aggregate_mean over the (seeds x tasks) matrix and Welch's interval beside it (as
+    the headline aggregates over tasks); then IQM, median and mean of each action's normalised
+    returns. Writes summary.csv's rows; returns the figure's data and summary.md's lines."""
+    args = analysis.args
+    tasks = [t for t in by_task if t in SUCCESS_BARS]
+    actions = [a for a in by_task[tasks[0]][step].returns
+               if all(a in by_task[t][step].returns for t in tasks)]
+    seeds = min(by_task[t][step].returns[a].size for t in tasks for a in actions)
+    lines = [f"Over {len(tasks)} task" + "s" * (len(tasks) > 1) + f" at {format_step(step)}, "
+             "each divided by its success "
+             f"bar ({', '.join(f'{t} {SUCCESS_BARS[t]:g}' for t in tasks)}); {seeds} seeds per "
+             "task (the lowest, where tasks have more). Difference: mean over tasks of the mean "
+             "over seeds, rliable's stratified bootstrap CI (seeds resampled within each task) "
+             "and Welch's t-interval; returns: the paper's aggregate metrics, stratified "
+             "bootstrap CIs.", ""]
+    over = RobustOverTasks(step, tasks, {}, {}, {})
+    table = []
+    for action in actions:
+        if action not in by_task[tasks[0]][step].differences:
+            continue
+        values = np.stack([by_task[t][step].differences[action][:seeds] / SUCCESS_BARS[t]
+                           for t in tasks], axis=1)
+        point, interval = interval_estimates({action: values}, metrics.aggregate_mean,
+                                             args.reps, args.seed)
+        boot = (float(point[action]), *map(float, interval[action].ravel()))
+        t_values, won = stratified_t_interval(list(values.T)), int((values > 0).sum())
+        over.values[action], over.bootstrap[action], over.t[action] = values, boot, t_values
+        report.row("robust_difference", "all", action, "score", step, seeds, *boot)
+        report.row("robust_difference_t", "all", action, "score", step, seeds, *t_values)
+        report.row("robust_difference", "all", action, "share_won", step, values.size,
+                   won / values.size, math.nan, math.nan)
+        table.append([action, format_ci(*boot), f"[{t_values[1]:.3f}, {t_values[2]:.3f}]",
+                      f"{won} of {values.size}"])
+    lines += [markdown_table(["action", "difference / success bar (bootstrap CI)",
+                              "t-interval (Welch)", "won (task, seed)"], table), ""]
+    scores = {a: np.stack([by_task[t][step].returns[a][:seeds] / SUCCESS_BARS[t]
+                           for t in tasks], axis=1) for a in actions}
+    point, interval = interval_estimates(scores, robust_metrics, args.reps, args.seed)
+    rows = []
+    for action in actions:
+        for i, name in enumerate(ROBUST_METRICS):
+            report.row("robust_aggregate", "all", action, name, step, seeds, point[action][i],
+                       *interval[action][:, i])
+        rows.append([action, *(format_ci(point[action][i], *interval[action][:, i])
+                               for i in range(len(ROBUST_METRICS)))])
+    lines += [markdown_table(["action", *ROBUST_METRICS], rows)]
+    runs = seeds * len(tasks)
+    if seeds <= FEW_SEEDS:  # rliable's IQM trims 25% of all runs x tasks at each end
+        lines += ["", f"IQM here is the mean of the middle {runs - 2 * int(0.25 * runs)} of "
+                  f"{runs} runs ({seeds} seeds x {len(tasks)} task" + "s" * (len(tasks) > 1)
+                  + ")" + ("; rliable's median is the median over tasks of each task's mean, "
+                           "so with one task it is the mean" if len(tasks) == 1 else "") + "."]
+    return over, lines
+
+
+def draw_seed_summary(ax, x: float, width: float, values: np.ndarray, boot: Sequence[float],
+                      t_values: Sequence[float], color: tuple, rng: np.random.Generator) -> None:
+    """Within x +- width: the seeds (faint dots, left), their mean (tick) with its t-interval
+    (whisker) and, right, the bootstrap CI (bar), as plot_paired_difference draws them lying
+    down."""
+    ax.scatter(x - 0.6 * width + rng.uniform(-0.15, 0.15, values.size) * width, values, s=12,
+               color=color, alpha=0.5, lw=0, zorder=3)
+    ax.bar(x + 0.6 * width, boot[2] - boot[1], bottom=boot[1], width=0.4 * width, color=color,
+           alpha=0.4)
+    ax.hlines(t_values[0], x - 0.35 * width, x + 0.35 * width, color="k", lw=1.5, zorder=4)
+    if np.isfinite(t_values[1]):
+        ax.errorbar(x, t_values[0], yerr=[[t_values[0] - t_values[1]], [t_values[2] -
+                    t_values[0]]], color=color, lw=1.5, capsize=3, zorder=4)
+
+
+def plot_robust_evaluation(by_task: dict[str, dict[int, RobustStep]], estimates: dict,
+                           over: RobustOverTasks | None, colors: dict) -> plt.Figure:
+    """A row per task: each action's paired difference against tanh(mu) at each evaluated step;
+    last row, over tasks at their shared last step, the difference divided by each success bar."""
+    actions = list(dict.fromkeys(a for steps in by_task.values() for at in steps.values()
+                                 for a in at.differences))
+    slot = 0.8 / len(actions)  # each action's share of a step's x range
+    offsets = {a: (j - (len(actions) - 1) / 2) * slot for j, a in enumerate(actions)}
+    rows = len(by_task) + (over is not None)
+    fig, axes = plt.subplots(rows, 1, figsize=(7.5, 2.9 * rows + 0.9), squeeze=False,
+                             layout="constrained")
+    rng = np.random.default_rng(0)  # horizontal jitter of the dots only
+    for ax, (task, steps) in zip(axes[:, 0], by_task.items(), strict=False):
+        for i, (step, at) in enumerate(steps.items()):
+            for action, diffs in at.differences.items():
+                draw_seed_summary(ax, i + offsets[action], slot / 2, diffs,
+                                  estimates[f"{task}|{step}", action], t_interval(diffs),
+                                  colors[action], rng)
+        seeds = sorted({at.differences[a].size for at in steps.values() for a in at.differences})
+        episodes = episodes_span(np.concatenate([at.episodes for at in steps.values()]))
+        ax.set_title(f"{task}: n = {' or '.join(map(str, seeds))} seeds, {episodes} episodes "
+                     "per seed", fontsize="medium")
+        ax.set_xticks(range(len(steps)), [format_step(s) for s in steps])
+        ax.set_xlim(-0.5, len(steps) - 0.5)
+        ax.set_xlabel("Training step of the evaluated weights")
+        ax.set_ylabel("Return minus tanh(mu)'s")
+    if over is not None:
+        ax = axes[-1, 0]
+        for i, action in enumerate(over.values):
+            draw_seed_summary(ax, i, 0.25, over.values[action].ravel(), over.bootstrap[action],
+                              over.t[action], colors[action], rng)
+        seeds = next(iter(over.values.values())).shape[0]
+        ax.set_xticks(range(len(over.values)), list(over.values))
+        ax.set_xlim(-0.5, len(over.values) - 0.5)
+        tasks = f"{len(over.tasks)} task" + "s" * (len(over.tasks) > 1)
+        ax.set_title(f"Over {tasks} (normalised), at {format_step(over.step)}: n = {seeds} "
+                     "seeds per task; dots: (task, seed)", fontsize="medium")
+        ax.set_xlabel("Evaluation action")
+        ax.set_ylabel("Difference / success bar")
+    for ax in axes[:, 0]:
+        ax.axhline(0, color="0.4", ls=":", lw=1)
+        ax.grid(axis="y", alpha=0.25)
+    handles = [Patch(color=colors[a], label=a) for a in actions]
+    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles),
+               fontsize="small", title="evaluation action", title_fontsize="small")
+    fig.suptitle("The robust evaluation: each action minus tanh(mu), same actor, same start "
+                 "states\ndots: seeds; tick and whisker: mean and its 95% t-interval; bar, "
+                 "right of it: rliable's 95% bootstrap CI", fontsize="medium")
+    return fig
+
+
+def robust_settings_lines(robust: RobustEpisodes) -> list[str]:
+    """summary.md's account of each --robust folder: where, episodes, reset noise, actions."""
+    lines = []
+    for folder, settings in robust.settings.items():
+        noise = settings.get("reset_noise")
+        lines.append(f"- `{folder}`: {len(settings['runs'])} runs, "
+                     f"{settings.get('episodes', '?')} episodes per policy, reset noise "
+                     f"{'the task' + chr(39) + 's own' if noise is None else f'+-{noise}'}, "
+                     f"actions {', '.join(settings.get('selectors', []))}")
+    return lines
+
+
+def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
+    """Figure `robust_evaluation` (only with --robust): the paired difference of the headline
+    from evaluate.py's campaign, many noisy starts per seed and step. Per seed: the mean over its
+    episodes of each action's return minus tanh(mu)'s from the same start; per task and step,
+    the mean over seeds with Student's t-interval (t_interval) and, labelled as such, rliable's
+    bootstrap (seed_mean_estimates: get_interval_estimates of per_task_mean): with 5 seeds or
+    fewer the percentile bootstrap resamples only the few values seen and is too narrow, so the
+    t-interval is the one to read. Over tasks, at their shared last step, divided by each
+    success bar: robust_over_tasks. The same definitions as evaluate.py's across_seeds.csv."""
+    robust, args = analysis.robust, analysis.args
+    if robust is None:
+        return
+    by_task = robust_paired_differences(robust)
+    print(f"robust evaluation ({args.reps:,} reps) ...")
+    table, estimates = robust_per_task(report, analysis, by_task)
+    lines = ["From evaluate.py's campaign folders:", *robust_settings_lines(robust), "",
+             "Each policy (a run's final weights or a snapshot) played every action from the same "
+             "noisy starts: episode k of each action starts from the same state. Per seed: the "
+             "mean over its episodes of the action's return minus tanh(mu)'s (paired episode by "
+             "episode); then the mean over seeds with Student's 95% t-interval and, beside it, "
+             f"rliable's 95% percentile bootstrap over seeds ({args.reps:,} replications). "
+             "'return': the mean over seeds of each seed's mean return. 'won': seeds whose "
+             "difference is positive. The definitions of evaluate.py's across_seeds.csv."]
+    seeds = [d.size for steps in by_task.values() for at in steps.values()
+             for d in at.differences.values()]
+    if seeds and min(seeds) <= FEW_SEEDS:
+        lines += ["", f"With {FEW_SEEDS} seeds or fewer the percentile bootstrap is narrower "
+                  "than the data allow (it resamples only the few values seen): read the "
+                  "t-interval (with two seeds, the two values)."]
+    lines += ["", markdown_table(["task", "step", "action", "seeds", "episodes per seed",
+                                  "return", "minus tanh(mu) (bootstrap CI)", "t-interval",
+                                  "won"], table)]
+    over = None
+    unbarred = [t for t in by_task if t not in SUCCESS_BARS]
+    if unbarred:
+        lines += ["", f"No success bar for {', '.join(unbarred)}: left out of the normalised "
+                  "results over tasks."]
+    barred = {t: steps for t, steps in by_task.items() if t in SUCCESS_BARS}
+    step = robust_shared_step(barred) if barred else None
+    if barred and step is None:
+        lines += ["", "The tasks' robust evaluations share no step: no result over tasks."]
+    elif step is not None:
+        over, over_lines = robust_over_tasks(report, analysis, by_task, step)
+        lines += ["", *over_lines]
+    report.figure(plot_robust_evaluation(by_task, estimates, over,
+                                         robust_action_colors(robust.selectors)),
+                  "robust_evaluation")
+    report.section("The robust evaluation: each action minus tanh(mu) from many noisy starts "
+                   "(evaluate.py)", *lines)
+
+
+# ------------------------------------------------------------------------- 4. over training
 OVER_TRAINING_TABLE_STEPS = 11  # rows of summary.md's over-training table; summary.csv has all
 # The over-training figure's rolling mean, over this many rounds (drawn with twice as many).
 ROLLING_ROUNDS = 10
@@ -1440,7 +1866,7 @@ def report_over_training(report: Report, analysis: Analysis) -> None:
     report.section("Over training: paired differences and the measured shift", *lines)
 
 
-# ---------------------------------------------------------- 4. q_best's choices (no figure)
+# ---------------------------------------------------------- 5. q_best's choices (no figure)
 def report_choice_shares(report: Report, analysis: Analysis) -> None:
     """q_best's choices (no figure): how often the critic picked the mode, tanh(mu) and the
     mean, at each task's scored step, for each evaluation action that logs its choice_shares.
@@ -1490,7 +1916,7 @@ def report_choice_shares_of(report: Report, analysis: Analysis, action: Evaluati
                         *(titles.get(c, c) for c in candidates)], list(table.values())))
 
 
-# ------------------------------------------------- 5. reward curves and final returns (Fig. 5)
+# ------------------------------------------------- 6. reward curves and final returns (Fig. 5)
 # A success bar further above the returns than this factor would squash them into the floor of
 # the reward-curve axes: it is then named in the title instead of drawn.
 SUCCESS_BAR_DRAWN_WITHIN = 1.5
@@ -1584,7 +2010,7 @@ def report_reward_curves(report: Report, analysis: Analysis) -> None:
                    markdown_table(["task", "step", "group", "seeds", "return", "score"], table))
 
 
-# ------------------------------------------------------------ 6. aggregate metrics (Fig. 6)
+# ------------------------------------------------------------ 7. aggregate metrics (Fig. 6)
 AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
 
 
@@ -1670,7 +2096,7 @@ def report_aggregate_metrics(report: Report, analysis: Analysis) -> None:
                    "", markdown_table(["group", "runs per task", *names], table))
 
 
-# ---------------------------------------------------------- 7. performance profiles (Fig. 7)
+# ---------------------------------------------------------- 8. performance profiles (Fig. 7)
 def profile_thresholds(final: dict[str, np.ndarray]) -> np.ndarray:
     """The profile's 101 values of tau: the scores' own range (from 0 where all are positive),
     not the bar's, since scores that are a fraction of the bar would otherwise crowd the left of
@@ -1716,7 +2142,7 @@ def report_performance_profiles(report: Report, analysis: Analysis) -> None:
                   "performance_profiles")
 
 
-# ------------------------------------------------------------ 8. sample efficiency (Fig. 8)
+# ------------------------------------------------------------ 9. sample efficiency (Fig. 8)
 def iqm_per_step(scores: np.ndarray) -> np.ndarray:
     """metrics.aggregate_iqm at each step of a (runs x tasks x steps) score array.
 
@@ -1776,7 +2202,7 @@ def report_sample_efficiency(report: Report, analysis: Analysis) -> None:
                       "sample_efficiency")
 
 
-# ---------------------------------------------------------- 9. probability of improvement
+# -------------------------------------------------------- 10. probability of improvement
 def plot_probability_of_improvement(probability: float, ci: np.ndarray, x: str, y: str,
                                     color: tuple, labels: GroupLabels) -> plt.Figure:
     """Probability that a run of x beats a run of y on a random task (rliable's own plot)."""
@@ -1830,7 +2256,7 @@ def report_probability_of_improvement(report: Report, analysis: Analysis) -> Non
                    "comparison is the headline's.")
 
 
-# ---------------------------------------------------------------------- 10. the dimension study
+# ---------------------------------------------------------------------- 11. the dimension study
 # Paired differences at these fractions of each task's shared steps.
 TRAINING_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
 
@@ -2086,6 +2512,7 @@ def report_dimension_study(report: Report, analysis: Analysis) -> None:
 REPORT_SECTIONS: tuple[Callable[[Report, Analysis], None], ...] = (
     report_standard_provenance,
     report_paired_difference,
+    report_robust_evaluation,
     report_over_training,
     report_choice_shares,
     report_reward_curves,
@@ -2119,6 +2546,7 @@ def analyze(args: Args) -> Report:
     section of REPORT_SECTIONS in turn, then summary.md and summary.csv."""
     validate(args)
     runs, notes = load_runs(args.runs_dir)
+    robust = load_robust(args.robust) if args.robust else None
     pairing = standard_from_paired(runs)
     groups = ordered_groups(runs)
     found = found_text(args.runs_dir, runs, groups)
@@ -2129,7 +2557,8 @@ def analyze(args: Args) -> Report:
     norms = normalizers(tasks, args.normalize)
     aggregate, aggregate_notes = build_aggregate(tasks, norms, groups, args.curve_points)
     analysis = Analysis(args, runs, tasks, groups, pairing, norms, aggregate,
-                        GroupLabels(standard_label(pairing, list(runs))), group_colors(groups))
+                        GroupLabels(standard_label(pairing, list(runs))), group_colors(groups),
+                        robust)
     args.out.mkdir(parents=True, exist_ok=True)
     report = Report(args.out, args.format, notes=notes + align_notes + aggregate_notes)
     for section in REPORT_SECTIONS:

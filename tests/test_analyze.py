@@ -960,3 +960,143 @@ def test_no_report_section_calls_another():
             if other.startswith("report ") and other != where and where != "the pipeline":
                 crossings.append(f"{name} ({where}) uses {used} ({other})")
     assert not crossings, crossings
+
+
+# ------------------------------------------------------------- the robust evaluation (--robust)
+ROBUST_TASKS = ["h1hand-cube-v0", "h1hand-stand-v0"]  # success bars 370 and 800
+ROBUST_STEPS = (500_000, 1_000_000)
+ROBUST_HEADER = "step,selector,episode,reset_seed,return,length,success"
+
+
+def robust_returns(task: int, seed: int, step: int, episodes: int) -> dict[str, np.ndarray]:
+    """Known returns by selector in episode order: the mode beats tanh(mu) by a task-, seed- and
+    step-dependent amount with episode-to-episode scatter, the mean loses a little."""
+    tanh_mu = 100.0 + 50 * seed + 20 * np.arange(episodes) + step / 1e4
+    scatter = np.array([-3.0, 1.0, 4.0, -1.0])[:episodes]
+    return {"mode": tanh_mu + (10 + 7 * task) * (seed + 1) + step / 1e5 + scatter,
+            "tanh_mu": tanh_mu, "mean": tanh_mu - 2.0 - seed + 0.5 * scatter}
+
+
+def write_robust_folder(root: Path, tasks: list[str], seeds: int = 3, episodes: int = 4,
+                        steps: tuple[int, ...] = ROBUST_STEPS) -> dict:
+    """evaluate.py's campaign folder, by hand: evaluation.json and one episodes.csv per run (rows
+    in reverse episode order, selectors interleaved). Returns (task, seed, step) -> returns."""
+    settings = {"episodes": episodes, "reset_noise": 0.01, "selectors": ["mode", "tanh_mu", "mean"],
+                "runs": {}}
+    written = {}
+    for t, task in enumerate(tasks):
+        for seed in range(seeds):
+            run = f"{task}__corrected__seed{seed}__0000"
+            settings["runs"][run] = {"env_id": task, "seed": seed}
+            lines = [ROBUST_HEADER]
+            for step in steps:
+                written[task, seed, step] = robust_returns(t, seed, step, episodes)
+                for k in reversed(range(episodes)):
+                    lines += [f"{step},{selector},{k},{1000 + k},{float(values[k])!r},1000,False"
+                              for selector, values in written[task, seed, step].items()]
+            (root / run).mkdir(parents=True)
+            (root / run / "episodes.csv").write_text("\n".join(lines) + "\n")
+    (root / "evaluation.json").write_text(json.dumps(settings))
+    return written
+
+
+def write_small_runs(root: Path) -> Path:
+    for seed in range(2):
+        write_run(root, TASKS[0], "corrected", seed, 10_000 * np.arange(1, 4), np.ones(3),
+                  np.zeros(3))
+    return root
+
+
+def read_rows(out: Path) -> list[dict]:
+    with (out / "summary.csv").open() as file:
+        return list(csv.DictReader(file))
+
+
+def row_at(rows: list[dict], section: str, task: str, group: str, metric: str, step: int
+           ) -> tuple[float, float, float]:
+    """summary.csv's (estimate, ci_low, ci_high) of one estimate at one step."""
+    [row] = [r for r in rows if (r["section"], r["task"], r["group"], r["metric"], r["step"])
+             == (section, task, group, metric, str(step))]
+    return float(row["estimate"]), float(row["ci_low"]), float(row["ci_high"])
+
+
+def test_robust_evaluation_matches_a_hand_computation(tmp_path):
+    runs = write_small_runs(tmp_path / "runs")
+    written = write_robust_folder(tmp_path / "robust", ROBUST_TASKS)
+    out = tmp_path / "out"
+    assert run_analysis(runs, out, "--robust", str(tmp_path / "robust")) == 0
+    rows = read_rows(out)
+    quantile = scipy.stats.t.ppf(0.975, 2)  # three seeds
+    last = ROBUST_STEPS[-1]
+    normalised = {action: [] for action in ("mode", "mean")}  # the last step's mean / bar
+    for task in ROBUST_TASKS:
+        for step in ROBUST_STEPS:
+            episodes = [written[task, seed, step] for seed in range(3)]
+            for action in normalised:
+                per_seed = np.array([np.mean(e[action] - e["tanh_mu"]) for e in episodes])
+                mean, half = per_seed.mean(), quantile * per_seed.std(ddof=1) / np.sqrt(3)
+                assert np.allclose(row_at(rows, "robust_difference_t", task, action, "return",
+                                          step), (mean, mean - half, mean + half))
+                assert np.isclose(row_at(rows, "robust_difference", task, action, "return",
+                                         step)[0], mean)
+                if step == last:
+                    normalised[action].append(mean / analyze.SUCCESS_BARS[task])
+            assert np.isclose(row_at(rows, "robust_return", task, "tanh_mu", "return", step)[0],
+                              np.mean([e["tanh_mu"].mean() for e in episodes]))
+    for action, values in normalised.items():
+        for section in ("robust_difference", "robust_difference_t"):
+            assert np.isclose(row_at(rows, section, "all", action, "score", last)[0],
+                              np.mean(values)), (section, action)
+    assert row_at(rows, "robust_difference", "all", "mode", "share_won", last)[0] == 1.0
+    assert {r["metric"] for r in rows if r["section"] == "robust_aggregate"} == \
+        {"IQM", "Median", "Mean"}
+    assert (out / "robust_evaluation.png").is_file()
+    text = (out / "summary.md").read_text()
+    assert "## The robust evaluation" in text
+    assert "IQM here is the mean of the middle 4 of 6 runs" in text
+
+
+def test_without_robust_the_section_writes_nothing(tmp_path):
+    out = tmp_path / "out"
+    assert run_analysis(write_small_runs(tmp_path / "runs"), out) == 0
+    assert not [r for r in read_rows(out) if r["section"].startswith("robust")]
+    assert not (out / "robust_evaluation.png").exists()
+    assert "robust evaluation" not in (out / "summary.md").read_text()
+
+
+def test_robust_task_without_a_bar_is_left_out_of_the_aggregate(tmp_path):
+    write_robust_folder(tmp_path / "robust", ["h1hand-cube-v0", "Hopper-v5"])
+    out = tmp_path / "out"
+    assert run_analysis(write_small_runs(tmp_path / "runs"), out, "--robust",
+                        str(tmp_path / "robust")) == 0
+    rows = read_rows(out)
+    assert [r for r in rows if r["task"] == "Hopper-v5" and r["metric"] == "return"]
+    assert {r["n_runs"] for r in rows if r["section"] == "robust_aggregate"} == {"3"}
+    assert "No success bar for Hopper-v5" in (out / "summary.md").read_text()
+
+
+def test_bad_robust_folders_give_one_clear_line(tmp_path, capsys):
+    runs = write_small_runs(tmp_path / "runs")
+    cases = {"no_settings": "no evaluation.json there", "no_episodes": "episodes.csv is missing",
+             "bad_header": "lacks ['selector']", "no_tanh_mu": "no tanh_mu episodes at step 500k",
+             "twice": "step 500k is in two --robust folders"}
+    for name, message in cases.items():
+        folder = tmp_path / name
+        write_robust_folder(folder, ROBUST_TASKS[:1], seeds=1, steps=(500_000,))
+        episodes = folder / f"{ROBUST_TASKS[0]}__corrected__seed0__0000" / "episodes.csv"
+        folders = [folder]
+        if name == "no_settings":
+            (folder / "evaluation.json").unlink()
+        elif name == "no_episodes":
+            episodes.unlink()
+        elif name == "bad_header":
+            episodes.write_text(episodes.read_text().replace("selector", "action", 1))
+        elif name == "no_tanh_mu":
+            episodes.write_text("\n".join(line for line in episodes.read_text().splitlines()
+                                          if ",tanh_mu," not in line) + "\n")
+        else:
+            write_robust_folder(tmp_path / "again", ROBUST_TASKS[:1], seeds=1, steps=(500_000,))
+            folders.append(tmp_path / "again")
+        assert run_analysis(runs, tmp_path / "out", "--robust", *map(str, folders)) == 2, name
+        error = capsys.readouterr().err.strip()
+        assert message in error and len(error.splitlines()) == 1, (name, error)
