@@ -157,8 +157,9 @@ FEW_SEEDS = 5
 
 @dataclasses.dataclass
 class Args:
-    runs_dir: tyro.conf.Positional[Path]
-    """folder holding the run folders (config.json + eval.csv), searched at any depth"""
+    runs_dirs: tyro.conf.Positional[tuple[Path, ...]]
+    """folder(s) holding the run folders (config.json + eval.csv), searched at any depth; several
+    folders make one report (e.g. one campaign folder per task)"""
     out: Path = Path("report")
     """folder the figures, summary.md and summary.csv are written to"""
     normalize: Literal["auto", "success-bar", "min-max", "none"] = "auto"
@@ -305,13 +306,17 @@ def _check_columns(columns: dict[str, np.ndarray], path: Path) -> None:
         )
 
 
-def load_runs(root: Path) -> tuple[Runs, list[str]]:
-    """Every run under `root`, grouped by task and group, and notes on what was skipped."""
-    if not root.is_dir():
-        raise AnalysisError(f"{root} is not a folder; pass the folder that holds the run folders")
+def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
+    """Every run under the `roots`, grouped by task and group, and notes on what was skipped."""
+    for root in roots:
+        if not root.is_dir():
+            raise AnalysisError(
+                f"{root} is not a folder; pass the folder(s) that hold the run folders")
     runs: Runs = {}
     notes: list[str] = []
-    for config_path in sorted(root.rglob(CONFIG_FILE)):
+    # A folder named twice (or inside another one named) is read once.
+    configs = {path.resolve(): path for root in roots for path in sorted(root.rglob(CONFIG_FILE))}
+    for config_path in configs.values():
         run_dir = config_path.parent
         if not (run_dir / EVAL_FILE).is_file():
             notes.append(f"{run_dir}: no {EVAL_FILE} yet; skipped")
@@ -350,7 +355,8 @@ def load_runs(root: Path) -> tuple[Runs, list[str]]:
                              f"its paired {action.name} eval left out")
     if not runs:
         raise AnalysisError(
-            f"no runs found under {root}: a run is a folder holding {CONFIG_FILE} (keys "
+            f"no runs found under {', '.join(map(str, roots))}: a run is a folder holding "
+            f"{CONFIG_FILE} (keys "
             f"{list(REQUIRED_CONFIG_KEYS)}) and {EVAL_FILE} (columns "
             f"{list(REQUIRED_EVAL_COLUMNS)}); see docs/analyze.md"
         )
@@ -1114,12 +1120,13 @@ def found_table(runs: Runs, groups: list[str]) -> str:
     return markdown_table(["task", *groups], rows)
 
 
-def found_text(runs_dir: Path, runs: Runs, groups: list[str]) -> str:
+def found_text(runs_dirs: Sequence[Path], runs: Runs, groups: list[str]) -> str:
     """What the folder holds: how many runs, and found_table."""
     # Run folders, not groups: a corrected folder also stands for the derived standard group.
     n_runs = len({curve.run_dir for by_group in runs.values() for curves in by_group.values()
                   for curve in curves})
-    return f"Found {n_runs} runs under {runs_dir}:\n\n" + found_table(runs, groups)
+    return (f"Found {n_runs} runs under {', '.join(map(str, runs_dirs))}:\n\n"
+            + found_table(runs, groups))
 
 
 def normalization_line(mode: str, norms: dict[str, tuple[float, float]]) -> str:
@@ -1154,7 +1161,7 @@ def summary_header(analysis: Analysis, chosen: str, found: str) -> list[str]:
     the runs found."""
     args = analysis.args
     return [
-        f"# Analysis of {args.runs_dir}", "",
+        f"# Analysis of {', '.join(map(str, args.runs_dirs))}", "",
         f"Normalisation {chosen}`{args.normalize}`: {NORMALIZATIONS[args.normalize]}. "
         + normalization_line(args.normalize, analysis.norms),
         f"Intervals: 95% stratified bootstrap (rliable), {args.reps:,} replications for point "
@@ -2526,6 +2533,9 @@ REPORT_SECTIONS: tuple[Callable[[Report, Analysis], None], ...] = (
 
 def validate(args: Args) -> None:
     """Every flag's valid range, checked before anything is read or written."""
+    if not args.runs_dirs:
+        raise AnalysisError("no folder given: analyze.py RUNS [RUNS ...] --out REPORT, RUNS the "
+                            "folder(s) holding the run folders")
     rules = (
         ("reps", args.reps >= 1, "at least 1"),
         ("curve_reps", args.curve_reps >= 1, "at least 1"),
@@ -2545,11 +2555,11 @@ def analyze(args: Args) -> Report:
     """The whole analysis: the data layer (load, pair, align, normalise) once, then each report
     section of REPORT_SECTIONS in turn, then summary.md and summary.csv."""
     validate(args)
-    runs, notes = load_runs(args.runs_dir)
+    runs, notes = load_runs(args.runs_dirs)
     robust = load_robust(args.robust) if args.robust else None
     pairing = standard_from_paired(runs)
     groups = ordered_groups(runs)
-    found = found_text(args.runs_dir, runs, groups)
+    found = found_text(args.runs_dirs, runs, groups)
     print(found + "\n")
     tasks, align_notes = align(runs, args.at_step)
     normalization, chosen = resolve_normalization(args.normalize, list(tasks))

@@ -52,7 +52,7 @@ def main() -> None:
             cpu.append(time.process_time() - start_cpu)
             assert code == 0, "analysis failed"
             print(f"run {i + 1}: {wall[-1]:.1f} s wall, {cpu[-1]:.1f} s CPU")
-        defaults = analyze.Args(runs_dir=runs)
+        defaults = analyze.Args(runs_dirs=(runs,))
         print(f"full analysis at defaults (reps {defaults.reps:,}, curve reps "
               f"{defaults.curve_reps:,}, {defaults.curve_points} curve points), median of "
               f"{args.repeats}: {statistics.median(wall):.1f} s wall, "

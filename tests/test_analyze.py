@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -381,6 +382,32 @@ def test_bad_inputs_give_one_clear_message(tmp_path, capsys):
     assert "config.json is not valid JSON" in capsys.readouterr().err
 
 
+def test_several_folders_make_one_report(tmp_path, capsys):
+    """One campaign folder per task (results/<task>-1M/runs): named together they give the report
+    of one folder holding them all; a folder named twice, or inside another named one, counts
+    once."""
+    steps = np.arange(10_000, 60_001, 10_000)
+    for i, task in enumerate(TASKS[:2]):
+        for seed in range(3):
+            returns = np.linspace(10, 100 + 20 * seed + 50 * i, steps.size)
+            for root in (tmp_path / task, tmp_path / "together"):
+                write_run(root, task, "corrected", seed, steps, returns, returns - 5 * seed)
+    apart = [str(tmp_path / task) for task in TASKS[:2]]
+    assert analyze.main([*apart, "--out", str(tmp_path / "apart"), *FAST]) == 0
+    assert run_analysis(tmp_path / "together", tmp_path / "one") == 0
+    assert (tmp_path / "apart" / "summary.csv").read_text() == \
+        (tmp_path / "one" / "summary.csv").read_text()
+    text = (tmp_path / "apart" / "summary.md").read_text()
+    assert f"Found 6 runs under {apart[0]}, {apart[1]}:" in text
+    twice = [apart[0], apart[0], str(tmp_path / TASKS[0] / os.listdir(apart[0])[0])]
+    assert analyze.main([*twice, "--out", str(tmp_path / "twice"), *FAST]) == 0
+    assert "Found 3 runs under" in (tmp_path / "twice" / "summary.md").read_text()
+    capsys.readouterr()
+    assert analyze.main(["--out", str(tmp_path / "none")]) == 2
+    assert "no folder given" in capsys.readouterr().err
+    assert not (tmp_path / "none").exists()
+
+
 def test_command_line_error_exits_nonzero_without_traceback(tmp_path):
     import subprocess
     import sys
@@ -585,7 +612,7 @@ def test_tasks_with_no_step_in_common_and_other_budgets_share_a_fraction_axis(tm
             and f"{TASKS[1]} 250k, {TASKS[0]} 300k" in text)
     # By hand: frames from max(30k/300k, 25k/250k) = 0.1 to 1; at 0.5 powerlift's 150k and
     # cube's 125k; at 0.6 cube's last evaluation at or before 150k, which it skipped: 125k.
-    loaded, _ = analyze.load_runs(runs)
+    loaded, _ = analyze.load_runs([runs])
     analyze.standard_from_paired(loaded)
     tasks, _ = analyze.align(loaded, None)
     norms = analyze.normalizers(tasks, "success-bar")
