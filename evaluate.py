@@ -18,7 +18,8 @@ snapshots/step<N>.pt (or those at --steps) are evaluated, each from the same --e
 of its run's seed, and --out receives one episodes.csv per run and the campaign's summary
 (summary.md, per_seed.csv, across_seeds.csv, paired_difference.png; see
 `summarize_campaign`). Given that --out folder as SOURCE, the summary is rewritten from its
-CSVs without running an episode.
+CSVs without running an episode. Each policy's rows are written to --out as soon as it is
+evaluated: the same command again, after a kill, evaluates only the policies not there yet.
 
 The episodes run through eval_runner.py, the training runs' own evaluation: split into jobs of
 JOB_EPISODES episodes, each job stepping all its episodes of every selector in lockstep, the
@@ -378,12 +379,16 @@ def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: li
     return jobs
 
 
-def run_jobs(jobs: list[Round], workers: int, progress: Callable[[int], None]) -> list[dict]:
-    """Every job's result, in job order, the progress bar advanced as each one comes back."""
+def run_jobs(jobs: list[Round], workers: int, progress: Callable[[int], None],
+             keep: Callable[[dict], None] | None = None) -> list[dict]:
+    """Every job's result, in job order, the progress bar advanced as each one comes back;
+    `keep`, if given, is handed each result as it comes back (in job order too)."""
     results: list[dict] = []
 
     def done(job: Round, result: dict) -> None:
         results.append(result)
+        if keep is not None:
+            keep(result)
         progress(sum(len(j.seeds) for j in jobs[:len(results)]))
 
     # More processes than jobs would only cost their start-up.
@@ -627,7 +632,9 @@ def campaign_policies(root: Path, steps: tuple[int, ...]) -> list[Policy]:
 
 def evaluate_campaign(args: Args) -> None:
     """Every policy of the campaign from the same --episodes starts of its run's seed, all jobs
-    in one pool; one episodes.csv and shift.csv per run under --out, then the summary."""
+    in one pool; one episodes.csv and shift.csv per run under --out, then the summary. Each
+    policy's rows are written as soon as its last job is back, so a killed evaluation keeps the
+    policies it finished, and the same command again evaluates only the others."""
     if args.out is None or args.video is not None:
         fail(f"{args.source} is a folder of runs: give --out (where each run's episodes.csv and "
              "the summary go), and no --video")
@@ -635,55 +642,215 @@ def evaluate_campaign(args: Args) -> None:
     for env_id in sorted({p.env_id for p in policies}):
         check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
     selectors = list(dict.fromkeys(args.selectors))
-    planned = []  # per policy: its reset seeds and its jobs
-    for policy in policies:
-        state = load_weights(policy.path)
-        actor = build_actor(state["actor"], policy.env_id, policy.config, policy.path).eval()
-        critic = build_critic(state, actor, policy.path) if "q_best" in selectors else None
-        seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
-        planned.append((seeds, make_jobs(actor, critic, policy.env_id, seeds, selectors, args,
-                                         label=f"{policy.run} step {policy.step}: ")))
-    workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
-    start = time.perf_counter()
-    results = iter(run_jobs([job for _, jobs in planned for job in jobs], workers, progress_bar(
-        f"{len(policies)} policies x {' '.join(selectors)}", len(policies) * args.episodes)))
-    elapsed = time.perf_counter() - start
-    # run_jobs hands the results back in job order: each policy's are the next len(jobs).
-    evaluated = [(policy, seeds, *merge([next(results) for _ in jobs], selectors))
-                 for policy, (seeds, jobs) in zip(policies, planned, strict=True)]
+    settings = campaign_settings(args, selectors)
+    recorded = recorded_settings(args.out)
+    if recorded is not None:
+        check_same_settings(args.out, recorded, settings)
+    # Rows in --out count only under a record of the settings they were evaluated with.
+    finished = {} if recorded is None else finished_policies(args.out, policies, selectors, args)
+    left = [p for p in policies if (p.run, p.step) not in finished]
+    if (args.out / CAMPAIGN_FILE).is_file():
+        # evaluation.json marks --out complete: nothing is evaluated again, nor added to it.
+        print(f"{args.out} is complete ({CAMPAIGN_FILE}): nothing evaluated, its summary again"
+              + (f"; {len(left)} policies under {args.source} are not in it: evaluate them "
+                 "into another --out" if left else ""), file=sys.stderr)
+        (args.out / PARTIAL_FILE).unlink(missing_ok=True)  # a kill just after the end leaves it
+        summarize_campaign(args.out, args.reps, args.seed)
+        return
+    print(f"{args.out}: {len(finished)} of {len(policies)} policies already evaluated, "
+          f"{len(left)} left", file=sys.stderr)
+    planned = [plan_policy(policy, selectors, args) for policy in left]  # fails before writing
     try:
-        write_campaign(args, selectors, evaluated, elapsed)
+        args.out.mkdir(parents=True, exist_ok=True)
+        seconds = evaluate_policies(args, settings, planned, finished,
+                                    recorded.get("seconds", 0.0) if recorded else 0.0)
+        for run in dict.fromkeys(p.run for p in policies):  # as one attempt would leave them:
+            write_run_files(args.out, run, finished)  # rows of policies now gone, dropped
+        write_campaign(args, selectors, policies, seconds)
     except OSError as error:
         fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable folder")
     summarize_campaign(args.out, args.reps, args.seed)
 
 
-def write_campaign(args: Args, selectors: list[str],
-                   evaluated: list[tuple[Policy, list[int], dict, dict]], elapsed: float) -> None:
-    """Per run, episodes.csv and shift.csv of its policies (campaign_policies lists a run's
-    policies together), and evaluation.json."""
-    args.out.mkdir(parents=True, exist_ok=True)
-    for run, group in itertools.groupby(evaluated, key=lambda e: e[0].run):
-        (args.out / run).mkdir(exist_ok=True)
-        episodes = open(args.out / run / "episodes.csv", "w", newline="")
-        shifts = open(args.out / run / "shift.csv", "w", newline="")
-        with episodes, shifts:
-            rows, shift_rows = csv.writer(episodes), csv.writer(shifts)
-            rows.writerow(["step", *EPISODE_COLUMNS])
-            shift_rows.writerow(["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}"
-                                                            for c in Q_BEST_CANDIDATES)])
-            for policy, seeds, merged, shift in group:
-                rows.writerows([policy.step, *row] for row in episode_rows(merged, seeds))
-                shares = merged.get("q_best", {}).get("shares", {})
-                shift_rows.writerow([policy.step, *(repr(shift[c]) for c in SHIFT_COLUMNS),
-                                     *(repr(shares[c]) if shares else "" for c in
-                                       Q_BEST_CANDIDATES)])
+def plan_policy(policy: Policy, selectors: list[str], args: Args) -> tuple[Policy, list[int],
+                                                                           list[Round]]:
+    """A policy, its reset seeds (its run's seed: a run's steps start from the same states)
+    and its jobs."""
+    state = load_weights(policy.path)
+    actor = build_actor(state["actor"], policy.env_id, policy.config, policy.path).eval()
+    critic = build_critic(state, actor, policy.path) if "q_best" in selectors else None
+    seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
+    return policy, seeds, make_jobs(actor, critic, policy.env_id, seeds, selectors, args,
+                                    label=f"{policy.run} step {policy.step}: ")
+
+
+def evaluate_policies(args: Args, settings: dict,
+                      planned: list[tuple[Policy, list[int], list[Round]]],
+                      finished: dict[tuple[str, int], PolicyRows], seconds: float) -> float:
+    """Runs the planned policies' jobs in one pool. As a policy's last job comes back, its
+    run's files are rewritten with it, and the marker with the seconds so far (`seconds`
+    before this attempt, plus this attempt's); returns the seconds at the end."""
+    write_atomically(args.out / PARTIAL_FILE, json.dumps(settings | {"seconds": seconds},
+                                                         indent=2) + "\n")
+    if not planned:  # all finished by an attempt killed before it wrote evaluation.json
+        return seconds
+    selectors = settings["selectors"]
+    start, waiting, results = time.perf_counter(), list(planned), []
+
+    def keep(result: dict) -> None:
+        # run_jobs hands the results back in job order: the first waiting policy's come first.
+        results.append(result)
+        policy, seeds, jobs = waiting[0]
+        if len(results) < len(jobs):
+            return
+        finished[policy.run, policy.step] = policy_rows(policy, seeds,
+                                                        *merge(results, selectors))
+        waiting.pop(0)
+        results.clear()
+        write_run_files(args.out, policy.run, finished)
+        write_atomically(args.out / PARTIAL_FILE, json.dumps(
+            settings | {"seconds": seconds + time.perf_counter() - start}, indent=2) + "\n")
+
+    workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
+    run_jobs([job for *_, jobs in planned for job in jobs], workers, progress_bar(
+        f"{len(planned)} policies x {' '.join(selectors)}", len(planned) * args.episodes), keep)
+    return seconds + time.perf_counter() - start
+
+
+def write_campaign(args: Args, selectors: list[str], policies: list[Policy],
+                   seconds: float) -> None:
+    """evaluation.json, which marks --out complete (written last, in one step); then the marker
+    of an evaluation under way goes."""
     settings = {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
                 "episodes": args.episodes, "eval_round": args.eval_round,
                 "reset_noise": args.reset_noise, "selectors": selectors, "solver": args.solver,
-                "seconds": round(elapsed, 1), "workers": args.workers,
-                "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p, *_ in evaluated}}
-    (args.out / CAMPAIGN_FILE).write_text(json.dumps(settings, indent=2) + "\n")
+                "seconds": round(seconds, 1), "workers": args.workers,
+                "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
+    write_atomically(args.out / CAMPAIGN_FILE, json.dumps(settings, indent=2) + "\n")
+    (args.out / PARTIAL_FILE).unlink(missing_ok=True)
+
+
+# ----------------------------------------------------------------------- resuming a campaign
+# While a campaign is evaluated, --out holds PARTIAL_FILE (the settings, the command and the
+# seconds so far) and every finished policy's rows; evaluation.json comes only at the end.
+PARTIAL_FILE = "evaluation.partial.json"
+# The settings that decide a policy's rows: a resumed evaluation must be given the same.
+RESUME_SETTINGS = ("source", "episodes", "eval_round", "reset_noise", "selectors", "solver",
+                   "steps")
+EPISODES_HEADER = ["step", *EPISODE_COLUMNS]
+SHIFT_HEADER = ["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}" for c in Q_BEST_CANDIDATES)]
+# One policy's rows: its episodes.csv rows and its shift.csv row, each starting with its step.
+PolicyRows = tuple[list[list], list]
+
+
+def campaign_settings(args: Args, selectors: list[str]) -> dict:
+    """What the marker records: the command, and the settings a resume must repeat."""
+    return {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
+            "episodes": args.episodes, "eval_round": args.eval_round,
+            "reset_noise": args.reset_noise, "selectors": selectors, "solver": args.solver,
+            "steps": list(args.steps)}
+
+
+def recorded_settings(out: Path) -> dict | None:
+    """The settings out was evaluated with: its evaluation.json if complete, else the marker of
+    an evaluation under way, else None (a new evaluation)."""
+    for path in (out / CAMPAIGN_FILE, out / PARTIAL_FILE):
+        if path.is_file():
+            try:
+                return json.loads(path.read_text())
+            except (json.JSONDecodeError, UnicodeDecodeError):
+                fail(f"{path} is damaged; give another --out")
+    return None
+
+
+def check_same_settings(out: Path, recorded: dict, settings: dict) -> None:
+    """One line naming every setting that differs from out's (evaluation.json has no steps:
+    those go unchecked against a complete out)."""
+    def same(key: str) -> bool:
+        if key == "source":  # the same folder, however it is written
+            return Path(recorded[key]).resolve() == Path(settings[key]).resolve()
+        return recorded[key] == settings[key]
+
+    def shown(value: object) -> str:
+        if isinstance(value, list):
+            return " ".join(map(str, value)) or "(not given)"
+        return "(not given)" if value is None else str(value)
+
+    differing = [k for k in RESUME_SETTINGS if k in recorded and not same(k)]
+    if differing:
+        fail(f"--out {out} holds an evaluation with other settings ("
+             + "; ".join(f"{'source' if k == 'source' else '--' + k.replace('_', '-')} "
+                         f"{shown(recorded[k])} there, {shown(settings[k])} here"
+                         for k in differing)
+             + "): give the same source and flags to resume it, or another --out")
+
+
+def finished_policies(out: Path, policies: list[Policy], selectors: list[str],
+                      args: Args) -> dict[tuple[str, int], PolicyRows]:
+    """The policies whose rows in out are complete (every selector's every episode, from the
+    reset seeds this command gives it, and its shift row), by (run, step)."""
+    finished = {}
+    for run, group in itertools.groupby(policies, key=lambda p: p.run):
+        episodes = rows_by_step(out / run / "episodes.csv", EPISODES_HEADER)
+        shifts = rows_by_step(out / run / "shift.csv", SHIFT_HEADER)
+        for policy in group:
+            seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
+            expected = [[s, str(k), str(seed)] for s in selectors for k, seed in enumerate(seeds)]
+            rows, shift = episodes.get(policy.step, []), shifts.get(policy.step, [])
+            if [row[1:4] for row in rows] == expected and len(shift) == 1:
+                finished[run, policy.step] = (rows, shift[0])
+    return finished
+
+
+def rows_by_step(path: Path, header: list[str]) -> dict[int, list[list[str]]]:
+    """A run file's rows by their step, as text (rewritten, they are the same bytes); none if
+    the file is missing or has another header."""
+    if not path.is_file():
+        return {}
+    with open(path, newline="") as f:
+        reader = csv.reader(f)
+        if next(reader, None) != header:
+            return {}
+        grouped: dict[int, list[list[str]]] = {}
+        for row in reader:
+            grouped.setdefault(int(row[0]), []).append(row)
+    return grouped
+
+
+def policy_rows(policy: Policy, seeds: list[int], merged: dict, shift: dict) -> PolicyRows:
+    """A freshly evaluated policy's episodes.csv rows and shift.csv row."""
+    shares = merged.get("q_best", {}).get("shares", {})
+    return ([[policy.step, *row] for row in episode_rows(merged, seeds)],
+            [policy.step, *(repr(shift[c]) for c in SHIFT_COLUMNS),
+             *(repr(shares[c]) if shares else "" for c in Q_BEST_CANDIDATES)])
+
+
+def write_run_files(out: Path, run: str, finished: dict[tuple[str, int], PolicyRows]) -> None:
+    """The run's episodes.csv and shift.csv: every finished policy of it, by step."""
+    steps = sorted(step for name, step in finished if name == run)
+    (out / run).mkdir(exist_ok=True)
+    write_atomically(out / run / "episodes.csv", csv_text(
+        [EPISODES_HEADER, *(row for step in steps for row in finished[run, step][0])]))
+    write_atomically(out / run / "shift.csv", csv_text(
+        [SHIFT_HEADER, *(finished[run, step][1] for step in steps)]))
+
+
+def csv_text(rows: list[list]) -> str:
+    text = io.StringIO()
+    csv.writer(text).writerows(rows)
+    return text.getvalue()
+
+
+def write_atomically(path: Path, text: str) -> None:
+    """path holds its old content or text, wherever the process is killed: text goes to a
+    temporary file in the same folder (the same file system), which then replaces path in one
+    step. The temporary name is fixed, so one a kill leaves is replaced by the next write."""
+    temporary = path.with_name(f"{path.name}.tmp")
+    with open(temporary, "w", newline="") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(temporary, path)
 
 
 def read_campaign(out: Path) -> tuple[dict, dict]:
@@ -890,6 +1057,10 @@ def main(argv: list[str] | None = None) -> None:
     if (args.source / CAMPAIGN_FILE).is_file():
         summarize_campaign(args.source, args.reps, args.seed)
         return
+    if (args.source / PARTIAL_FILE).is_file():
+        command = " ".join((recorded_settings(args.source) or {}).get("command", []))
+        fail(f"{args.source} holds a campaign evaluation not finished yet ({PARTIAL_FILE}): run "
+             f"its command again to finish it ({command})")
     if is_campaign(args.source):
         evaluate_campaign(args)
         return

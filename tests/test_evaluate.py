@@ -6,6 +6,7 @@ command line, and some the worker processes."""
 
 import csv
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -549,3 +550,126 @@ def test_one_start_is_one_episode_and_reset_noise_gives_distinct_ones(tmp_path, 
     assert "same state" not in out and "mode - tanh_mu, paired:" in out
     rows = read_rows(tmp_path / "noisy" / "episodes.csv")
     assert len({r["return"] for r in rows if r["selector"] == "tanh_mu"}) == 3
+
+
+# --------------------------------------------------------------------------- resuming a campaign
+CAMPAIGN_ARGS = ("--episodes", "3", "--selectors", "mode", "tanh_mu", "mean", "--reps", "50")
+
+
+class Killed(BaseException):
+    """The kill of a work session's end, as far as evaluate.py can tell: nothing runs after it."""
+
+
+def interrupted(campaign: Path, out: Path, monkeypatch, capsys) -> None:
+    """A campaign evaluation into out, killed just after its first policy (run0 at step 800)
+    was written."""
+    write_run_files = evaluate.write_run_files
+
+    def then_killed(*args) -> None:
+        write_run_files(*args)
+        raise Killed
+
+    with monkeypatch.context() as patch:
+        patch.setattr(evaluate, "write_run_files", then_killed)
+        with pytest.raises(Killed):
+            evaluate.main([str(campaign), "--out", str(out), *CAMPAIGN_ARGS, "--workers", "0"])
+    capsys.readouterr()
+
+
+def files(out: Path) -> dict[str, bytes]:
+    """out's files less the figure, evaluation.json's seconds and the summary's count of them
+    (the time taken differs from one evaluation to the next)."""
+    found = {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("*"))
+             if p.is_file() and p.name != "paired_difference.png"}
+    settings = json.loads(found.pop("evaluation.json"))
+    assert settings.pop("seconds") >= 0
+    found["evaluation.json"] = json.dumps(settings).encode()
+    found["summary.md"] = re.sub(rb"\d+ s of evaluation", b"N s of evaluation",
+                                 found["summary.md"])
+    return found
+
+
+def test_an_interrupted_campaign_resumes_to_the_same_files(campaign, tmp_path, monkeypatch,
+                                                            capsys):
+    code, _, err = run(capsys, str(campaign), "--out", str(tmp_path / "whole"), *CAMPAIGN_ARGS)
+    assert code == 0 and "0 of 4 policies already evaluated, 4 left" in err, err
+    out = tmp_path / "resumed"
+    interrupted(campaign, out, monkeypatch, capsys)
+    # What the kill left: the marker and the finished policy's rows, no evaluation.json.
+    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == [
+        "evaluation.partial.json", "run0", "run0/episodes.csv", "run0/shift.csv"]
+    assert {r["step"] for r in read_rows(out / "run0" / "episodes.csv")} == {"800"}
+    assert len(read_rows(out / "run0" / "episodes.csv")) == 3 * 3
+    marker = json.loads((out / evaluate.PARTIAL_FILE).read_text())
+    assert (marker["episodes"], marker["selectors"]) == (3, ["mode", "tanh_mu", "mean"])
+    refused(capsys, "not finished yet (evaluation.partial.json): run its command again", str(out))
+    # The same command again evaluates only the three policies not written.
+    evaluated = []
+    run_jobs = evaluate.run_jobs
+
+    def counted(jobs, *args):
+        evaluated.extend(job.label.split(":")[0] for job in jobs)
+        return run_jobs(jobs, *args)
+
+    monkeypatch.setattr(evaluate, "run_jobs", counted)
+    code, _, err = run(capsys, str(campaign), "--out", str(out), *CAMPAIGN_ARGS)
+    assert code == 0 and "1 of 4 policies already evaluated, 3 left" in err, err
+    assert evaluated == ["run0 step 1600", "run1 step 800", "run1 step 1600"]
+    assert files(out) == files(tmp_path / "whole")
+    # Complete now: the same command again evaluates nothing and rewrites the same summary.
+    evaluated.clear()
+    code, printed, err = run(capsys, str(campaign), "--out", str(out), *CAMPAIGN_ARGS)
+    assert code == 0 and "is complete (evaluation.json): nothing evaluated" in err, err
+    assert evaluated == [] and "Precision check" in printed
+    assert files(out) == files(tmp_path / "whole")
+
+
+def test_a_resume_rewrites_a_policy_whose_rows_are_incomplete(campaign, tmp_path, capsys):
+    out = tmp_path / "out"
+    code, _, err = run(capsys, str(campaign), "--out", str(out), *CAMPAIGN_ARGS, "--steps",
+                       "1600")
+    assert code == 0, err
+    whole = files(out)
+    # As if killed mid-campaign, run1's rows cut short: run1 is evaluated again, run0 kept.
+    settings = json.loads((out / "evaluation.json").read_text())
+    (out / evaluate.PARTIAL_FILE).write_text(json.dumps(settings | {"steps": [1600]}))
+    (out / "evaluation.json").unlink()
+    episodes = (out / "run1" / "episodes.csv").read_text().splitlines(keepends=True)
+    (out / "run1" / "episodes.csv").write_text("".join(episodes[:-1]), newline="")
+    code, _, err = run(capsys, str(campaign), "--out", str(out), *CAMPAIGN_ARGS, "--steps",
+                       "1600")
+    assert code == 0 and "1 of 2 policies already evaluated, 1 left" in err, err
+    assert files(out) == whole and not (out / evaluate.PARTIAL_FILE).exists()
+
+
+def test_a_resume_with_other_settings_is_refused(campaign, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "out"
+    interrupted(campaign, out, monkeypatch, capsys)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    refused(capsys, "holds an evaluation with other settings (--episodes 3 there, 4 here): give "
+            "the same source and flags to resume it, or another --out", str(campaign), "--out",
+            str(out), *CAMPAIGN_ARGS, "--episodes", "4")
+    refused(capsys, "(--selectors mode tanh_mu mean there, mode tanh_mu here; --solver exact "
+            "there, grid here)", str(campaign), "--out", str(out), *CAMPAIGN_ARGS,
+            "--selectors", "mode", "tanh_mu", "--solver", "grid")
+    refused(capsys, "(--steps (not given) there, 800 here)", str(campaign), "--out", str(out),
+            *CAMPAIGN_ARGS, "--steps", "800")
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    # A complete --out too.
+    code, _, err = run(capsys, str(campaign), "--out", str(out), *CAMPAIGN_ARGS)
+    assert code == 0, err
+    refused(capsys, "(--eval-round 0 there, 1 here)", str(campaign), "--out", str(out),
+            *CAMPAIGN_ARGS, "--eval-round", "1")
+
+
+def test_a_write_killed_midway_leaves_the_old_file(tmp_path, monkeypatch):
+    path = tmp_path / "episodes.csv"
+    evaluate.write_atomically(path, "old\r\n")
+
+    def killed(*args) -> None:
+        raise Killed
+
+    monkeypatch.setattr(evaluate.os, "replace", killed)
+    with pytest.raises(Killed):
+        evaluate.write_atomically(path, "new\r\n")
+    assert path.read_bytes() == b"old\r\n"
