@@ -50,6 +50,7 @@ import torch
 import torch.nn as nn
 import tyro
 
+import checkpoints
 import sac_corrected as sac
 from eval_runner import (
     ACTIONS,
@@ -842,15 +843,15 @@ def csv_text(rows: list[list]) -> str:
 
 
 def write_atomically(path: Path, text: str) -> None:
-    """path holds its old content or text, wherever the process is killed: text goes to a
-    temporary file in the same folder (the same file system), which then replaces path in one
-    step. The temporary name is fixed, so one a kill leaves is replaced by the next write."""
-    temporary = path.with_name(f"{path.name}.tmp")
-    with open(temporary, "w", newline="") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(temporary, path)
+    """path holds its old content or text, wherever the process is killed (checkpoints.py's
+    temporary file and rename, synced to disk first)."""
+    def write(temporary: Path) -> None:
+        with open(temporary, "w", newline="") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+
+    checkpoints.atomic_write(path, write)
 
 
 def read_campaign(out: Path) -> tuple[dict, dict]:
