@@ -2,10 +2,12 @@
 with today's analyze.py, give the committed summary.csv.
 
 A campaign is a folder results/<campaign>/ with
-- runs/: the run folders (config.json, eval.csv, train.csv), in any sub-layout;
+- runs/: the run folders (config.json, eval.csv, train.csv), in any sub-layout; a campaign that
+  reports over other campaigns' runs (the four-task report) has none of its own;
 - one or more report*/ folders: analyze.py's summary.md, summary.csv and figures;
-- reports.json: report folder -> {"runs": runs subpath, "args": [analyze.py flags]}, the
-  commands the README gives (`python analyze.py results/<campaign>/<runs> --out
+- reports.json: report folder -> {"runs": a runs folder or a list of them, relative to the
+  campaign (its own runs/ or another campaign's, "../<campaign>/runs"), "args": [analyze.py
+  flags]}, the commands the README gives (`python analyze.py results/<campaign>/<runs> ... --out
   results/<campaign>/<report> <args>`, run from the repository root);
 - README.md: what ran, where, and those commands.
 """
@@ -39,10 +41,16 @@ def reports_of(campaign: Path) -> dict[str, dict]:
     return json.loads((campaign / "reports.json").read_text())
 
 
+def runs_of(campaign: Path, spec: dict) -> list[Path]:
+    """A report's runs folders, resolved: "runs" is one path or a list, relative to the campaign."""
+    listed = [spec["runs"]] if isinstance(spec["runs"], str) else spec["runs"]
+    return [(campaign / runs).resolve() for runs in listed]
+
+
 def command(campaign: Path, report: str, spec: dict) -> list[str]:
     """analyze.py's arguments for a report, paths relative to the repository root."""
-    base = campaign.relative_to(ROOT)
-    return [f"{base / spec['runs']}", "--out", f"{base / report}", *spec["args"]]
+    runs = [str(folder.relative_to(ROOT)) for folder in runs_of(campaign, spec)]
+    return [*runs, "--out", f"{campaign.relative_to(ROOT) / report}", *spec["args"]]
 
 
 def report_cases() -> list:
@@ -63,17 +71,22 @@ def test_there_is_a_campaign_and_each_is_complete() -> None:
     for campaign in found:
         for name in ("README.md", "reports.json"):
             assert (campaign / name).is_file(), f"{campaign} has no {name}"
-        assert (campaign / "runs").is_dir(), f"{campaign} has no runs/"
         reports = reports_of(campaign)
         folders = {r.name for r in campaign.glob("report*") if r.is_dir()}
         assert folders, f"{campaign} has no report*/ folder"
         assert set(reports) == folders, (
             f"{campaign}/reports.json lists {sorted(reports)}, the folders are {sorted(folders)}")
         readme = (campaign / "README.md").read_text()
+        own = (campaign / "runs").is_dir()
         for report, spec in reports.items():
-            runs = campaign / spec["runs"]
-            assert runs.is_dir() and runs.is_relative_to(campaign / "runs"), (
-                f"{report}: runs {spec['runs']!r} is not a folder under {campaign / 'runs'}")
+            for runs in runs_of(campaign, spec):
+                # A report reads committed runs only: its own campaign's, or (a campaign with
+                # no runs/ of its own, the four-task report) other campaigns' runs/.
+                homes = [campaign] if own else [c for c in campaigns() if (c / "runs").is_dir()]
+                assert runs.is_dir() and any(
+                    runs.is_relative_to((home / "runs").resolve()) for home in homes), (
+                    f"{report}: runs {spec['runs']!r} is not a folder under "
+                    f"{' or '.join(str(home / 'runs') for home in homes)}")
             for name in ("summary.csv", "summary.md"):
                 assert (campaign / report / name).is_file(), f"{campaign / report} has no {name}"
             line = "python analyze.py " + " ".join(command(campaign, report, spec))
@@ -106,8 +119,9 @@ def test_report_reproduces_from_the_committed_runs(campaign: Path, report: str,
 
     # A row per task: every env id among the runs has its final returns, and, where its runs
     # carry the paired tanh(mu) evaluation (sac_corrected.py), its paired difference.
-    configs = [json.loads(p.read_text()) for p in (campaign / spec["runs"]).rglob("config.json")]
-    assert configs, f"no run folder under {campaign / spec['runs']}"
+    configs = [json.loads(p.read_text())
+               for runs in runs_of(campaign, spec) for p in runs.rglob("config.json")]
+    assert configs, f"no run folder under {spec['runs']}"
     tasks = {c["env_id"] for c in configs}
     paired = {c["env_id"] for c in configs if c["algorithm"] == "corrected"}
 
