@@ -77,12 +77,12 @@ def test_there_is_a_campaign_and_each_is_complete() -> None:
         assert set(reports) == folders, (
             f"{campaign}/reports.json lists {sorted(reports)}, the folders are {sorted(folders)}")
         readme = (campaign / "README.md").read_text()
-        own = (campaign / "runs").is_dir()
+        # A report reads committed runs only: its own campaign's, or (a campaign with no runs/
+        # of its own, the four-task report) other campaigns' runs/.
+        homes = [campaign] if (campaign / "runs").is_dir() else [
+            c for c in found if (c / "runs").is_dir()]
         for report, spec in reports.items():
             for runs in runs_of(campaign, spec):
-                # A report reads committed runs only: its own campaign's, or (a campaign with
-                # no runs/ of its own, the four-task report) other campaigns' runs/.
-                homes = [campaign] if own else [c for c in campaigns() if (c / "runs").is_dir()]
                 assert runs.is_dir() and any(
                     runs.is_relative_to((home / "runs").resolve()) for home in homes), (
                     f"{report}: runs {spec['runs']!r} is not a folder under "
