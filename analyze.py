@@ -630,6 +630,8 @@ def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
 # every selector starts from the same state, so the pairing is episode by episode.
 ROBUST_SETTINGS_FILE = "evaluation.json"
 ROBUST_EPISODES_FILE = "episodes.csv"
+# Read by name, the other columns passed over: folders from before evaluate.py added
+# physics_unstable (last) read as those after.
 ROBUST_COLUMNS = ("step", "selector", "episode", "return")  # of evaluate.py's EPISODE_COLUMNS
 
 

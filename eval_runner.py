@@ -167,9 +167,10 @@ def cached_envs(env_id: str, count: int, render: bool = False) -> list[gym.Env]:
 def run_round(round_: Round) -> dict:
     """Every episode of every evaluation action of the round, stepped in lockstep.
 
-    Returns, per prefix, each episode's return, length and success (None where the env reports
-    none) and, for q_best, the share of states at which each candidate was chosen; under "shift",
-    the shift statistics at the states the `shift_of` prefix visited ("shift_states" of them)."""
+    Returns, per prefix, each episode's return, length, success (None where the env reports
+    none) and whether a physics blow-up ended it ("unstable": info["physics_unstable"]) and, for
+    q_best, the share of states at which each candidate was chosen; under "shift", the shift
+    statistics at the states the `shift_of` prefix visited ("shift_states" of them)."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # the same numbers in-process and in a worker
     try:
@@ -217,6 +218,9 @@ def _run_round(round_: Round) -> dict:
     returns = {p: np.zeros(n) for p in prefixes}
     lengths = {p: np.zeros(n, np.int64) for p in prefixes}
     successes: dict[str, list] = {p: [None] * n for p in prefixes}
+    # Whether the episode ended on a physics blow-up (h1hand truncates it then): otherwise such
+    # an end reads as an ordinary short episode, whichever action caused it.
+    unstable = {p: [False] * n for p in prefixes}
     chosen = {p: np.zeros(len(Q_BEST_CANDIDATES), np.int64) for p in prefixes}
     visited: list[tuple[torch.Tensor, torch.Tensor]] = []
     # "sample" draws each episode's noise from a generator seeded by its reset seed.
@@ -254,18 +258,20 @@ def _run_round(round_: Round) -> dict:
                 if terminated or truncated:
                     done[p][k] = True
                     successes[p][k] = info.get("success")
+                    unstable[p][k] = bool(info.get("physics_unstable", False))
             # A follower is its first episode again: same rows in the next actor call, same
             # numbers, ending together.
             for k in np.flatnonzero(live & ~first):
                 j = same[p][k]
                 obs[p][k], returns[p][k], lengths[p][k] = obs[p][j], returns[p][j], lengths[p][j]
                 done[p][k], successes[p][k] = done[p][j], successes[p][j]
+                unstable[p][k] = unstable[p][j]
     for p, path in round_.videos.items():
         import imageio  # only for videos
 
         imageio.mimsave(path, frames[p], fps=episodes[p][0].metadata.get("render_fps", 30))
     result: dict = {p: {"returns": returns[p].tolist(), "lengths": lengths[p].tolist(),
-                        "successes": successes[p]} for p in prefixes}
+                        "successes": successes[p], "unstable": unstable[p]} for p in prefixes}
     # Distinct start states: how many episodes each deterministic action stepped.
     result["distinct_episodes"] = len(set(starts.tolist()))
     for p in prefixes:

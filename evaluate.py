@@ -414,7 +414,7 @@ def merge(results: list[dict], selectors: list[str]) -> tuple[dict, dict]:
     states; and the shift statistics pooled over the jobs' visited states (each is a mean over
     states, so a job weighs as many states as it visited)."""
     merged = {s: {k: [x for r in results for x in r[s][k]]
-                  for k in ("returns", "lengths", "successes")} for s in selectors}
+                  for k in ("returns", "lengths", "successes", "unstable")} for s in selectors}
     for s in selectors:
         if "shares" in results[0][s]:
             # q_best chose once per step of each of its episodes: a job's steps are its states.
@@ -557,7 +557,10 @@ def write_outputs(out: Path, results: dict, seeds: list[int], summary: dict) -> 
         fail(f"--out {out}: cannot write there ({error.strerror}); give a writable folder")
 
 
-EPISODE_COLUMNS = ["selector", "episode", "reset_seed", "return", "length", "success"]
+# physics_unstable (1: a physics blow-up ended the episode) came last, after the others: a
+# reader that picks columns by name reads the files from before it and after alike.
+EPISODE_COLUMNS = ["selector", "episode", "reset_seed", "return", "length", "success",
+                   "physics_unstable"]
 
 
 def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
@@ -566,7 +569,7 @@ def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
         for k, seed in enumerate(seeds):
             success = episodes["successes"][k]
             yield [selector, k, seed, repr(episodes["returns"][k]), episodes["lengths"][k],
-                   "" if success is None else success]
+                   "" if success is None else success, int(episodes["unstable"][k])]
 
 
 def write_files(out: Path, results: dict, seeds: list[int], summary: dict) -> None:
@@ -739,6 +742,10 @@ PARTIAL_FILE = "evaluation.partial.json"
 RESUME_SETTINGS = ("source", "episodes", "eval_round", "reset_noise", "selectors", "solver",
                    "steps")
 EPISODES_HEADER = ["step", *EPISODE_COLUMNS]
+# A run's episodes.csv as evaluate.py wrote it before physics_unstable: its rows are resumed with
+# that cell empty ("not recorded": the episodes are not run again to learn it), so that the
+# rewritten file has one header, and a summary tells such policies from ones without blow-ups.
+OLD_EPISODES_HEADER = EPISODES_HEADER[:-1]
 SHIFT_HEADER = ["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}" for c in Q_BEST_CANDIDATES)]
 # One policy's rows: its episodes.csv rows and its shift.csv row, each starting with its step.
 PolicyRows = tuple[list[list], list]
@@ -792,7 +799,8 @@ def finished_policies(out: Path, policies: list[Policy], selectors: list[str],
     reset seeds this command gives it, and its shift row), by (run, step)."""
     finished = {}
     for run, group in itertools.groupby(policies, key=lambda p: p.run):
-        episodes = rows_by_step(out / run / "episodes.csv", EPISODES_HEADER)
+        episodes = rows_by_step(out / run / "episodes.csv", EPISODES_HEADER,
+                                older=OLD_EPISODES_HEADER)
         shifts = rows_by_step(out / run / "shift.csv", SHIFT_HEADER)
         for policy in group:
             seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
@@ -803,18 +811,22 @@ def finished_policies(out: Path, policies: list[Policy], selectors: list[str],
     return finished
 
 
-def rows_by_step(path: Path, header: list[str]) -> dict[int, list[list[str]]]:
+def rows_by_step(path: Path, header: list[str], older: list[str] | None = None
+                 ) -> dict[int, list[list[str]]]:
     """A run file's rows by their step, as text (rewritten, they are the same bytes); none if
-    the file is missing or has another header."""
+    the file is missing or has another header. Rows under `older` (header's first columns) get
+    empty cells for the columns it lacks."""
     if not path.is_file():
         return {}
     with open(path, newline="") as f:
         reader = csv.reader(f)
-        if next(reader, None) != header:
+        found = next(reader, None)
+        if found != header and (older is None or found != older):
             return {}
+        padding = [""] * (len(header) - len(found))
         grouped: dict[int, list[list[str]]] = {}
         for row in reader:
-            grouped.setdefault(int(row[0]), []).append(row)
+            grouped.setdefault(int(row[0]), []).append(row + padding)
     return grouped
 
 
@@ -854,28 +866,36 @@ def write_atomically(path: Path, text: str) -> None:
     checkpoints.atomic_write(path, write)
 
 
-def read_campaign(out: Path) -> tuple[dict, dict]:
-    """evaluation.json, and the returns by (run, step, selector), in episode order."""
+def read_campaign(out: Path) -> tuple[dict, dict, dict]:
+    """evaluation.json, the returns by (run, step, selector) in episode order, and by the same
+    keys the episodes a physics blow-up ended (None where episodes.csv does not record it: an
+    older file, or rows kept from one)."""
     settings = json.loads((out / CAMPAIGN_FILE).read_text())
     returns: dict[tuple[str, int, str], list[float]] = {}
+    unstable: dict[tuple[str, int, str], int | None] = {}
     for run in settings["runs"]:
         path = out / run / "episodes.csv"
         if not path.is_file():
             fail(f"{path} is missing: {out} is incomplete; evaluate the campaign again")
         with open(path, newline="") as f:
             for row in csv.DictReader(f):
-                returns.setdefault((run, int(row["step"]), row["selector"]), []).append(
-                    float(row["return"]))
-    return settings, returns
+                key = (run, int(row["step"]), row["selector"])
+                returns.setdefault(key, []).append(float(row["return"]))
+                flag, count = row.get("physics_unstable"), unstable.get(key, 0)
+                unstable[key] = None if not flag or count is None else count + int(flag)
+    return settings, returns, unstable
 
 
 def standard_error(values: np.ndarray) -> float:
     return float(values.std(ddof=1) / math.sqrt(len(values))) if len(values) > 1 else math.nan
 
 
-def per_seed_rows(settings: dict, returns: dict) -> list[dict]:
+def per_seed_rows(settings: dict, returns: dict, unstable: dict | None = None) -> list[dict]:
     """Per run, step and selector: the mean return and its standard error over the episodes,
-    and the paired difference against tanh(mu) from the same starts with its standard error."""
+    the paired difference against tanh(mu) from the same starts with its standard error and,
+    where any episode of the campaign records it, unstable_ends: the episodes a physics blow-up
+    ended (None where not recorded). A folder of older files only keeps its summary as it was."""
+    recorded = unstable is not None and any(v is not None for v in unstable.values())
     rows, order = [], {s: i for i, s in enumerate(settings["selectors"])}
     for (run, step, selector), values in sorted(returns.items(),
                                                 key=lambda kv: (*kv[0][:2], order[kv[0][2]])):
@@ -890,6 +910,8 @@ def per_seed_rows(settings: dict, returns: dict) -> list[dict]:
             row |= {"tanh_mu_return_mean": float(np.mean(baseline)),
                     "difference_mean": diffs.mean(), "difference_se": standard_error(diffs),
                     "share_better": float(np.mean(diffs > 0))}
+        if recorded:
+            row["unstable_ends"] = unstable.get((run, step, selector))
         rows.append(row)
     return rows
 
@@ -931,8 +953,8 @@ def summarize_campaign(out: Path, reps: int, seed: int) -> None:
     """From the CSVs under out: per_seed.csv, across_seeds.csv, summary.md (printed) and
     paired_difference.png. The precision check: each seed's paired difference should have a
     standard error below PRECISION of tanh(mu)'s mean return."""
-    settings, returns = read_campaign(out)
-    per_seed = per_seed_rows(settings, returns)
+    settings, returns, unstable = read_campaign(out)
+    per_seed = per_seed_rows(settings, returns, unstable)
     across = across_seed_rows(per_seed, reps, seed)
     write_rows(out / "per_seed.csv", per_seed)
     write_rows(out / "across_seeds.csv", across)
@@ -945,6 +967,11 @@ def summarize_campaign(out: Path, reps: int, seed: int) -> None:
 
 def _num(x: float, digits: int = 1) -> str:
     return "n/a" if x is None or math.isnan(x) else f"{x:+.{digits}f}"
+
+
+def _count(ends: dict, row: dict, selector: str) -> str:
+    count = ends.get((row["run"], row["step"], selector))
+    return "n/r" if count is None else str(count)
 
 
 def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
@@ -975,12 +1002,20 @@ def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
                      f"[{_num(r['t_low'])}, {_num(r['t_high'])}] | "
                      f"[{_num(r['bootstrap_low'])}, {_num(r['bootstrap_high'])}] | "
                      f"{r['seeds_won']} of {r['seeds']} |")
+    # Blow-up counts only where some episodes.csv records them: an older folder's summary
+    # stays as it was.
+    ends = {(r["run"], r["step"], r["selector"]): r["unstable_ends"] for r in per_seed
+            if "unstable_ends" in r}
     lines += ["", "## Per seed", "",
               "Paired difference against tanh(mu) with its standard error over the episodes; "
               f"precision: that standard error as a share of tanh(mu)'s mean return (asked: below "
-              f"{PRECISION:.0%}).", "",
+              f"{PRECISION:.0%})"
+              + ("; unstable ends: the episodes a physics blow-up ended, the action's / tanh(mu)'s "
+                 "(n/r: not recorded, evaluated before episodes.csv had physics_unstable)."
+                 if ends else "."), "",
               "| task | seed | step | action | return | tanh(mu) | minus tanh(mu) | SE | "
-              "precision | better in |", "|---|---|---|---|---|---|---|---|---|---|"]
+              "precision | better in |" + (" unstable ends |" if ends else ""),
+              "|---|---|---|---|---|---|---|---|---|---|" + ("---|" if ends else "")]
     failed = []
     for r in per_seed:
         if "difference_mean" not in r:
@@ -992,7 +1027,9 @@ def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
         lines.append(f"| {r['env_id']} | {r['seed']} | {r['step']} | {r['selector']} | "
                      f"{r['return_mean']:.1f} | {r['tanh_mu_return_mean']:.1f} | "
                      f"{_num(r['difference_mean'])} | {r['difference_se']:.1f} | "
-                     f"{share:.1%} | {r['share_better']:.0%} |")
+                     f"{share:.1%} | {r['share_better']:.0%} |"
+                     + (f" {_count(ends, r, r['selector'])} / {_count(ends, r, 'tanh_mu')} |"
+                        if ends else ""))
     lines += ["", f"Precision check: {'every' if not failed else 'not every'} seed's paired "
               f"difference has a standard error below {PRECISION:.0%} of tanh(mu)'s mean return"
               + (f"; above it: {', '.join(failed)} (more --episodes would narrow it)."

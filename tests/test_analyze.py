@@ -1083,6 +1083,27 @@ def test_robust_evaluation_matches_a_hand_computation(tmp_path):
     assert "IQM here is the mean of the middle 4 of 6 runs" in text
 
 
+def test_robust_folders_read_alike_with_and_without_physics_unstable(tmp_path):
+    """evaluate.py's episodes.csv gained physics_unstable (last; empty where not recorded):
+    folders written before it and after read to the same returns."""
+    from evaluate import EPISODES_HEADER
+
+    written = write_robust_folder(tmp_path / "old", ROBUST_TASKS, seeds=2)
+    new = tmp_path / "new"
+    write_robust_folder(new, ROBUST_TASKS, seeds=2)
+    assert ROBUST_HEADER.split(",") == EPISODES_HEADER[:-1]
+    for path in new.glob("*/episodes.csv"):
+        header, *rows = path.read_text().splitlines()
+        path.write_text("\n".join([",".join(EPISODES_HEADER), *(
+            f"{row},{('', '0', '1')[k % 3]}" for k, row in enumerate(rows))]) + "\n")
+    old, fresh = (analyze.load_robust([tmp_path / name]) for name in ("old", "new"))
+    assert old.returns.keys() == fresh.returns.keys() == written.keys()
+    for key, selectors in written.items():
+        for selector, values in selectors.items():
+            assert np.array_equal(old.returns[key][selector], values)
+            assert np.array_equal(fresh.returns[key][selector], values)
+
+
 def test_without_robust_the_section_writes_nothing(tmp_path):
     out = tmp_path / "out"
     assert run_analysis(write_small_runs(tmp_path / "runs"), out) == 0

@@ -57,6 +57,25 @@ def test_episodes_of_different_lengths_in_one_batch_keep_their_own_return_and_le
     assert row["tanh_mu_success_rate"] == pytest.approx(np.mean([episode_of(s)[2] for s in seeds]))
 
 
+def test_an_episode_a_physics_blow_up_ended_is_marked_unstable_and_only_it():
+    # Odd seeds blow up at their last step, even ones end normally; seed 5 again at the end is
+    # its first episode again (same start), not stepped: it must carry the first one's mark.
+    seeds = [5, 2, 7, 12, 5]  # lengths 6, 3, 8, 13, 6
+    actions = {"": "mode", "tanh_mu_": "tanh_mu", "sample_": "sample"}
+    result = run_round(Round("tests.toy_envs:OddBlowUp-v0", seeds, actions, ToyActor()))
+    assert result["distinct_episodes"] == 4
+    for prefix in actions:
+        assert result[prefix]["unstable"] == [True, False, True, False, True], prefix
+        assert result[prefix]["lengths"] == [episode_of(s)[0] for s in seeds]
+        # The blow-up's step pays nothing, as H1HandEnv's; an ordinary end, the seed's success.
+        assert result[prefix]["returns"][0] == pytest.approx(5 * episode_of(5)[1])
+        assert result[prefix]["successes"] == [None, True, None, True, None]
+    ordinary = run_round(Round(COUNTDOWN, seeds, {"": "mode"}, ToyActor()))
+    assert ordinary[""]["unstable"] == [False] * len(seeds)
+    # eval.csv's columns (training's) are what they were: no column for the blow-ups.
+    assert set(round_row(result, {"": "mode"})) == set(eval_columns({"": "mode"}, False))
+
+
 def test_a_round_is_the_same_in_process_and_in_any_number_of_workers():
     from sac_standard import Actor, TwinQ
 

@@ -673,3 +673,115 @@ def test_a_write_killed_midway_leaves_the_old_file(tmp_path, monkeypatch):
     with pytest.raises(Killed):
         evaluate.write_atomically(path, "new\r\n")
     assert path.read_bytes() == b"old\r\n"
+
+
+# --------------------------------------------------------------------------- physics blow-ups
+BLOW_UP = "tests.toy_envs:OddBlowUp-v0"  # episodes from odd reset seeds end in a blow-up
+BLOW_UP_ARGS = ("--episodes", "6", "--selectors", "mode", "tanh_mu", "--reps", "50")
+
+
+def _toy_weights(path: Path, nudge: float = 0.0) -> Path:
+    """An untrained actor of ours for the toy env, as final_model.pt holds one."""
+    import sac_corrected as sac
+
+    torch.manual_seed(0)
+    actor = sac.Actor(3, (8,), gym.make(BLOW_UP).action_space, -10.0, 2.0)
+    weights = {k: v + nudge * (k == "fc_mean.bias") for k, v in actor.state_dict().items()}
+    torch.save({"actor": weights, "config": {"env_id": BLOW_UP, "hidden_sizes": (8,),
+                                             "log_std_min": -10.0, "log_std_max": 2.0}}, path)
+    return path
+
+
+@pytest.fixture
+def blow_up_campaign(tmp_path) -> Path:
+    """Two toy runs (seeds 0 and 1), each with a snapshot at step 500 and its final weights at
+    1000."""
+    root = tmp_path / "campaign"
+    for seed in (0, 1):
+        run_dir = root / f"run{seed}"
+        (run_dir / "snapshots").mkdir(parents=True)
+        (run_dir / "config.json").write_text(json.dumps(
+            {"env_id": BLOW_UP, "seed": seed, "total_timesteps": 1000, "hidden_sizes": [8]}))
+        _toy_weights(run_dir / "final_model.pt")
+        _toy_weights(run_dir / "snapshots" / "step500.pt", nudge=0.1)
+    return root
+
+
+def without_unstable_column(folder: Path) -> None:
+    """Every run's episodes.csv under folder as evaluate.py wrote it before physics_unstable."""
+    for path in folder.glob("*/episodes.csv"):
+        with open(path, newline="") as f:
+            rows = list(csv.reader(f))
+        assert rows[0][-1] == "physics_unstable"
+        path.write_text(evaluate.csv_text([row[:-1] for row in rows]), newline="")
+
+
+def test_episodes_csv_marks_the_episodes_a_physics_blow_up_ended(tmp_path, capsys):
+    out = tmp_path / "out"
+    code, _, err = run(capsys, str(_toy_weights(tmp_path / "final_model.pt")), *BLOW_UP_ARGS,
+                       "--out", str(out))
+    assert code == 0, err
+    with open(out / "episodes.csv", newline="") as f:
+        assert next(csv.reader(f)) == evaluate.EPISODE_COLUMNS
+    rows = read_rows(out / "episodes.csv")
+    assert evaluate.EPISODE_COLUMNS[-1] == "physics_unstable" and len(rows) == 2 * 6
+    marks = [r["physics_unstable"] for r in rows]
+    assert marks == [str(int(r["reset_seed"]) % 2) for r in rows]
+    assert {"0", "1"} <= set(marks)  # both kinds of end among these starts
+
+
+def test_a_campaign_counts_blow_ups_and_summarises_and_resumes_older_folders(
+        blow_up_campaign, tmp_path, capsys):
+    whole = tmp_path / "whole"
+    code, _, err = run(capsys, str(blow_up_campaign), "--out", str(whole), *BLOW_UP_ARGS)
+    assert code == 0, err
+    blow_ups = {seed: sum(s % 2 for s in eval_seeds(seed, 0, 6)) for seed in (0, 1)}
+    assert blow_ups[0] != blow_ups[1]  # the counts are told apart per run
+    for seed in (0, 1):
+        rows = read_rows(whole / f"run{seed}" / "episodes.csv")
+        assert [r["physics_unstable"] for r in rows] == [str(int(r["reset_seed"]) % 2)
+                                                         for r in rows]
+    per_seed = read_rows(whole / "per_seed.csv")
+    assert {(r["seed"], r["step"], r["selector"], r["unstable_ends"]) for r in per_seed} == {
+        (str(seed), step, selector, str(blow_ups[seed])) for seed in (0, 1)
+        for step in ("500", "1000") for selector in ("mode", "tanh_mu")}
+    summary = (whole / "summary.md").read_text()
+    assert "unstable ends" in summary and f"| {blow_ups[1]} / {blow_ups[1]} |" in summary
+
+    # A complete folder from before the column: its summary as before, without the counts.
+    old = tmp_path / "old"
+    shutil.copytree(whole, old)
+    without_unstable_column(old)
+    code, _, err = run(capsys, str(old), "--reps", "50")
+    assert code == 0, err
+    old_per_seed = read_rows(old / "per_seed.csv")
+    assert old_per_seed == [{k: v for k, v in r.items() if k != "unstable_ends"}
+                            for r in per_seed]
+    assert "unstable" not in (old / "summary.md").read_text()
+    assert (old / "across_seeds.csv").read_text() == (whole / "across_seeds.csv").read_text()
+
+    # An unfinished folder from before the column, step 500 not evaluated yet: the resume keeps
+    # the older rows (physics_unstable empty: not recorded), adds step 500's, one header.
+    settings = json.loads((old / "evaluation.json").read_text())
+    (old / evaluate.PARTIAL_FILE).write_text(json.dumps(settings | {"steps": []}))
+    (old / "evaluation.json").unlink()
+    for seed in (0, 1):
+        for name in ("episodes.csv", "shift.csv"):
+            path = old / f"run{seed}" / name
+            lines = path.read_text().splitlines(keepends=True)
+            path.write_text("".join(line for line in lines if not line.startswith("500,")),
+                            newline="")
+    code, _, err = run(capsys, str(blow_up_campaign), "--out", str(old), *BLOW_UP_ARGS)
+    assert code == 0 and "2 of 4 policies already evaluated, 2 left" in err, err
+    for seed in (0, 1):
+        with open(whole / f"run{seed}" / "episodes.csv", newline="") as f:
+            expected = [row[:-1] + [""] if row[0] == "1000" else row for row in csv.reader(f)]
+        with open(old / f"run{seed}" / "episodes.csv", newline="") as f:
+            assert list(csv.reader(f)) == expected
+        name = f"run{seed}/shift.csv"
+        assert (old / name).read_text() == (whole / name).read_text()
+    assert {(r["seed"], r["step"], r["unstable_ends"]) for r in read_rows(old / "per_seed.csv")} \
+        == {(str(seed), step, str(blow_ups[seed]) if step == "500" else "")
+            for seed in (0, 1) for step in ("500", "1000")}
+    summary = (old / "summary.md").read_text()
+    assert "| n/r / n/r |" in summary and f"| {blow_ups[0]} / {blow_ups[0]} |" in summary

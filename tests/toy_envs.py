@@ -137,3 +137,26 @@ class BlowUp(Countdown):
 
 
 gym.register("BlowUp-v0", entry_point=BlowUp, max_episode_steps=50)
+
+
+class OddBlowUp(Countdown):
+    """A Countdown (its episode from episode_of) whose episodes from odd reset seeds end in a
+    physics blow-up, reported as BlowUp's, at their last step instead of ending normally. Its
+    start state is its reset seed (its steps draw no randomness), as H1HandEnv.start_state tells
+    it: an episode whose seed repeats an earlier one's is that episode again."""
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self.start = seed
+        return super().reset(seed=seed, options=options)
+
+    def step(self, action):
+        if self.left == 1 and self.start is not None and self.start % 2:
+            self.left = 0
+            return self._obs(), 0.0, False, True, {"physics_unstable": True}
+        return super().step(action)
+
+    def start_state(self) -> bytes:
+        return str(self.start).encode()
+
+
+gym.register("OddBlowUp-v0", entry_point=OddBlowUp)
