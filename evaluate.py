@@ -890,12 +890,12 @@ def standard_error(values: np.ndarray) -> float:
     return float(values.std(ddof=1) / math.sqrt(len(values))) if len(values) > 1 else math.nan
 
 
-def per_seed_rows(settings: dict, returns: dict, unstable: dict | None = None) -> list[dict]:
+def per_seed_rows(settings: dict, returns: dict, unstable: dict) -> list[dict]:
     """Per run, step and selector: the mean return and its standard error over the episodes,
     the paired difference against tanh(mu) from the same starts with its standard error and,
     where any episode of the campaign records it, unstable_ends: the episodes a physics blow-up
     ended (None where not recorded). A folder of older files only keeps its summary as it was."""
-    recorded = unstable is not None and any(v is not None for v in unstable.values())
+    recorded = any(v is not None for v in unstable.values())
     rows, order = [], {s: i for i, s in enumerate(settings["selectors"])}
     for (run, step, selector), values in sorted(returns.items(),
                                                 key=lambda kv: (*kv[0][:2], order[kv[0][2]])):
