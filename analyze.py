@@ -631,8 +631,9 @@ def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
 ROBUST_SETTINGS_FILE = "evaluation.json"
 ROBUST_EPISODES_FILE = "episodes.csv"
 # Read by name, the other columns passed over: folders from before evaluate.py added
-# physics_unstable (last) read as those after.
+# physics_unstable (last) read as those after, their blow-ups "not recorded".
 ROBUST_COLUMNS = ("step", "selector", "episode", "return")  # of evaluate.py's EPISODE_COLUMNS
+ROBUST_UNSTABLE_COLUMN = "physics_unstable"  # 1: a physics blow-up ended the episode
 
 
 @dataclasses.dataclass
@@ -643,6 +644,9 @@ class RobustEpisodes:
     returns: dict[tuple[str, int, int], dict[str, np.ndarray]]
     selectors: list[str]  # every selector: the evaluation.json files' order, then any unlisted
     settings: dict[Path, dict]
+    # (task, seed, step) -> selector -> episodes a physics blow-up ended (None: not recorded)
+    unstable: dict[tuple[str, int, int], dict[str, int | None]] = dataclasses.field(
+        default_factory=dict)
 
 
 def read_robust_settings(folder: Path) -> dict:
@@ -665,8 +669,10 @@ def read_robust_settings(folder: Path) -> dict:
     return settings
 
 
-def read_episodes_csv(path: Path) -> dict[int, dict[str, tuple[np.ndarray, np.ndarray]]]:
-    """A run's episodes.csv: step -> selector -> (episode numbers, returns), by episode."""
+def read_episodes_csv(path: Path
+                      ) -> dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    """A run's episodes.csv: step -> selector -> (episode numbers, returns, physics_unstable),
+    by episode; physics_unstable is NaN where not recorded (an empty cell, or no column)."""
     if not path.is_file():
         raise AnalysisError(f"{path} is missing: {path.parent.parent} is incomplete; evaluate "
                             "the campaign again")
@@ -678,19 +684,23 @@ def read_episodes_csv(path: Path) -> dict[int, dict[str, tuple[np.ndarray, np.nd
         raise AnalysisError(f"{path}: its header {header} lacks {missing}; evaluate.py writes "
                             f"{ROBUST_EPISODES_FILE} with at least {list(ROBUST_COLUMNS)}")
     where = [header.index(name) for name in ROBUST_COLUMNS]
-    found: dict[tuple[int, str], list[tuple[float, float]]] = {}
+    unstable_at = header.index(ROBUST_UNSTABLE_COLUMN) if ROBUST_UNSTABLE_COLUMN in header \
+        else None
+    found: dict[tuple[int, str], list[tuple[float, float, float]]] = {}
     for i, row in enumerate(rows[1:], start=2):
         if len(row) != len(header):
             raise AnalysisError(f"{path}, row {i}: {len(row)} fields where the header has "
                                 f"{len(header)}; evaluate the campaign again")
         step, selector, episode, value = (row[j].strip() for j in where)
         number = functools.partial(_parse_number, path=path, row=i, optional=False)
+        flag = math.nan if unstable_at is None else _parse_number(
+            row[unstable_at], path, i, ROBUST_UNSTABLE_COLUMN, optional=True)
         found.setdefault((int(number(step, column="step")), selector), []).append(
-            (number(episode, column="episode"), number(value, column="return")))
-    by_step: dict[int, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
-    for (step, selector), pairs in found.items():
-        episodes, returns = np.array(sorted(pairs)).T
-        by_step.setdefault(step, {})[selector] = (episodes, returns)
+            (number(episode, column="episode"), number(value, column="return"), flag))
+    by_step: dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    for (step, selector), rows_found in found.items():
+        episodes, returns, flags = np.array(sorted(rows_found)).T
+        by_step.setdefault(step, {})[selector] = (episodes, returns, flags)
     return by_step
 
 
@@ -719,11 +729,14 @@ def load_robust(folders: Sequence[Path]) -> RobustEpisodes:
                         f"folders ({sources[key]} and {path}); pass each evaluation once")
                 sources[key] = path
                 robust.returns[key] = robust_selectors(path, step, selectors)
+                robust.unstable[key] = {s: None if np.isnan(flags).any() else int(flags.sum())
+                                        for s, (_, _, flags) in selectors.items()}
                 robust.selectors += [s for s in selectors if s not in robust.selectors]
     return robust
 
 
-def robust_selectors(path: Path, step: int, selectors: dict[str, tuple[np.ndarray, np.ndarray]]
+def robust_selectors(path: Path, step: int,
+                     selectors: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
                      ) -> dict[str, np.ndarray]:
     """One policy's returns by selector, checked to be paired with its tanh(mu) episodes."""
     if TANH_MU.name not in selectors:
@@ -732,12 +745,12 @@ def robust_selectors(path: Path, step: int, selectors: dict[str, tuple[np.ndarra
             f"compared with tanh(mu) of the same actor, so evaluate with --selectors ... "
             f"{TANH_MU.name}")
     baseline = selectors[TANH_MU.name][0]
-    for selector, (episodes, _) in selectors.items():
+    for selector, (episodes, _, _) in selectors.items():
         if not np.array_equal(episodes, baseline):
             raise AnalysisError(
                 f"{path}, step {format_step(step)}: {selector} and {TANH_MU.name} played "
                 "different episodes, so they are not paired; evaluate the campaign again")
-    return {selector: returns for selector, (_, returns) in selectors.items()}
+    return {selector: returns for selector, (_, returns, _) in selectors.items()}
 
 
 @dataclasses.dataclass
@@ -748,6 +761,10 @@ class RobustStep:
     returns: dict[str, np.ndarray]  # selector -> mean return over each seed's episodes
     differences: dict[str, np.ndarray]  # selector but tanh_mu -> mean of (it - tanh_mu) per seed
     episodes: np.ndarray  # episodes per seed (of tanh_mu, which every seed played)
+    # selector -> episodes a physics blow-up ended, over its seeds (None: a seed did not record),
+    # and the episodes it played over its seeds
+    unstable: dict[str, int | None] = dataclasses.field(default_factory=dict)
+    played: dict[str, int] = dataclasses.field(default_factory=dict)
 
 
 def robust_paired_differences(robust: RobustEpisodes) -> dict[str, dict[int, RobustStep]]:
@@ -760,6 +777,10 @@ def robust_paired_differences(robust: RobustEpisodes) -> dict[str, dict[int, Rob
         at.episodes = np.append(at.episodes, baseline.size)
         for selector in (s for s in robust.selectors if s in selectors):
             at.seeds.setdefault(selector, []).append(seed)
+            ends, so_far = robust.unstable.get((task, seed, step), {}).get(selector), \
+                at.unstable.get(selector, 0)
+            at.unstable[selector] = None if ends is None or so_far is None else so_far + ends
+            at.played[selector] = at.played.get(selector, 0) + baseline.size
             at.returns[selector] = np.append(at.returns.get(selector, []),
                                              selectors[selector].mean())
             if selector != TANH_MU.name:
@@ -1524,6 +1545,7 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
                for s, at in steps.items() for a, r in at.returns.items()}
     estimates = seed_mean_estimates(differences, args.reps, args.seed)
     return_estimates = seed_mean_estimates(returns, args.reps, args.seed)
+    recorded = blowups_recorded(by_task)
     table = []
     for task, steps in by_task.items():
         bar = SUCCESS_BARS.get(task)
@@ -1533,9 +1555,15 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
                 n = action_returns.size
                 mean_return = return_estimates[key, action]
                 report.row("robust_return", task, action, "return", step, n, *mean_return)
+                ends = at.unstable.get(action)
+                if ends is not None:
+                    report.row("robust_unstable_ends", task, action, "episodes", step, n, ends,
+                               math.nan, math.nan)
+                blowups = [] if not recorded else \
+                    ["n/r" if ends is None else f"{ends} of {at.played[action]}"]
                 cells = [task, format_step(step), action, n, episodes, f"{mean_return[0]:.1f}"]
                 if action not in at.differences:
-                    table.append([*cells, "(the baseline)", "", ""])
+                    table.append([*cells, "(the baseline)", "", "", *blowups])
                     continue
                 diffs, boot = at.differences[action], estimates[key, action]
                 t_values, won = t_interval(diffs), int((diffs > 0).sum())
@@ -1548,8 +1576,15 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
                                *(v / bar for v in t_values))
                 report.row("robust_difference", task, action, "share_won", step, n, won / n,
                            math.nan, math.nan)
-                table.append([*cells, *seed_cells(diffs, boot, 1), f"{won} of {n}"])
+                table.append([*cells, *seed_cells(diffs, boot, 1), f"{won} of {n}", *blowups])
     return table, estimates
+
+
+def blowups_recorded(by_task: dict[str, dict[int, RobustStep]]) -> bool:
+    """Whether any policy's episodes record physics blow-ups (evaluate.py since it wrote
+    physics_unstable)."""
+    return any(ends is not None for steps in by_task.values() for at in steps.values()
+               for ends in at.unstable.values())
 
 
 def robust_over_tasks(report: Report, analysis: Analysis,
@@ -1719,9 +1754,13 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
         lines += ["", f"With {FEW_SEEDS} seeds or fewer the percentile bootstrap is narrower "
                   "than the data allow (it resamples only the few values seen): read the "
                   "t-interval (with two seeds, the two values)."]
+    if blowups_recorded(by_task):
+        lines += ["", "'blow-ups': the action's episodes, over its seeds, that a physics blow-up "
+                  "ended (MuJoCo's instability warning; the return is what was earned until "
+                  "then). n/r: not recorded (evaluated before episodes.csv had physics_unstable)."]
     lines += ["", markdown_table(["task", "step", "action", "seeds", "episodes per seed",
                                   "return", "minus tanh(mu) (bootstrap CI)", "t-interval",
-                                  "won"], table)]
+                                  "won", *["blow-ups"] * blowups_recorded(by_task)], table)]
     over = None
     unbarred = [t for t in by_task if t not in SUCCESS_BARS]
     if unbarred:

@@ -488,7 +488,8 @@ def summarise(results: dict, shift: dict, args: Args, info: dict, env_id: str,
         summary["selectors"][selector] = {
             "return_mean": mean, "ci_low": low, "ci_high": high,
             "return_std": float(np.std(episodes["returns"])),
-            "length_mean": float(np.mean(episodes["lengths"]))}
+            "length_mean": float(np.mean(episodes["lengths"])),
+            "unstable_ends": int(np.sum(episodes["unstable"]))}
         if "shares" in episodes:
             summary["selectors"][selector]["choice_shares"] = episodes["shares"]
     if "tanh_mu" in results:
@@ -529,6 +530,12 @@ def print_summary(summary: dict) -> None:
             else f"{'(one episode)':>24}"
         print(f"{name:<10} {s['return_mean']:12.2f}  {ci}  {s['return_std']:9.2f}  "
               f"{s['length_mean']:7.1f}")
+    ends = {name: s["unstable_ends"] for name, s in summary["selectors"].items()
+            if s["unstable_ends"]}
+    if ends:
+        print("physics blow-ups ended " + ", ".join(
+            f"{n} of {name}'s episodes" for name, n in ends.items()) + " (the return is what "
+            "was earned until then)")
     for name, s in summary["selectors"].items():
         if "choice_shares" in s:
             shares = ", ".join(f"{c} {100 * v:.1f}%" for c, v in s["choice_shares"].items())

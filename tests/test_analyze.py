@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -1102,6 +1103,41 @@ def test_robust_folders_read_alike_with_and_without_physics_unstable(tmp_path):
         for selector, values in selectors.items():
             assert np.array_equal(old.returns[key][selector], values)
             assert np.array_equal(fresh.returns[key][selector], values)
+
+
+def mark_blowups(folder: Path, unstable: Callable[[int, str, int], str]) -> None:
+    """Give every episodes.csv under folder evaluate.py's physics_unstable column, the cell of
+    (step, selector, episode) from unstable."""
+    from evaluate import EPISODES_HEADER
+
+    for path in folder.glob("*/episodes.csv"):
+        _, *rows = path.read_text().splitlines()
+        marked = [f"{row},{unstable(int(step), selector, int(k))}"
+                  for row in rows for step, selector, k, *_ in [row.split(",")]]
+        path.write_text("\n".join([",".join(EPISODES_HEADER), *marked]) + "\n")
+
+
+def test_robust_counts_physics_blowups_per_action_and_step(tmp_path):
+    """The episodes a physics blow-up ended, summed over seeds, per task, step and action; a
+    policy evaluated before physics_unstable existed makes its (task, step, action) n/r."""
+    runs = write_small_runs(tmp_path / "runs")
+    write_robust_folder(tmp_path / "new", ROBUST_TASKS[:1], seeds=2, steps=(1_000_000,))
+    # the mode blows up in episodes 0 and 2 of each seed, the mean in episode 3, tanh(mu) never
+    mark_blowups(tmp_path / "new", lambda step, selector, k: str(int(
+        (selector == "mode" and k in (0, 2)) or (selector == "mean" and k == 3))))
+    write_robust_folder(tmp_path / "old", ROBUST_TASKS[:1], seeds=2, steps=(500_000,))
+    out = tmp_path / "out"
+    assert run_analysis(runs, out, "--robust", str(tmp_path / "new"), str(tmp_path / "old")) == 0
+    ends = {(r["step"], r["group"]): float(r["estimate"]) for r in read_rows(out)
+            if r["section"] == "robust_unstable_ends"}
+    assert ends == {("1000000", "mode"): 4.0, ("1000000", "tanh_mu"): 0.0,
+                    ("1000000", "mean"): 2.0}
+    text = (out / "summary.md").read_text()
+    assert "| blow-ups |" in text and "| 4 of 8 |" in text and "| 2 of 8 |" in text
+    assert "| n/r |" in text  # the 500k policies, evaluated without the column
+    # without any recorded blow-up there is no column
+    assert run_analysis(runs, tmp_path / "out2", "--robust", str(tmp_path / "old")) == 0
+    assert "blow-ups" not in (tmp_path / "out2" / "summary.md").read_text()
 
 
 def test_without_robust_the_section_writes_nothing(tmp_path):

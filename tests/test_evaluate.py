@@ -718,8 +718,8 @@ def without_unstable_column(folder: Path) -> None:
 
 def test_episodes_csv_marks_the_episodes_a_physics_blow_up_ended(tmp_path, capsys):
     out = tmp_path / "out"
-    code, _, err = run(capsys, str(_toy_weights(tmp_path / "final_model.pt")), *BLOW_UP_ARGS,
-                       "--out", str(out))
+    code, printed, err = run(capsys, str(_toy_weights(tmp_path / "final_model.pt")),
+                             *BLOW_UP_ARGS, "--out", str(out))
     assert code == 0, err
     with open(out / "episodes.csv", newline="") as f:
         assert next(csv.reader(f)) == evaluate.EPISODE_COLUMNS
@@ -728,6 +728,12 @@ def test_episodes_csv_marks_the_episodes_a_physics_blow_up_ended(tmp_path, capsy
     marks = [r["physics_unstable"] for r in rows]
     assert marks == [str(int(r["reset_seed"]) % 2) for r in rows]
     assert {"0", "1"} <= set(marks)  # both kinds of end among these starts
+    # summary.json and the printed summary count them per action
+    summary = json.loads((out / "summary.json").read_text())
+    for selector in ("mode", "tanh_mu"):
+        ends = sum(r["physics_unstable"] == "1" for r in rows if r["selector"] == selector)
+        assert summary["selectors"][selector]["unstable_ends"] == ends > 0
+        assert f"{ends} of {selector}'s episodes" in printed
 
 
 def test_a_campaign_counts_blow_ups_and_summarises_and_resumes_older_folders(
