@@ -189,6 +189,11 @@ class AnalysisError(Exception):
 # ============================================================================== the data layer
 # Run folders in, arrays out: load -> pair -> align -> paired differences -> normalise. Nothing
 # here writes a report; the notes it returns (runs skipped, cut, left out) go to summary.md.
+def counted(n: int | str, noun: str) -> str:
+    """'1 seed', '3 seeds', '2 or 3 seeds'."""
+    return f"{n} {noun}" + ("" if str(n) == "1" else "s")
+
+
 def format_step(step: int | float) -> str:
     """Steps as people write them: 10M, 2.5M, 250k, 1,234."""
     step = int(step)
@@ -1138,7 +1143,7 @@ def found_table(runs: Runs, groups: list[str]) -> str:
                 continue
             span = format_step(min(last)) + (f"-{format_step(max(last))}"
                                              if max(last) > min(last) else "")
-            cells.append(f"{len(last)} seeds, to step {span}")
+            cells.append(f"{counted(len(last), 'seed')}, to step {span}")
         rows.append([task, *cells])
     return markdown_table(["task", *groups], rows)
 
@@ -1450,7 +1455,8 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
                           seed_cells(diffs / scale, scaled)[0], f"{won} of {n}"])
             name = f"{labels(algorithm_of(group))}: {action_of(group)}, " \
                 if len(by_group) > 1 else ""
-            row_labels[task, group] = (f"{task}, {format_step(step)}\n{name}n = {n} seeds"
+            row_labels[task, group] = (f"{task}, {format_step(step)}\n{name}n = "
+                                       f"{counted(n, 'seed')}"
                                        + (", one episode per seed" if single else ""))
     seeds = [d.size for by_group in differences.values() for d in by_group.values()]
     lines = ["Per seed, at each task's scored step: the return of an evaluation action minus "
@@ -1837,7 +1843,7 @@ def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dic
         n = " or ".join(map(str, sorted(seeds)))
         how = (f"thin: each round's mean over seeds; thick: mean of the last {ROLLING_ROUNDS} "
                "rounds" if rolling else "mean over seeds, 95% bootstrap CI; thin: each seed")
-        ax.set_title(f"{task}, n = {n} seeds\n{how}", fontsize="medium")
+        ax.set_title(f"{task}, n = {counted(n, 'seed')}\n{how}", fontsize="medium")
         ax.set_ylabel("Return minus tanh(mu)'s")
         ax.legend(fontsize="small", frameon=False)
         for ax, column, title in zip(row[1:], OVER_TRAINING_SHIFT_COLUMNS, titles, strict=True):
