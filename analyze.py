@@ -782,8 +782,7 @@ def robust_paired_differences(robust: RobustEpisodes) -> dict[str, dict[int, Rob
         at.episodes = np.append(at.episodes, baseline.size)
         for selector in (s for s in robust.selectors if s in selectors):
             at.seeds.setdefault(selector, []).append(seed)
-            ends, so_far = robust.unstable.get((task, seed, step), {}).get(selector), \
-                at.unstable.get(selector, 0)
+            ends, so_far = robust.unstable[task, seed, step][selector], at.unstable.get(selector, 0)
             at.unstable[selector] = None if ends is None or so_far is None else so_far + ends
             at.played[selector] = at.played.get(selector, 0) + baseline.size
             at.returns[selector] = np.append(at.returns.get(selector, []),
@@ -1760,13 +1759,14 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
         lines += ["", f"With {FEW_SEEDS} seeds or fewer the percentile bootstrap is narrower "
                   "than the data allow (it resamples only the few values seen): read the "
                   "t-interval (with two seeds, the two values)."]
-    if blowups_recorded(by_task):
+    recorded = blowups_recorded(by_task)
+    if recorded:
         lines += ["", "'blow-ups': the action's episodes, over its seeds, that a physics blow-up "
                   "ended (MuJoCo's instability warning; the return is what was earned until "
                   "then). n/r: not recorded (evaluated before episodes.csv had physics_unstable)."]
     lines += ["", markdown_table(["task", "step", "action", "seeds", "episodes per seed",
                                   "return", "minus tanh(mu) (bootstrap CI)", "t-interval",
-                                  "won", *["blow-ups"] * blowups_recorded(by_task)], table)]
+                                  "won", *(["blow-ups"] if recorded else [])], table)]
     over = None
     unbarred = [t for t in by_task if t not in SUCCESS_BARS]
     if unbarred:
