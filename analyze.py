@@ -23,8 +23,9 @@ The file, top to bottom (docs/analyze.md maps each figure to its section and fun
 - The data layer: load -> pair -> align -> paired differences -> normalise, run folders in,
   arrays out; and --robust's evaluate.py folders, read into episodes and per-seed paired
   differences. It writes no report.
-- Shared tools: the rliable estimators (and the Student-t interval beside them) and the report
-  writer (summary.csv rows, summary.md sections, figures, group labels and colours).
+- Shared tools: the rliable estimators (and the Student-t interval beside them), the report
+  writer (summary.csv rows, summary.md sections, figures, group labels and colours) and the
+  paper's Figures 6 and 7 as rliable draws them (from the protocol and the robust evaluation).
 - One section per report, in the order summary.md prints them, each with its computation, its
   figure and its table: the header and where the standard numbers come from; the paired
   difference (the headline); the robust evaluation (--robust: the headline from evaluate.py's
@@ -943,6 +944,19 @@ def per_task_mean(scores: np.ndarray) -> np.ndarray:
     return np.mean(scores, axis=0)
 
 
+AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
+
+
+def aggregate_metrics(scores: np.ndarray, gap: bool = True) -> np.ndarray:
+    """IQM, median, mean (and optimality gap) of a (runs x tasks) score matrix."""
+    values = [
+        metrics.aggregate_iqm(scores),
+        metrics.aggregate_median(scores),
+        metrics.aggregate_mean(scores),
+    ]
+    return np.array(values + [metrics.aggregate_optimality_gap(scores)] * gap)
+
+
 def seed_mean_estimates(samples: dict[tuple[str, str], np.ndarray], reps: int, seed: int) -> dict:
     """(task, group) -> (mean, low, high) of one value per seed, with a bootstrap CI.
 
@@ -1122,6 +1136,67 @@ class Analysis:
     def derived(self) -> list[str]:
         """Tasks whose standard group is the corrected runs' paired tanh(mu) evaluation."""
         return self.pairing.derived
+
+
+# ------------------------------------------------------- the paper's figures (rliable's plots)
+# Figures 6 and 7, drawn from the paper's protocol (7., 8.) and from the robust evaluation (3.).
+def plot_aggregate_metrics(point: dict, interval: dict, names: Sequence[str], colors: dict,
+                           xlabel: str, labels: Callable[[str], str], note: str = ""
+                           ) -> plt.Figure:
+    """Figure 6: aggregate metrics with their stratified-bootstrap CIs (rliable's own plot), and
+    `note` under it."""
+    # rliable's defaults (4 ticks at xx-large on 3.4-inch panels, its x label a fixed share of
+    # the height below) make tick labels collide with each other and, with two groups, with the
+    # label: wider panels, smaller ticks, a figure at least 2.2 inches high, the label placed
+    # in inches.
+    height = max(0.55 * len(point), 2.2)
+    fig, axes = plot_utils.plot_interval_estimates(
+        {labels(g): v for g, v in point.items()},
+        {labels(g): v for g, v in interval.items()},
+        metric_names=list(names),
+        algorithms=[labels(g) for g in point],
+        colors={labels(g): colors[g] for g in point},
+        xlabel=xlabel,
+        row_height=height / len(point),
+        xlabel_y_coordinate=-0.6 / height,
+        max_ticks=4,
+        subfigure_width=4.0,
+        wspace=0.2,
+    )
+    for ax in np.atleast_1d(axes):
+        ax.tick_params(axis="x", labelsize="x-large")
+    if note:
+        fig.text(0.4, -1.0 / height, note, ha="center", va="top", fontsize="x-large",
+                 color="0.3")
+    return fig
+
+
+def profile_thresholds(final: dict[str, np.ndarray]) -> np.ndarray:
+    """The profile's 101 values of tau: the scores' own range (from 0 where all are positive),
+    not the bar's, since scores that are a fraction of the bar would otherwise crowd the left of
+    the axis."""
+    everything = np.concatenate([s.ravel() for s in final.values()])
+    low, high = min(everything.min(), 0.0), everything.max()
+    return np.linspace(low, high + (0.05 * (high - low) or 0.05), 101)
+
+
+def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, colors: dict,
+                              xlabel: str, labels: Callable[[str], str]) -> plt.Figure:
+    """Figure 7: performance profiles (share of runs scoring above tau) with CIs."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    plot_utils.plot_performance_profiles(
+        {labels(g): v for g, v in profiles.items()},
+        taus,
+        performance_profile_cis={labels(g): v for g, v in cis.items()},
+        colors={labels(g): colors[g] for g in profiles},
+        xlabel=rf"{xlabel} ($\tau$)",
+        ax=ax,
+        legend=True,
+        legendsize="large",
+        labelsize="large",
+        ticklabelsize="large",
+    )
+    return fig
 
 
 # ============================================================================== the reports
@@ -1494,13 +1569,12 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
 # --------------------------------------------------- 3. the robust evaluation (evaluate.py)
 # The headline's decisive version: the same paired difference, from evaluate.py's many noisy
 # starts per seed instead of the training log's few evaluation episodes.
-ROBUST_METRICS = ("IQM", "Median", "Mean")
+# The robust figures' names for evaluate.py's actions: which SAC evaluates with each.
+ROBUST_ACTION_LABELS = {"mode": "mode (Corrected SAC)", "tanh_mu": "tanh(mu) (Standard SAC)"}
 
 
-def robust_metrics(scores: np.ndarray) -> np.ndarray:
-    """IQM, median and mean of a (runs x tasks) matrix of normalised returns."""
-    return np.array([metrics.aggregate_iqm(scores), metrics.aggregate_median(scores),
-                     metrics.aggregate_mean(scores)])
+def robust_action_label(action: str) -> str:
+    return ROBUST_ACTION_LABELS.get(action, action)
 
 
 def robust_action_colors(selectors: Sequence[str]) -> dict[str, tuple]:
@@ -1535,6 +1609,8 @@ class RobustOverTasks:
     values: dict[str, np.ndarray]
     bootstrap: dict[str, tuple[float, float, float]]
     t: dict[str, tuple[float, float, float]]
+    scores: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # returns / bar
+    metrics: tuple[dict, dict] = dataclasses.field(default_factory=lambda: ({}, {}))  # point, CI
 
 
 def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[int, RobustStep]]
@@ -1632,17 +1708,18 @@ def robust_over_tasks(report: Report, analysis: Analysis,
                       f"{won} of {values.size}"])
     lines += [markdown_table(["action", "difference / success bar (bootstrap CI)",
                               "t-interval (Welch)", "won (task, seed)"], table), ""]
-    scores = {a: np.stack([by_task[t][step].returns[a][:seeds] / SUCCESS_BARS[t]
-                           for t in tasks], axis=1) for a in actions}
-    point, interval = interval_estimates(scores, robust_metrics, args.reps, args.seed)
+    over.scores = {a: np.stack([by_task[t][step].returns[a][:seeds] / SUCCESS_BARS[t]
+                                for t in tasks], axis=1) for a in actions}
+    point, interval = over.metrics = interval_estimates(over.scores, aggregate_metrics,
+                                                        args.reps, args.seed)
     rows = []
     for action in actions:
-        for i, name in enumerate(ROBUST_METRICS):
+        for i, name in enumerate(AGGREGATE_METRICS):
             report.row("robust_aggregate", "all", action, name, step, seeds, point[action][i],
                        *interval[action][:, i])
         rows.append([action, *(format_ci(point[action][i], *interval[action][:, i])
-                               for i in range(len(ROBUST_METRICS)))])
-    lines += [markdown_table(["action", *ROBUST_METRICS], rows)]
+                               for i in range(len(AGGREGATE_METRICS)))])
+    lines += [markdown_table(["action", *AGGREGATE_METRICS], rows)]
     runs = seeds * len(tasks)
     if seeds <= FEW_SEEDS:  # rliable's IQM trims 25% of all runs x tasks at each end
         lines += ["", f"IQM here is the mean of the middle {runs - 2 * int(0.25 * runs)} of "
@@ -1779,11 +1856,33 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     elif step is not None:
         over, over_lines = robust_over_tasks(report, analysis, by_task, step)
         lines += ["", *over_lines]
-    report.figure(plot_robust_evaluation(by_task, estimates, over,
-                                         robust_action_colors(robust.selectors)),
-                  "robust_evaluation")
+    colors = robust_action_colors(robust.selectors)
+    report.figure(plot_robust_evaluation(by_task, estimates, over, colors), "robust_evaluation")
+    if over is not None:
+        report_robust_aggregate(report, analysis, over, colors)
     report.section("The robust evaluation: each action minus tanh(mu) from many noisy starts "
                    "(evaluate.py)", *lines)
+
+
+def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOverTasks,
+                            colors: dict) -> None:
+    """Figures `robust_aggregate_metrics` and `robust_performance_profiles`: Figures 6 and 7 of
+    the paper from the robust evaluation, one entry per action of the same actors, the returns
+    at the tasks' shared last step divided by each success bar (robust_over_tasks's numbers;
+    the profiles with rliable's create_performance_profile and --curve-reps replications)."""
+    args, name = analysis.args, SCORE_NAMES["success-bar"]
+    tasks = f"{len(over.tasks)} task" + "s" * (len(over.tasks) > 1)
+    note = f"The robust evaluation at {format_step(over.step)}, over {tasks}"
+    report.figure(plot_aggregate_metrics(*over.metrics, AGGREGATE_METRICS, colors, name,
+                                         robust_action_label, note),
+                  "robust_aggregate_metrics")
+    print(f"robust performance profiles ({args.curve_reps:,} reps) ...")
+    taus = profile_thresholds(over.scores)
+    seed_bootstrap(args.seed)
+    profiles, cis = rly.create_performance_profile(over.scores, taus, reps=args.curve_reps)
+    report.figure(plot_performance_profiles(taus, profiles, cis, colors, name,
+                                            robust_action_label),
+                  "robust_performance_profiles")
 
 
 # ------------------------------------------------------------------------- 4. over training
@@ -2065,19 +2164,6 @@ def report_reward_curves(report: Report, analysis: Analysis) -> None:
 
 
 # ------------------------------------------------------------ 7. aggregate metrics (Fig. 6)
-AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
-
-
-def aggregate_metrics(scores: np.ndarray, gap: bool = True) -> np.ndarray:
-    """IQM, median, mean (and optimality gap) of a (runs x tasks) score matrix."""
-    values = [
-        metrics.aggregate_iqm(scores),
-        metrics.aggregate_median(scores),
-        metrics.aggregate_mean(scores),
-    ]
-    return np.array(values + [metrics.aggregate_optimality_gap(scores)] * gap)
-
-
 def few_runs_note(agg: Aggregate) -> str:
     """With one task and few runs, what IQM is: a 25% trimmed mean keeps the middle runs only."""
     if len(agg.tasks) > 1:
@@ -2087,36 +2173,6 @@ def few_runs_note(agg: Aggregate) -> str:
         return ""
     kept = ", ".join(f"the middle {n - 2 * int(0.25 * n)} of {n}" for n in runs)
     return f"One task and {' or '.join(map(str, runs))} runs: IQM is the mean of {kept} runs"
-
-
-def plot_aggregate_metrics(point: dict, interval: dict, names: Sequence[str], colors: dict,
-                           xlabel: str, labels: GroupLabels, note: str = "") -> plt.Figure:
-    """Figure 6: aggregate metrics with their stratified-bootstrap CIs (rliable's own plot), and
-    `note` under it."""
-    # rliable's defaults (4 ticks at xx-large on 3.4-inch panels, its x label a fixed share of
-    # the height below) make tick labels collide with each other and, with two groups, with the
-    # label: wider panels, smaller ticks, a figure at least 2.2 inches high, the label placed
-    # in inches.
-    height = max(0.55 * len(point), 2.2)
-    fig, axes = plot_utils.plot_interval_estimates(
-        {labels(g): v for g, v in point.items()},
-        {labels(g): v for g, v in interval.items()},
-        metric_names=list(names),
-        algorithms=[labels(g) for g in point],
-        colors={labels(g): colors[g] for g in point},
-        xlabel=xlabel,
-        row_height=height / len(point),
-        xlabel_y_coordinate=-0.6 / height,
-        max_ticks=4,
-        subfigure_width=4.0,
-        wspace=0.2,
-    )
-    for ax in np.atleast_1d(axes):
-        ax.tick_params(axis="x", labelsize="x-large")
-    if note:
-        fig.text(0.4, -1.0 / height, note, ha="center", va="top", fontsize="x-large",
-                 color="0.3")
-    return fig
 
 
 def report_aggregate_metrics(report: Report, analysis: Analysis) -> None:
@@ -2151,34 +2207,6 @@ def report_aggregate_metrics(report: Report, analysis: Analysis) -> None:
 
 
 # ---------------------------------------------------------- 8. performance profiles (Fig. 7)
-def profile_thresholds(final: dict[str, np.ndarray]) -> np.ndarray:
-    """The profile's 101 values of tau: the scores' own range (from 0 where all are positive),
-    not the bar's, since scores that are a fraction of the bar would otherwise crowd the left of
-    the axis."""
-    everything = np.concatenate([s.ravel() for s in final.values()])
-    low, high = min(everything.min(), 0.0), everything.max()
-    return np.linspace(low, high + (0.05 * (high - low) or 0.05), 101)
-
-
-def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, colors: dict,
-                              xlabel: str, labels: GroupLabels) -> plt.Figure:
-    """Figure 7: performance profiles (share of runs scoring above tau) with CIs."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    plot_utils.plot_performance_profiles(
-        {labels(g): v for g, v in profiles.items()},
-        taus,
-        performance_profile_cis={labels(g): v for g, v in cis.items()},
-        colors={labels(g): colors[g] for g in profiles},
-        xlabel=rf"{xlabel} ($\tau$)",
-        ax=ax,
-        legend=True,
-        legendsize="large",
-        labelsize="large",
-        ticklabelsize="large",
-    )
-    return fig
-
-
 def report_performance_profiles(report: Report, analysis: Analysis) -> None:
     """Figure 7 (`performance_profiles`; no table): the share of runs scoring above tau, the
     whole distribution of the final scores rather than one statistic of it. Estimator: rliable's

@@ -1077,8 +1077,16 @@ def test_robust_evaluation_matches_a_hand_computation(tmp_path):
                               np.mean(values)), (section, action)
     assert row_at(rows, "robust_difference", "all", "mode", "share_won", last)[0] == 1.0
     assert {r["metric"] for r in rows if r["section"] == "robust_aggregate"} == \
-        {"IQM", "Median", "Mean"}
-    assert (out / "robust_evaluation.png").is_file()
+        {"IQM", "Median", "Mean", "Optimality Gap"}
+    for action in ("mode", "tanh_mu", "mean"):  # (seeds x tasks) mean returns / success bar
+        scores = np.array([[written[task, seed, last][action].mean() / analyze.SUCCESS_BARS[task]
+                            for task in ROBUST_TASKS] for seed in range(3)])
+        assert np.isclose(row_at(rows, "robust_aggregate", "all", action, "Mean", last)[0],
+                          scores.mean())
+        assert np.isclose(row_at(rows, "robust_aggregate", "all", action, "Optimality Gap",
+                                 last)[0], np.maximum(1 - scores, 0).mean())
+    for figure in ("robust_evaluation", "robust_aggregate_metrics", "robust_performance_profiles"):
+        assert (out / f"{figure}.png").is_file(), figure
     text = (out / "summary.md").read_text()
     assert "## The robust evaluation" in text
     assert "IQM here is the mean of the middle 4 of 6 runs" in text
@@ -1144,7 +1152,7 @@ def test_without_robust_the_section_writes_nothing(tmp_path):
     out = tmp_path / "out"
     assert run_analysis(write_small_runs(tmp_path / "runs"), out) == 0
     assert not [r for r in read_rows(out) if r["section"].startswith("robust")]
-    assert not (out / "robust_evaluation.png").exists()
+    assert not list(out.glob("robust_*.png"))
     assert "robust evaluation" not in (out / "summary.md").read_text()
 
 
