@@ -25,7 +25,7 @@ The file, top to bottom (docs/analyze.md maps each figure to its section and fun
   differences. It writes no report.
 - Shared tools: the rliable estimators (and the Student-t interval beside them), the report
   writer (summary.csv rows, summary.md sections, figures, group labels and colours) and the
-  paper's Figures 6 and 7 as rliable draws them (from the protocol and the robust evaluation).
+  paper's Figures 6-8 as rliable draws them (from the protocol and the robust evaluation).
 - One section per report, in the order summary.md prints them, each with its computation, its
   figure and its table: the header and where the standard numbers come from; the paired
   difference (the headline); the robust evaluation (--robust: the headline from evaluate.py's
@@ -957,6 +957,15 @@ def aggregate_metrics(scores: np.ndarray, gap: bool = True) -> np.ndarray:
     return np.array(values + [metrics.aggregate_optimality_gap(scores)] * gap)
 
 
+def iqm_per_step(scores: np.ndarray) -> np.ndarray:
+    """metrics.aggregate_iqm at each step of a (runs x tasks x steps) score array.
+
+    aggregate_iqm is scipy's 25% trimmed mean over all runs and tasks; one call along the step
+    axis gives the same numbers as a call per step, 6x (21 steps) to 15x (51) faster.
+    """
+    return scipy.stats.trim_mean(scores.reshape(-1, scores.shape[-1]), 0.25, axis=0)
+
+
 def seed_mean_estimates(samples: dict[tuple[str, str], np.ndarray], reps: int, seed: int) -> dict:
     """(task, group) -> (mean, low, high) of one value per seed, with a bootstrap CI.
 
@@ -1139,7 +1148,7 @@ class Analysis:
 
 
 # ------------------------------------------------------- the paper's figures (rliable's plots)
-# Figures 6 and 7, drawn from the paper's protocol (7., 8.) and from the robust evaluation (3.).
+# Figures 6-8, drawn from the paper's protocol (7.-9.) and from the robust evaluation (3.).
 def plot_aggregate_metrics(point: dict, interval: dict, names: Sequence[str], colors: dict,
                            xlabel: str, labels: Callable[[str], str], note: str = ""
                            ) -> plt.Figure:
@@ -1195,6 +1204,32 @@ def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, color
         legendsize="large",
         labelsize="large",
         ticklabelsize="large",
+    )
+    return fig
+
+
+def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colors: dict,
+                           ylabel: str, labels: Callable[[str], str], by_fraction: bool = False
+                           ) -> plt.Figure:
+    """Figure 8: aggregate IQM against environment steps (or fractions of each task's budget)
+    with CIs."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    unit, xlabel = steps_axis(frames[-1])
+    if by_fraction:
+        unit, xlabel = 1.0, "Fraction of each task's budget (total_timesteps)"
+    plot_utils.plot_sample_efficiency_curve(
+        frames / unit,
+        {labels(g): v for g, v in point.items()},
+        {labels(g): v for g, v in interval.items()},
+        colors={labels(g): colors[g] for g in point},
+        xlabel=xlabel,
+        ylabel=ylabel,
+        ax=ax,
+        labelsize="large",
+        ticklabelsize="large",
+        legend=True,
+        legendsize="large",
+        marker=".",
     )
     return fig
 
@@ -1860,6 +1895,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     report.figure(plot_robust_evaluation(by_task, estimates, over, colors), "robust_evaluation")
     if over is not None:
         report_robust_aggregate(report, analysis, over, colors)
+    lines += robust_sample_efficiency(report, analysis, barred, colors)
     report.section("The robust evaluation: each action minus tanh(mu) from many noisy starts "
                    "(evaluate.py)", *lines)
 
@@ -1883,6 +1919,43 @@ def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOver
     report.figure(plot_performance_profiles(taus, profiles, cis, colors, name,
                                             robust_action_label),
                   "robust_performance_profiles")
+
+
+def robust_sample_efficiency(report: Report, analysis: Analysis,
+                             barred: dict[str, dict[int, RobustStep]], colors: dict) -> list[str]:
+    """Figure `robust_sample_efficiency`: Figure 8 of the paper from the robust evaluation, each
+    action's IQM of the returns divided by each success bar at every step evaluated (snapshots
+    and final weights), over the tasks evaluated at two steps or more, at the steps they all
+    share (a task evaluated at its final weights only cannot join a curve); rliable's
+    get_interval_estimates of iqm_per_step, --curve-reps replications. Writes summary.csv's
+    `robust_sample_efficiency` rows; returns summary.md's lines."""
+    args = analysis.args
+    curves = {t: steps for t, steps in barred.items() if len(steps) >= 2}
+    shared = sorted(functools.reduce(set.intersection, [set(s) for s in curves.values()])) \
+        if curves else []
+    if len(shared) < 2:
+        return []
+    tasks, at = list(curves), [[curves[t][step] for step in shared] for t in curves]
+    actions = [a for a in at[0][0].returns if all(a in s.returns for row in at for s in row)]
+    seeds = min(s.returns[a].size for row in at for s in row for a in actions)
+    scores = {a: np.stack([np.stack([s.returns[a][:seeds] for s in row], axis=1)
+                           / SUCCESS_BARS[t] for t, row in zip(tasks, at, strict=True)], axis=1)
+              for a in actions}  # (seeds, tasks, steps)
+    print(f"robust sample efficiency ({args.curve_reps:,} reps) ...")
+    point, interval = interval_estimates(scores, iqm_per_step, args.curve_reps, args.seed)
+    for action in actions:
+        for i, step in enumerate(shared):
+            report.row("robust_sample_efficiency", "all", action, "IQM", step, seeds,
+                       point[action][i], *interval[action][:, i])
+    report.figure(plot_sample_efficiency(np.array(shared, dtype=float), point, interval, colors,
+                                         f"IQM {SCORE_NAMES['success-bar'].lower()}",
+                                         robust_action_label), "robust_sample_efficiency")
+    left_out = [t for t in barred if t not in curves]
+    return ["", f"Over training (figure `robust_sample_efficiency`): each action's IQM of the "
+            f"returns divided by each success bar, over {', '.join(tasks)} at "
+            f"{', '.join(map(format_step, shared))}, {seeds} seeds per task"
+            + (f"; {', '.join(left_out)} left out (evaluated at one step only)" if left_out
+               else "") + "."]
 
 
 # ------------------------------------------------------------------------- 4. over training
@@ -2225,41 +2298,6 @@ def report_performance_profiles(report: Report, analysis: Analysis) -> None:
 
 
 # ------------------------------------------------------------ 9. sample efficiency (Fig. 8)
-def iqm_per_step(scores: np.ndarray) -> np.ndarray:
-    """metrics.aggregate_iqm at each step of a (runs x tasks x steps) score array.
-
-    aggregate_iqm is scipy's 25% trimmed mean over all runs and tasks; one call along the step
-    axis gives the same numbers as a call per step, 6x (21 steps) to 15x (51) faster.
-    """
-    return scipy.stats.trim_mean(scores.reshape(-1, scores.shape[-1]), 0.25, axis=0)
-
-
-def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colors: dict,
-                           ylabel: str, labels: GroupLabels, by_fraction: bool = False
-                           ) -> plt.Figure:
-    """Figure 8: aggregate IQM against environment steps (or fractions of each task's budget)
-    with CIs."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    unit, xlabel = steps_axis(frames[-1])
-    if by_fraction:
-        unit, xlabel = 1.0, "Fraction of each task's budget (total_timesteps)"
-    plot_utils.plot_sample_efficiency_curve(
-        frames / unit,
-        {labels(g): v for g, v in point.items()},
-        {labels(g): v for g, v in interval.items()},
-        colors={labels(g): colors[g] for g in point},
-        xlabel=xlabel,
-        ylabel=ylabel,
-        ax=ax,
-        labelsize="large",
-        ticklabelsize="large",
-        legend=True,
-        legendsize="large",
-        marker=".",
-    )
-    return fig
-
-
 def report_sample_efficiency(report: Report, analysis: Analysis) -> None:
     """Figure 8 (`sample_efficiency`; no table): the aggregate IQM against steps, or fractions
     of each task's budget (build_aggregate chose the frames). Estimator: rliable's

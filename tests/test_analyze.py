@@ -1085,7 +1085,13 @@ def test_robust_evaluation_matches_a_hand_computation(tmp_path):
                           scores.mean())
         assert np.isclose(row_at(rows, "robust_aggregate", "all", action, "Optimality Gap",
                                  last)[0], np.maximum(1 - scores, 0).mean())
-    for figure in ("robust_evaluation", "robust_aggregate_metrics", "robust_performance_profiles"):
+    for step in ROBUST_STEPS:  # rliable's IQM: the 25% trimmed mean of all (seed, task) scores
+        scores = [written[task, seed, step]["mode"].mean() / analyze.SUCCESS_BARS[task]
+                  for task in ROBUST_TASKS for seed in range(3)]
+        assert np.isclose(row_at(rows, "robust_sample_efficiency", "all", "mode", "IQM", step)[0],
+                          scipy.stats.trim_mean(scores, 0.25))
+    for figure in ("robust_evaluation", "robust_aggregate_metrics", "robust_performance_profiles",
+                   "robust_sample_efficiency"):
         assert (out / f"{figure}.png").is_file(), figure
     text = (out / "summary.md").read_text()
     assert "## The robust evaluation" in text
@@ -1165,6 +1171,26 @@ def test_robust_task_without_a_bar_is_left_out_of_the_aggregate(tmp_path):
     assert [r for r in rows if r["task"] == "Hopper-v5" and r["metric"] == "return"]
     assert {r["n_runs"] for r in rows if r["section"] == "robust_aggregate"} == {"3"}
     assert "No success bar for Hopper-v5" in (out / "summary.md").read_text()
+
+
+def test_robust_curve_leaves_out_a_task_evaluated_at_one_step(tmp_path):
+    """A task whose final weights alone were evaluated (no snapshots) cannot join the robust
+    sample-efficiency curve: the curve is over the others, and summary.md names it; with no task
+    evaluated twice there is no curve."""
+    runs = write_small_runs(tmp_path / "runs")
+    write_robust_folder(tmp_path / "curve", ROBUST_TASKS[:1])
+    write_robust_folder(tmp_path / "final", ROBUST_TASKS[1:], steps=(1_000_000,))
+    out = tmp_path / "out"
+    assert run_analysis(runs, out, "--robust", str(tmp_path / "curve"),
+                        str(tmp_path / "final")) == 0
+    curve = [r for r in read_rows(out) if r["section"] == "robust_sample_efficiency"]
+    assert {r["step"] for r in curve} == {str(s) for s in ROBUST_STEPS}
+    assert (out / "robust_sample_efficiency.png").is_file()
+    assert f"{ROBUST_TASKS[1]} left out (evaluated at one step only)" in \
+        (out / "summary.md").read_text()
+    assert run_analysis(runs, tmp_path / "out2", "--robust", str(tmp_path / "final")) == 0
+    assert not (tmp_path / "out2" / "robust_sample_efficiency.png").exists()
+    assert (tmp_path / "out2" / "robust_aggregate_metrics.png").is_file()
 
 
 def test_bad_robust_folders_give_one_clear_line(tmp_path, capsys):
