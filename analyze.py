@@ -1934,7 +1934,9 @@ def robust_sample_efficiency(report: Report, analysis: Analysis,
     shared = sorted(functools.reduce(set.intersection, [set(s) for s in curves.values()])) \
         if curves else []
     if len(shared) < 2:
-        return []
+        return [] if not curves else [
+            "", f"No robust sample-efficiency curve: {', '.join(curves)}, evaluated at several "
+            "steps, share fewer than two of them."]
     tasks, at = list(curves), [[curves[t][step] for step in shared] for t in curves]
     actions = [a for a in at[0][0].returns if all(a in s.returns for row in at for s in row)]
     seeds = min(s.returns[a].size for row in at for s in row for a in actions)

@@ -1191,6 +1191,11 @@ def test_robust_curve_leaves_out_a_task_evaluated_at_one_step(tmp_path):
     assert run_analysis(runs, tmp_path / "out2", "--robust", str(tmp_path / "final")) == 0
     assert not (tmp_path / "out2" / "robust_sample_efficiency.png").exists()
     assert (tmp_path / "out2" / "robust_aggregate_metrics.png").is_file()
+    write_robust_folder(tmp_path / "apart", ROBUST_TASKS[1:], steps=(250_000, 1_000_000))
+    assert run_analysis(runs, tmp_path / "out3", "--robust", str(tmp_path / "curve"),
+                        str(tmp_path / "apart")) == 0  # the two share 1M only
+    assert not (tmp_path / "out3" / "robust_sample_efficiency.png").exists()
+    assert "No robust sample-efficiency curve" in (tmp_path / "out3" / "summary.md").read_text()
 
 
 def test_bad_robust_folders_give_one_clear_line(tmp_path, capsys):
