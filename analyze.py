@@ -1644,8 +1644,8 @@ class RobustOverTasks:
     values: dict[str, np.ndarray]
     bootstrap: dict[str, tuple[float, float, float]]
     t: dict[str, tuple[float, float, float]]
-    scores: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # returns / bar
-    metrics: tuple[dict, dict] = dataclasses.field(default_factory=lambda: ({}, {}))  # point, CI
+    scores: dict[str, np.ndarray]  # each action's (seeds, tasks) returns / success bar
+    metrics: tuple[dict, dict]  # AGGREGATE_METRICS of the scores: point, interval
 
 
 def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[int, RobustStep]]
@@ -1716,14 +1716,17 @@ def robust_over_tasks(report: Report, analysis: Analysis,
     actions = [a for a in by_task[tasks[0]][step].returns
                if all(a in by_task[t][step].returns for t in tasks)]
     seeds = min(by_task[t][step].returns[a].size for t in tasks for a in actions)
-    lines = [f"Over {len(tasks)} task" + "s" * (len(tasks) > 1) + f" at {format_step(step)}, "
+    lines = [f"Over {counted(len(tasks), 'task')} at {format_step(step)}, "
              "each divided by its success "
              f"bar ({', '.join(f'{t} {SUCCESS_BARS[t]:g}' for t in tasks)}); {seeds} seeds per "
              "task (the lowest, where tasks have more). Difference: mean over tasks of the mean "
              "over seeds, rliable's stratified bootstrap CI (seeds resampled within each task) "
              "and Welch's t-interval; returns: the paper's aggregate metrics, stratified "
              "bootstrap CIs.", ""]
-    over = RobustOverTasks(step, tasks, {}, {}, {})
+    scores = {a: np.stack([by_task[t][step].returns[a][:seeds] / SUCCESS_BARS[t]
+                           for t in tasks], axis=1) for a in actions}
+    over = RobustOverTasks(step, tasks, {}, {}, {}, scores, interval_estimates(
+        scores, aggregate_metrics, args.reps, args.seed))
     table = []
     for action in actions:
         if action not in by_task[tasks[0]][step].differences:
@@ -1743,10 +1746,7 @@ def robust_over_tasks(report: Report, analysis: Analysis,
                       f"{won} of {values.size}"])
     lines += [markdown_table(["action", "difference / success bar (bootstrap CI)",
                               "t-interval (Welch)", "won (task, seed)"], table), ""]
-    over.scores = {a: np.stack([by_task[t][step].returns[a][:seeds] / SUCCESS_BARS[t]
-                                for t in tasks], axis=1) for a in actions}
-    point, interval = over.metrics = interval_estimates(over.scores, aggregate_metrics,
-                                                        args.reps, args.seed)
+    point, interval = over.metrics
     rows = []
     for action in actions:
         for i, name in enumerate(AGGREGATE_METRICS):
@@ -1758,9 +1758,9 @@ def robust_over_tasks(report: Report, analysis: Analysis,
     runs = seeds * len(tasks)
     if seeds <= FEW_SEEDS:  # rliable's IQM trims 25% of all runs x tasks at each end
         lines += ["", f"IQM here is the mean of the middle {runs - 2 * int(0.25 * runs)} of "
-                  f"{runs} runs ({seeds} seeds x {len(tasks)} task" + "s" * (len(tasks) > 1)
-                  + ")" + ("; rliable's median is the median over tasks of each task's mean, "
-                           "so with one task it is the mean" if len(tasks) == 1 else "") + "."]
+                  f"{runs} runs ({seeds} seeds x {counted(len(tasks), 'task')})"
+                  + ("; rliable's median is the median over tasks of each task's mean, so with "
+                     "one task it is the mean" if len(tasks) == 1 else "") + "."]
     return over, lines
 
 
@@ -1813,9 +1813,9 @@ def plot_robust_evaluation(by_task: dict[str, dict[int, RobustStep]], estimates:
         seeds = next(iter(over.values.values())).shape[0]
         ax.set_xticks(range(len(over.values)), list(over.values))
         ax.set_xlim(-0.5, len(over.values) - 0.5)
-        tasks = f"{len(over.tasks)} task" + "s" * (len(over.tasks) > 1)
-        ax.set_title(f"Over {tasks} (normalised), at {format_step(over.step)}: n = {seeds} "
-                     "seeds per task; dots: (task, seed)", fontsize="medium")
+        ax.set_title(f"Over {counted(len(over.tasks), 'task')} (normalised), at "
+                     f"{format_step(over.step)}: n = {seeds} seeds per task; dots: (task, seed)",
+                     fontsize="medium")
         ax.set_xlabel("Evaluation action")
         ax.set_ylabel("Difference / success bar")
     for ax in axes[:, 0]:
@@ -1907,8 +1907,8 @@ def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOver
     at the tasks' shared last step divided by each success bar (robust_over_tasks's numbers;
     the profiles with rliable's create_performance_profile and --curve-reps replications)."""
     args, name = analysis.args, SCORE_NAMES["success-bar"]
-    tasks = f"{len(over.tasks)} task" + "s" * (len(over.tasks) > 1)
-    note = f"The robust evaluation at {format_step(over.step)}, over {tasks}"
+    note = f"The robust evaluation at {format_step(over.step)}, over " \
+        f"{counted(len(over.tasks), 'task')}"
     report.figure(plot_aggregate_metrics(*over.metrics, AGGREGATE_METRICS, colors, name,
                                          robust_action_label, note),
                   "robust_aggregate_metrics")
