@@ -301,10 +301,23 @@ def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: st
                          "numpy": np.__version__, "gymnasium": gym.__version__,
                          "mujoco": mujoco.__version__},
             "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "machine": {"cpu": cpu_model(), "cores": os.cpu_count()},
             "used": {"device": device.type, "compile": args.compile,
                      "cudagraphs": device.type == "cuda" and args.cudagraphs,
                      "gpu_buffer": device.type == "cuda" and args.gpu_buffer,
                      "torch_threads": args.torch_threads}}
+
+
+def cpu_model() -> str:
+    """The CPU's name as the OS gives it. A seed's run is the same run only on the same kind of
+    CPU: compiled kernels and MuJoCo round by its instruction set, and a chaotic run diverges."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
 
 
 # The logs: CSVs, TensorBoard, W&B.

@@ -2,6 +2,7 @@
 
 import csv
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -96,6 +97,7 @@ def test_run_folder_outputs(standard_run):
     assert config["batch_size"] == 64 and config["env_id"] == "Pendulum-v1"
     assert (config["obs_dim"], config["action_dim"]) == (3, 1)
     assert set(config["versions"]) == {"python", "torch", "numpy", "gymnasium", "mujoco"}
+    assert config["machine"]["cores"] == os.cpu_count() and config["machine"]["cpu"].strip()
     # The flags ask for CUDA, graphs and a GPU buffer; on this CPU run none was used.
     assert config["cuda"] and config["cudagraphs"] and config["gpu_buffer"]
     expected_device = "cuda" if torch.cuda.is_available() else "cpu"
