@@ -319,13 +319,6 @@ def task_dims(env_id: str) -> tuple[int, int]:
     return env.observation_space.shape[0], env.action_space.shape[0]
 
 
-def cpu_model() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return "unknown CPU"
-
-
 def versions() -> str:
     def version(package: str) -> str:
         try:
@@ -349,6 +342,9 @@ def speed_up(reference: float | None, ms: float) -> str:
 def print_report(args: Args, impls: Sequence[str], ms: dict, floors: dict, gflops: float,
                  jax_gflops: float | None, updates: dict) -> None:
     """The markdown report: setup, one row per task and implementation, the floor per task."""
+    # Imported here, not at the top: the peers' processes start from this file and must not
+    # load torch (run_folder's) beside JAX or another library's own.
+    from run_folder import cpu_model  # the CPU's name as config.json records it
     clock = "CPU seconds" if args.cpu_time else "wall clock"
     print(f"### SAC on one CPU core: ms per env step ({date.today().isoformat()})\n")
     print(f"- machine: {cpu_model()}, {os.cpu_count()} cores; each run pinned to one core "
