@@ -205,12 +205,14 @@ class RunFolder:
         return {"actor": actor.state_dict(), "qf": qf.state_dict(),
                 "config": {f: getattr(self.args, f) for f in MODEL_FIELDS}}
 
-    def save_snapshot(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
-        """snapshots/step<N>.pt, as final_model.pt (a resumed run rewrites the later ones with
-        the same numbers)."""
+    def save_snapshot(self, global_step: int, actor: nn.Module, qf: nn.Module,
+                      log_alpha: torch.Tensor) -> None:
+        """snapshots/step<N>.pt, as final_model.pt plus log alpha: all that a run whose checkpoint
+        is lost needs to restart from it (--restart-from; a resumed run rewrites the later ones
+        with the same numbers)."""
         (self.dir / "snapshots").mkdir(exist_ok=True)
         save_tensors(self.dir / "snapshots" / f"step{global_step}.pt",
-                     self.policy_weights(actor, qf))
+                     self.policy_weights(actor, qf) | {"log_alpha": log_alpha.detach().clone()})
 
     def checkpoint(self, global_step: int, training: dict, buffer, action_space: gym.Space,
                    envs: gym.vector.VectorEnv, stopping: bool) -> None:

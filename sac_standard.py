@@ -442,7 +442,7 @@ if __name__ == "__main__":
         if global_step % args.print_interval == 0:
             run.print_progress(global_step)
         if args.snapshot_interval > 0 and global_step % args.snapshot_interval == 0:
-            run.save_snapshot(global_step, actor, qf)
+            run.save_snapshot(global_step, actor, qf, training["log_alpha"])
         if stop.requested or (args.checkpoint_interval > 0
                               and global_step % args.checkpoint_interval == 0):
             run.checkpoint(global_step, training, rb, action_space, envs, stop.requested)
