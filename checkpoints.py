@@ -6,9 +6,12 @@ scripts'.
 """
 
 import copy
+import csv
 import dataclasses
+import json
 import os
 import random
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -208,3 +211,100 @@ def load_checkpoint(ckpt: dict, training: dict, buffer, action_space: gym.Space,
     action_space.np_random.bit_generator.state = ckpt["rng"]["action_space"]
     set_rng_states(ckpt["rng"], device)
     return ckpt["global_step"], ckpt["elapsed"], ckpt["progress"]
+
+
+# A run whose checkpoint is lost (a machine gone with it) restarts from its last snapshot.
+
+
+def restart_from_snapshot(run_dir: Path, refill: int) -> dict:
+    """Writes run_dir/checkpoint.pt from the run's last snapshot, so that `--resume` continues
+    it: the snapshot's actor, critics (their target a copy of them) and log alpha, Adam's moments
+    from zero, an empty replay buffer that the run refills by acting with its policy for `refill`
+    steps (counted as the run's steps, as --learning-starts' are) before updates resume, random
+    streams from the seed and the step. A new sample from that step, not the lost run's future:
+    config.json's "restarts" records it; train.csv and eval.csv as they were are kept in
+    restarts/step<N>/ (the resume cuts them back to the step). Returns the restart's record."""
+    import importlib
+
+    from flags import read_config_json
+
+    if (run_dir / "done.json").exists():
+        fail(f"{run_dir} is finished (done.json); there is nothing to restart")
+    if (run_dir / "checkpoint.pt").exists():
+        fail(f"{run_dir} has its checkpoint.pt: continue it exactly with --resume {run_dir} "
+             "(a restart from a snapshot is for a run whose checkpoint is lost)")
+    config = read_config_json(run_dir, "give a run folder made by sac_standard.py or "
+                              "sac_corrected.py", "restore it from a copy")
+    snapshots = sorted(run_dir.glob("snapshots/step*.pt"), key=lambda p: int(p.stem[4:]))
+    if not snapshots:
+        fail(f"{run_dir} has no snapshots/step<N>.pt to restart from; --resume {run_dir} "
+             "restarts it from step 0")
+    path, step = snapshots[-1], int(snapshots[-1].stem[4:])
+    snapshot = torch.load(path, map_location="cpu", weights_only=True)
+    if "log_alpha" not in snapshot:
+        fail(f"{path} holds no log alpha (written before snapshots did): it evaluates, but a run "
+             f"cannot go on from it; --resume {run_dir} restarts the run from step 0")
+    if refill < 1:
+        fail(f"--refill {refill}: must be at least 1 (steps of acting before updates resume)")
+
+    script = importlib.import_module(Path(config["script"]).stem)
+    fields = {f.name for f in dataclasses.fields(script.Args)}
+    stored = {k: tuple(v) if isinstance(v, list) else v for k, v in config.items() if k in fields}
+    args = dataclasses.replace(script.Args(), **stored)
+    action_space = script.make_env(args.env_id).action_space
+    obs_dim, action_dim = config["obs_dim"], action_space.shape[0]
+    training = script.make_learner(args, obs_dim, action_space, torch.device("cpu"))
+    training["actor"].load_state_dict(snapshot["actor"])
+    training["qf"].load_state_dict(snapshot["qf"])
+    training["qf_target"].load_state_dict(snapshot["qf"])
+    with torch.no_grad():
+        training["log_alpha"].copy_(snapshot["log_alpha"])
+
+    seed = int(np.random.SeedSequence([args.seed, step]).generate_state(1)[0])
+    random.seed(seed)
+    np.random.seed(seed)  # noqa: NPY002
+    torch.manual_seed(seed)
+    action_space.seed(seed)
+    train_rows = logged_rows(run_dir / "train.csv", step)
+    eval_rows = logged_rows(run_dir / "eval.csv", step)
+    last_eval = eval_rows[-1] if eval_rows else None
+    progress = {"episode_returns": [], "episode_lengths": [], "episode_return": 0.0,
+                "episode_length": 0, "updates_from": min(step + refill, args.total_timesteps),
+                "last_eval": last_eval and (int(last_eval["global_step"]),
+                                            float(last_eval["return_mean"]))}
+    elapsed = float(train_rows[-1]["wall_time"]) if train_rows else 0.0
+    state = checkpoint_state(args, step, elapsed, progress, training,
+                             script.ReplayBuffer(2, obs_dim, action_dim, torch.device("cpu")),
+                             action_space, {"seed": seed, "rng": None, "actions": []},
+                             rng_states(torch.device("cpu")), [])
+    if step % args.eval_interval == 0 and not (last_eval and int(last_eval["global_step"]) == step):
+        state["pending_rounds"] = [{"global_step": step, "wall_time": elapsed,
+                                    "actor": snapshot["actor"], "qf": snapshot["qf"]}]
+
+    kept = run_dir / "restarts" / f"step{step}"
+    kept.mkdir(parents=True, exist_ok=True)
+    for name in ("train.csv", "eval.csv"):
+        if (run_dir / name).exists():
+            atomic_write(kept / name, lambda tmp, name=name: tmp.write_bytes(
+                (run_dir / name).read_bytes()))
+    from run_folder import cpu_model, git_commit
+
+    record = {"step": step, "snapshot": str(path.relative_to(run_dir)), "refill": refill,
+              "updates_from": progress["updates_from"], "seed": seed,
+              "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+              "machine": {"cpu": cpu_model(), "cores": os.cpu_count()},
+              "git_commit": git_commit()}
+    save_tensors(run_dir / "checkpoint.pt", state)
+    config["restarts"] = [*config.get("restarts", []), record]
+    atomic_write(run_dir / "config.json", lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
+    return record
+
+
+def logged_rows(path: Path, step: int) -> list[dict]:
+    """A run CSV's whole rows up to `step` (none if the file is missing)."""
+    if not path.exists():
+        return []
+    with path.open(newline="") as f:
+        lines = f.read().splitlines(keepends=True)
+    rows = csv.DictReader([lines[0], *(r for r in lines[1:] if r.endswith("\n"))])
+    return [r for r in rows if int(r["global_step"]) <= step]

@@ -221,6 +221,7 @@ def _run_round(round_: Round) -> dict:
     # Whether the episode ended on a physics blow-up (h1hand truncates it then): otherwise such
     # an end reads as an ordinary short episode, whichever action caused it.
     unstable = {p: [False] * n for p in prefixes}
+    ends: dict[str, list] = {p: [""] * n for p in prefixes}
     chosen = {p: np.zeros(len(Q_BEST_CANDIDATES), np.int64) for p in prefixes}
     visited: list[tuple[torch.Tensor, torch.Tensor]] = []
     # "sample" draws each episode's noise from a generator seeded by its reset seed.
@@ -259,19 +260,21 @@ def _run_round(round_: Round) -> dict:
                     done[p][k] = True
                     successes[p][k] = info.get("success")
                     unstable[p][k] = bool(info.get("physics_unstable", False))
+                    ends[p][k] = episode_end(terminated, info)
             # A follower is its first episode again: same rows in the next actor call, same
             # numbers, ending together.
             for k in np.flatnonzero(live & ~first):
                 j = same[p][k]
                 obs[p][k], returns[p][k], lengths[p][k] = obs[p][j], returns[p][j], lengths[p][j]
                 done[p][k], successes[p][k] = done[p][j], successes[p][j]
-                unstable[p][k] = unstable[p][j]
+                unstable[p][k], ends[p][k] = unstable[p][j], ends[p][j]
     for p, path in round_.videos.items():
         import imageio  # only for videos
 
         imageio.mimsave(path, frames[p], fps=episodes[p][0].metadata.get("render_fps", 30))
     result: dict = {p: {"returns": returns[p].tolist(), "lengths": lengths[p].tolist(),
-                        "successes": successes[p], "unstable": unstable[p]} for p in prefixes}
+                        "successes": successes[p], "unstable": unstable[p], "ends": ends[p]}
+                      for p in prefixes}
     # Distinct start states: how many episodes each deterministic action stepped.
     result["distinct_episodes"] = len(set(starts.tolist()))
     for p in prefixes:
@@ -283,6 +286,15 @@ def _run_round(round_: Round) -> dict:
         result["shift"] = shift_statistics(mu, log_std, round_.mode_solver)
         result["shift_states"] = len(mu)  # to pool the statistics of several rounds
     return result
+
+
+def episode_end(terminated: bool, info: dict) -> str:
+    """Why an episode ended: the task's reason where it terminated (h1hand: "fell", "dropped",
+    "success"; "terminated" where the env gives none), "blow_up" for a physics blow-up, else
+    "time_limit"."""
+    if terminated:
+        return info.get("termination", "terminated")
+    return "blow_up" if info.get("physics_unstable", False) else "time_limit"
 
 
 def round_statistics(result: dict, prefix: str) -> dict:

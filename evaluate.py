@@ -30,6 +30,7 @@ evaluation.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import csv
 import io
@@ -414,7 +415,8 @@ def merge(results: list[dict], selectors: list[str]) -> tuple[dict, dict]:
     states; and the shift statistics pooled over the jobs' visited states (each is a mean over
     states, so a job weighs as many states as it visited)."""
     merged = {s: {k: [x for r in results for x in r[s][k]]
-                  for k in ("returns", "lengths", "successes", "unstable")} for s in selectors}
+                  for k in ("returns", "lengths", "successes", "unstable", "ends")}
+              for s in selectors}
     for s in selectors:
         if "shares" in results[0][s]:
             # q_best chose once per step of each of its episodes: a job's steps are its states.
@@ -489,7 +491,8 @@ def summarise(results: dict, shift: dict, args: Args, info: dict, env_id: str,
             "return_mean": mean, "ci_low": low, "ci_high": high,
             "return_std": float(np.std(episodes["returns"])),
             "length_mean": float(np.mean(episodes["lengths"])),
-            "unstable_ends": int(np.sum(episodes["unstable"]))}
+            "unstable_ends": int(np.sum(episodes["unstable"])),
+            "ends": dict(collections.Counter(episodes["ends"]))}
         if "shares" in episodes:
             summary["selectors"][selector]["choice_shares"] = episodes["shares"]
     if "tanh_mu" in results:
@@ -564,10 +567,11 @@ def write_outputs(out: Path, results: dict, seeds: list[int], summary: dict) -> 
         fail(f"--out {out}: cannot write there ({error.strerror}); give a writable folder")
 
 
-# physics_unstable (1: a physics blow-up ended the episode) came last, after the others: a
-# reader that picks columns by name reads the files from before it and after alike.
+# physics_unstable (1: a physics blow-up ended the episode), then end (why the episode ended:
+# eval_runner.episode_end) came last, after the others: a reader that picks columns by name
+# reads the files from before them and after alike.
 EPISODE_COLUMNS = ["selector", "episode", "reset_seed", "return", "length", "success",
-                   "physics_unstable"]
+                   "physics_unstable", "end"]
 
 
 def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
@@ -576,7 +580,8 @@ def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
         for k, seed in enumerate(seeds):
             success = episodes["successes"][k]
             yield [selector, k, seed, repr(episodes["returns"][k]), episodes["lengths"][k],
-                   "" if success is None else success, int(episodes["unstable"][k])]
+                   "" if success is None else success, int(episodes["unstable"][k]),
+                   episodes["ends"][k]]
 
 
 def write_files(out: Path, results: dict, seeds: list[int], summary: dict) -> None:
@@ -749,10 +754,10 @@ PARTIAL_FILE = "evaluation.partial.json"
 RESUME_SETTINGS = ("source", "episodes", "eval_round", "reset_noise", "selectors", "solver",
                    "steps")
 EPISODES_HEADER = ["step", *EPISODE_COLUMNS]
-# A run's episodes.csv as evaluate.py wrote it before physics_unstable: its rows are resumed with
-# that cell empty ("not recorded": the episodes are not run again to learn it), so that the
-# rewritten file has one header, and a summary tells such policies from ones without blow-ups.
-OLD_EPISODES_HEADER = EPISODES_HEADER[:-1]
+# A run's episodes.csv as evaluate.py wrote it before physics_unstable or end: its rows are
+# resumed with those cells empty ("not recorded": the episodes are not run again to learn it), so
+# that the rewritten file has one header, and a summary tells such policies from others.
+OLD_EPISODES_HEADERS = (EPISODES_HEADER[:-2], EPISODES_HEADER[:-1])
 SHIFT_HEADER = ["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}" for c in Q_BEST_CANDIDATES)]
 # One policy's rows: its episodes.csv rows and its shift.csv row, each starting with its step.
 PolicyRows = tuple[list[list], list]
@@ -807,7 +812,7 @@ def finished_policies(out: Path, policies: list[Policy], selectors: list[str],
     finished = {}
     for run, group in itertools.groupby(policies, key=lambda p: p.run):
         episodes = rows_by_step(out / run / "episodes.csv", EPISODES_HEADER,
-                                older=OLD_EPISODES_HEADER)
+                                older=OLD_EPISODES_HEADERS)
         shifts = rows_by_step(out / run / "shift.csv", SHIFT_HEADER)
         for policy in group:
             seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
@@ -818,17 +823,17 @@ def finished_policies(out: Path, policies: list[Policy], selectors: list[str],
     return finished
 
 
-def rows_by_step(path: Path, header: list[str], older: list[str] | None = None
+def rows_by_step(path: Path, header: list[str], older: tuple[list[str], ...] = ()
                  ) -> dict[int, list[list[str]]]:
     """A run file's rows by their step, as text (rewritten, they are the same bytes); none if
-    the file is missing or has another header. Rows under `older` (header's first columns) get
-    empty cells for the columns it lacks."""
+    the file is missing or has another header. Rows under an `older` header (header's first
+    columns) get empty cells for the columns it lacks."""
     if not path.is_file():
         return {}
     with open(path, newline="") as f:
         reader = csv.reader(f)
         found = next(reader, None)
-        if found != header and (older is None or found != older):
+        if found != header and found not in older:
             return {}
         padding = [""] * (len(header) - len(found))
         grouped: dict[int, list[list[str]]] = {}
@@ -873,13 +878,15 @@ def write_atomically(path: Path, text: str) -> None:
     checkpoints.atomic_write(path, write)
 
 
-def read_campaign(out: Path) -> tuple[dict, dict, dict]:
+def read_campaign(out: Path) -> tuple[dict, dict, dict, dict]:
     """evaluation.json, the returns by (run, step, selector) in episode order, and by the same
     keys the episodes a physics blow-up ended (None where episodes.csv does not record it: an
-    older file, or rows kept from one)."""
+    older file, or rows kept from one) and the count of each way an episode ended (None where
+    not recorded)."""
     settings = json.loads((out / CAMPAIGN_FILE).read_text())
     returns: dict[tuple[str, int, str], list[float]] = {}
     unstable: dict[tuple[str, int, str], int | None] = {}
+    ends: dict[tuple[str, int, str], collections.Counter | None] = {}
     for run in settings["runs"]:
         path = out / run / "episodes.csv"
         if not path.is_file():
@@ -890,19 +897,26 @@ def read_campaign(out: Path) -> tuple[dict, dict, dict]:
                 returns.setdefault(key, []).append(float(row["return"]))
                 flag, count = row.get("physics_unstable"), unstable.get(key, 0)
                 unstable[key] = None if not flag or count is None else count + int(flag)
-    return settings, returns, unstable
+                end, counts = row.get("end"), ends.setdefault(key, collections.Counter())
+                if not end or counts is None:
+                    ends[key] = None
+                else:
+                    counts[end] += 1
+    return settings, returns, unstable, ends
 
 
 def standard_error(values: np.ndarray) -> float:
     return float(values.std(ddof=1) / math.sqrt(len(values))) if len(values) > 1 else math.nan
 
 
-def per_seed_rows(settings: dict, returns: dict, unstable: dict) -> list[dict]:
+def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> list[dict]:
     """Per run, step and selector: the mean return and its standard error over the episodes,
     the paired difference against tanh(mu) from the same starts with its standard error and,
     where any episode of the campaign records it, unstable_ends: the episodes a physics blow-up
-    ended (None where not recorded). A folder of older files only keeps its summary as it was."""
+    ended, and end_<why>: the episodes that ended each way (eval_runner.episode_end; None where
+    not recorded). A folder of older files only keeps its summary as it was."""
     recorded = any(v is not None for v in unstable.values())
+    reasons = sorted({why for counts in ends.values() if counts for why in counts})
     rows, order = [], {s: i for i, s in enumerate(settings["selectors"])}
     for (run, step, selector), values in sorted(returns.items(),
                                                 key=lambda kv: (*kv[0][:2], order[kv[0][2]])):
@@ -919,6 +933,8 @@ def per_seed_rows(settings: dict, returns: dict, unstable: dict) -> list[dict]:
                     "share_better": float(np.mean(diffs > 0))}
         if recorded:
             row["unstable_ends"] = unstable.get((run, step, selector))
+        counts = ends.get((run, step, selector))
+        row |= {f"end_{why}": None if counts is None else counts[why] for why in reasons}
         rows.append(row)
     return rows
 
@@ -960,8 +976,8 @@ def summarize_campaign(out: Path, reps: int, seed: int) -> None:
     """From the CSVs under out: per_seed.csv, across_seeds.csv, summary.md (printed) and
     paired_difference.png. The precision check: each seed's paired difference should have a
     standard error below PRECISION of tanh(mu)'s mean return."""
-    settings, returns, unstable = read_campaign(out)
-    per_seed = per_seed_rows(settings, returns, unstable)
+    settings, returns, unstable, ends = read_campaign(out)
+    per_seed = per_seed_rows(settings, returns, unstable, ends)
     across = across_seed_rows(per_seed, reps, seed)
     write_rows(out / "per_seed.csv", per_seed)
     write_rows(out / "across_seeds.csv", across)

@@ -94,6 +94,9 @@ class RunFolder:
             obs = checkpoints.replay_episode(envs, args.seed, ckpt)
             self.pending_rounds = ckpt.get("pending_rounds", [])
             print(f"resuming {self.dir} at step {global_step}", flush=True)
+            if self.progress.get("updates_from", 0) > global_step:
+                print(f"restarted from a snapshot: acting to refill the replay buffer, updates "
+                      f"resume at step {self.progress['updates_from']}", flush=True)
         else:
             global_step, self.elapsed = 0, 0.0
             self.progress = {"episode_returns": [], "episode_lengths": [], "last_eval": None,
@@ -105,6 +108,9 @@ class RunFolder:
             atomic_write(self.dir / "config.json",
                          lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
             obs, _ = envs.reset(seed=args.seed)
+        # The first update's step: --learning-starts, or later where a run restarted from a
+        # snapshot (checkpoints.restart_from_snapshot) refills its replay buffer first.
+        self.updates_from = self.progress.get("updates_from", args.learning_starts)
         record_holder(lock)
         self.logs = open_logs(args, self.dir, self.eval_columns, list(TRAIN_COLUMNS),
                               global_step, ckpt is not None, self.algorithm)
@@ -292,13 +298,8 @@ def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: st
                  device: torch.device) -> dict:
     """config.json: every argument, the algorithm, the versions, the git commit, and under "used"
     what the run started with where flags only ask (--cuda without a GPU trains on the CPU)."""
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
-                                capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        commit = None
     return {**dataclasses.asdict(args), "algorithm": algorithm, "script": script,
-            "obs_dim": obs_dim, "action_dim": action_dim, "git_commit": commit,
+            "obs_dim": obs_dim, "action_dim": action_dim, "git_commit": git_commit(),
             "versions": {"python": platform.python_version(), "torch": torch.__version__,
                          "numpy": np.__version__, "gymnasium": gym.__version__,
                          "mujoco": mujoco.__version__},
@@ -308,6 +309,15 @@ def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: st
                      "cudagraphs": device.type == "cuda" and args.cudagraphs,
                      "gpu_buffer": device.type == "cuda" and args.gpu_buffer,
                      "torch_threads": args.torch_threads}}
+
+
+def git_commit() -> str | None:
+    """The commit of the code that runs (None outside a git checkout)."""
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
+                              capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
 
 
 def cpu_model() -> str:

@@ -431,7 +431,7 @@ if __name__ == "__main__":
         obs = next_obs
         run.count_step(reward[0], episode_end)
 
-        if global_step >= args.learning_starts:
+        if global_step >= run.updates_from:  # --learning-starts (later after a restart)
             batch = rb.sample(args.batch_size, device)
             losses = update(batch, torch.randn(noise_shape, device=device))
 

@@ -74,7 +74,8 @@ class Task:
         """The reward and every term of it (goes into `info`); called once per env step."""
         raise NotImplementedError
 
-    def should_terminate(self) -> bool:
+    def termination(self) -> str:
+        """Why the episode ends now ("fell", "dropped", "success"), or "" if it goes on."""
         raise NotImplementedError
 
 
@@ -144,7 +145,8 @@ class H1HandEnv(gym.Env):
 
     Beyond HumanoidBench: all randomness comes from `self.np_random`, and only at reset (a step
     is a function of the state and the action); a bad action raises ValueError; a physics
-    blow-up truncates the episode with `info["physics_unstable"]`.
+    blow-up truncates the episode with `info["physics_unstable"]`; a terminated episode says why
+    in `info["termination"]`.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
@@ -236,11 +238,13 @@ class H1HandEnv(gym.Env):
         # state, e.g. advance bookshelf's current object), then the termination.
         obs = self.task.get_observation()
         reward, info = self.task.get_reward()
-        terminated = self.task.should_terminate()
+        termination = self.task.termination()
         if not np.isfinite(obs).all():
             return self._truncate_unstable("non-finite observation")
         self._last_obs = obs
-        return obs, reward, terminated, False, info
+        if termination:
+            info["termination"] = termination
+        return obs, reward, bool(termination), False, info
 
     def _checked_action(self, action: np.ndarray) -> np.ndarray:
         """The action as float64, clipped to [-1, 1]; ValueError for a wrong shape or NaN/inf."""

@@ -298,6 +298,7 @@ def test_falling_terminates(env_id: str, fallen: float, not_yet: float) -> None:
         env.unwrapped.data.qpos[2:7] = [pelvis_height, *LYING]
         _, _, terminated, truncated, info = env.step(hold_pose_action(env))
         assert terminated == ends and not truncated and "physics_unstable" not in info
+        assert info.get("termination") == ("fell" if ends else None)
 
 
 def _set_body_height(env: gym.Env, body: str, z: float) -> None:
@@ -309,7 +310,8 @@ def test_dropping_a_cube_terminates() -> None:
     env = make("h1hand-cube-v0")
     env.reset(seed=0)
     _set_body_height(env, "right_cube_to_rotate", 0.3)
-    assert env.step(hold_pose_action(env))[2]
+    _, _, terminated, _, info = env.step(hold_pose_action(env))
+    assert terminated and info["termination"] == "dropped"
 
 
 def test_dropping_the_current_book_terminates() -> None:
@@ -318,7 +320,8 @@ def test_dropping_the_current_book_terminates() -> None:
     _set_body_height(env, "book_d", 0.3)  # not the current object: goes on
     assert not env.step(hold_pose_action(env))[2]
     _set_body_height(env, "trophy", 0.3)  # the first object of bookshelf_simple
-    assert env.step(hold_pose_action(env))[2]
+    _, _, terminated, _, info = env.step(hold_pose_action(env))
+    assert terminated and info["termination"] == "dropped"
 
 
 def _place_current_object_at_goal(env: gym.Env) -> None:
@@ -349,6 +352,7 @@ def test_bookshelf_subtasks_advance_and_pay_their_bonus(observe_goal: bool) -> N
         # HumanoidBench's one-step lag: the observation was taken before the reward moved on.
         assert obs[identifier] == seen[-1]
         assert terminated == info["success"] == (k == 5)
+        assert info.get("termination") == ("success" if k == 5 else None)
         if k < 5:
             obs = env.step(hold)[0]
             seen.append(obs[identifier])

@@ -708,12 +708,13 @@ def blow_up_campaign(tmp_path) -> Path:
 
 
 def without_unstable_column(folder: Path) -> None:
-    """Every run's episodes.csv under folder as evaluate.py wrote it before physics_unstable."""
+    """Every run's episodes.csv under folder as evaluate.py wrote it before physics_unstable (and
+    end, after it)."""
     for path in folder.glob("*/episodes.csv"):
         with open(path, newline="") as f:
             rows = list(csv.reader(f))
-        assert rows[0][-1] == "physics_unstable"
-        path.write_text(evaluate.csv_text([row[:-1] for row in rows]), newline="")
+        assert rows[0][-2:] == ["physics_unstable", "end"]
+        path.write_text(evaluate.csv_text([row[:-2] for row in rows]), newline="")
 
 
 def test_episodes_csv_marks_the_episodes_a_physics_blow_up_ended(tmp_path, capsys):
@@ -724,15 +725,19 @@ def test_episodes_csv_marks_the_episodes_a_physics_blow_up_ended(tmp_path, capsy
     with open(out / "episodes.csv", newline="") as f:
         assert next(csv.reader(f)) == evaluate.EPISODE_COLUMNS
     rows = read_rows(out / "episodes.csv")
-    assert evaluate.EPISODE_COLUMNS[-1] == "physics_unstable" and len(rows) == 2 * 6
+    assert evaluate.EPISODE_COLUMNS[-2:] == ["physics_unstable", "end"] and len(rows) == 2 * 6
     marks = [r["physics_unstable"] for r in rows]
     assert marks == [str(int(r["reset_seed"]) % 2) for r in rows]
+    # why each ended: the blow-ups, and the toy env's own end, which gives no reason
+    assert [r["end"] for r in rows] == ["blow_up" if m == "1" else "terminated" for m in marks]
     assert {"0", "1"} <= set(marks)  # both kinds of end among these starts
     # summary.json and the printed summary count them per action
     summary = json.loads((out / "summary.json").read_text())
     for selector in ("mode", "tanh_mu"):
         ends = sum(r["physics_unstable"] == "1" for r in rows if r["selector"] == selector)
         assert summary["selectors"][selector]["unstable_ends"] == ends > 0
+        assert summary["selectors"][selector]["ends"] == {"blow_up": ends,
+                                                          "terminated": 6 - ends}
         assert f"{ends} of {selector}'s episodes" in printed
 
 
@@ -748,8 +753,10 @@ def test_a_campaign_counts_blow_ups_and_summarises_and_resumes_older_folders(
         assert [r["physics_unstable"] for r in rows] == [str(int(r["reset_seed"]) % 2)
                                                          for r in rows]
     per_seed = read_rows(whole / "per_seed.csv")
-    assert {(r["seed"], r["step"], r["selector"], r["unstable_ends"]) for r in per_seed} == {
-        (str(seed), step, selector, str(blow_ups[seed])) for seed in (0, 1)
+    assert {(r["seed"], r["step"], r["selector"], r["unstable_ends"], r["end_blow_up"],
+             r["end_terminated"]) for r in per_seed} == {
+        (str(seed), step, selector, str(blow_ups[seed]), str(blow_ups[seed]),
+         str(6 - blow_ups[seed])) for seed in (0, 1)
         for step in ("500", "1000") for selector in ("mode", "tanh_mu")}
     summary = (whole / "summary.md").read_text()
     assert "unstable ends" in summary and f"| {blow_ups[1]} / {blow_ups[1]} |" in summary
@@ -761,7 +768,8 @@ def test_a_campaign_counts_blow_ups_and_summarises_and_resumes_older_folders(
     code, _, err = run(capsys, str(old), "--reps", "50")
     assert code == 0, err
     old_per_seed = read_rows(old / "per_seed.csv")
-    assert old_per_seed == [{k: v for k, v in r.items() if k != "unstable_ends"}
+    assert old_per_seed == [{k: v for k, v in r.items()
+                             if k != "unstable_ends" and not k.startswith("end_")}
                             for r in per_seed]
     assert "unstable" not in (old / "summary.md").read_text()
     assert (old / "across_seeds.csv").read_text() == (whole / "across_seeds.csv").read_text()
@@ -781,7 +789,8 @@ def test_a_campaign_counts_blow_ups_and_summarises_and_resumes_older_folders(
     assert code == 0 and "2 of 4 policies already evaluated, 2 left" in err, err
     for seed in (0, 1):
         with open(whole / f"run{seed}" / "episodes.csv", newline="") as f:
-            expected = [row[:-1] + [""] if row[0] == "1000" else row for row in csv.reader(f)]
+            expected = [row[:-2] + ["", ""] if row[0] == "1000" else row
+                        for row in csv.reader(f)]
         with open(old / f"run{seed}" / "episodes.csv", newline="") as f:
             assert list(csv.reader(f)) == expected
         name = f"run{seed}/shift.csv"

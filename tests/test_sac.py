@@ -242,8 +242,9 @@ def test_snapshots_keep_the_policy_at_each_interval_and_survive_a_resume(tmp_pat
     final = torch.load(run_dir / "final_model.pt", weights_only=True)
     uninterrupted = run("sac_corrected.py", *args[:-1], "whole")  # the same run, not killed
     for name, snapshot in snapshots.items():
-        assert set(snapshot) == {"actor", "qf", "config"}
+        assert set(snapshot) == {"actor", "qf", "config", "log_alpha"}
         whole = torch.load(tmp_path / "whole" / "snapshots" / name, weights_only=True)
+        assert torch.equal(snapshot["log_alpha"], whole["log_alpha"])
         same_as_final = True
         for part in ("actor", "qf"):
             for key, value in snapshot[part].items():
@@ -251,6 +252,48 @@ def test_snapshots_keep_the_policy_at_each_interval_and_survive_a_resume(tmp_pat
                 same_as_final &= torch.equal(value, final[part][key])
         assert same_as_final is (name == "step1500.pt"), name  # training moved the weights
     assert uninterrupted.returncode == 0
+
+
+def test_a_run_whose_checkpoint_is_lost_restarts_from_its_last_snapshot(tmp_path):
+    """The fallback when a machine is lost with a run's checkpoint: checkpoint.pt rebuilt from the
+    last snapshot, the buffer refilled by acting before updates resume, the logs going on from
+    the snapshot's step, the restart recorded."""
+    from checkpoints import restart_from_snapshot
+
+    args = [*SHORT, "--snapshot-interval", "500", "--log-interval", "100",
+            "--output-dir", str(tmp_path), "--run-name", "lost"]
+    run_dir = tmp_path / "lost"
+    process = subprocess.Popen(command("sac_corrected.py", *args), cwd=ROOT,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wait_for(lambda: (run_dir / "snapshots" / "step1000.pt").exists())
+    process.send_signal(signal.SIGKILL)  # no checkpoint: --checkpoint-interval 0
+    process.wait()
+    before = read_csv(run_dir / "train.csv")
+    record = restart_from_snapshot(run_dir, refill=200)
+    assert (record["step"], record["refill"], record["updates_from"]) == (1000, 200, 1200)
+    assert read_csv(run_dir / "restarts" / "step1000" / "train.csv") == before  # kept as it was
+    resumed = run("sac_corrected.py", "--resume", str(run_dir))
+    assert "updates resume at step 1200" in resumed.stdout
+
+    config = json.loads((run_dir / "config.json").read_text())
+    assert config["restarts"] == [record]
+    train = read_csv(run_dir / "train.csv")
+    assert [int(r["global_step"]) for r in train] == list(range(100, 1600, 100))
+    assert train[:10] == before[:10]  # up to the snapshot's step, the run as it was
+    losses = {int(r["global_step"]): r["qf1_loss"] for r in train}
+    assert losses[1100] == "" and losses[1200] != "" and losses[1500] != ""  # the refill
+    assert [int(r["global_step"]) for r in read_csv(run_dir / "eval.csv")] == [500, 1000, 1500]
+    snapshot = torch.load(run_dir / "snapshots" / "step1000.pt", weights_only=True)
+    final = torch.load(run_dir / "final_model.pt", weights_only=True)
+    assert any(not torch.equal(v, final["actor"][k]) for k, v in snapshot["actor"].items())
+
+    # A run that has its checkpoint resumes exactly instead; a finished one has nothing to do.
+    restarted = subprocess.run(
+        [sys.executable, "-c", "import sys; from pathlib import Path; "
+         "from checkpoints import restart_from_snapshot; "
+         "restart_from_snapshot(Path(sys.argv[1]), 100)", str(run_dir)],
+        capture_output=True, text=True, cwd=ROOT)
+    assert restarted.returncode == 2 and "finished (done.json)" in restarted.stderr
 
 
 def test_bad_resumes_fail_clearly(standard_run, tmp_path):

@@ -245,13 +245,13 @@ class Bookshelf(Task):
             "success": self.subtask == len(_GOALS),
         }
 
-    def should_terminate(self) -> bool:
+    def termination(self) -> str:
         obj, _ = self._object_and_goal()
-        return bool(
-            self.robot.pelvis_height() < _FALLEN_PELVIS_HEIGHT
-            or self.subtask == len(_GOALS)
-            or obj[2] < _DROPPED_OBJECT_HEIGHT
-        )
+        if self.robot.pelvis_height() < _FALLEN_PELVIS_HEIGHT:
+            return "fell"
+        if self.subtask == len(_GOALS):
+            return "success"
+        return "dropped" if obj[2] < _DROPPED_OBJECT_HEIGHT else ""
 
 
 def make_simple_env(observe_goal: bool = False, **kwargs: Any) -> H1HandEnv:

@@ -104,12 +104,12 @@ class Cube(Task):
             "close": close,
         }
 
-    def should_terminate(self) -> bool:
+    def termination(self) -> str:
+        if self.robot.pelvis_height() < _FALLEN_PELVIS_HEIGHT:
+            return "fell"
         xpos = self.data.xpos
-        return bool(
-            self.robot.pelvis_height() < _FALLEN_PELVIS_HEIGHT
-            or min(xpos[cube, 2] for cube in self._cubes) < _DROPPED_CUBE_HEIGHT
-        )
+        dropped = min(xpos[cube, 2] for cube in self._cubes) < _DROPPED_CUBE_HEIGHT
+        return "dropped" if dropped else ""
 
 
 def make_env(**kwargs: Any) -> H1HandEnv:

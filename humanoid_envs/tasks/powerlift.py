@@ -69,8 +69,8 @@ class Powerlift(Task):
         reward = 0.2 * small_control * stand + 0.8 * lifted
         return reward, {"stand": stand, "small_control": small_control, "lifted": lifted}
 
-    def should_terminate(self) -> bool:
-        return self.robot.pelvis_height() < _FALLEN_PELVIS_HEIGHT
+    def termination(self) -> str:
+        return "fell" if self.robot.pelvis_height() < _FALLEN_PELVIS_HEIGHT else ""
 
 
 def make_env(**kwargs: Any) -> H1HandEnv:

@@ -31,8 +31,8 @@ class Stand(Task):
         reward = small_control * stand * dont_move
         return reward, {"stand": stand, "small_control": small_control, "dont_move": dont_move}
 
-    def should_terminate(self) -> bool:
-        return self.robot.pelvis_height() < _FALLEN_PELVIS_HEIGHT
+    def termination(self) -> str:
+        return "fell" if self.robot.pelvis_height() < _FALLEN_PELVIS_HEIGHT else ""
 
 
 def make_env(**kwargs: Any) -> H1HandEnv:
