@@ -21,8 +21,8 @@ of its run's seed, and --out receives one episodes.csv per run and the campaign'
 CSVs without running an episode. Each policy's rows are written to --out as soon as it is
 evaluated: the same command again, after a kill, evaluates only the policies not there yet.
 
-The episodes run through eval_runner.py, the training runs' own evaluation: split into jobs of
-JOB_EPISODES episodes, each job stepping all its episodes of every selector in lockstep, the
+The episodes run through sac_utils/eval_rounds.py, the training runs' own evaluation: split into
+jobs of JOB_EPISODES episodes, each job stepping all its episodes of every selector in lockstep, the
 jobs spread over --workers processes. A job is the same whatever runs it, so the numbers do not
 depend on --workers; with a run's seed and --eval-round N they are those of the run's N-th
 evaluation.
@@ -51,9 +51,10 @@ import torch
 import torch.nn as nn
 import tyro
 
-import checkpoints
 import sac_corrected as sac
-from eval_runner import (
+from sac_utils import checkpoints
+from sac_utils.cli import check_reset_noise, fail, read_config_json
+from sac_utils.eval_rounds import (
     ACTIONS,
     Q_BEST_CANDIDATES,
     SHIFT_COLUMNS,
@@ -62,7 +63,6 @@ from eval_runner import (
     eval_seeds,
     start_key,
 )
-from flags import check_reset_noise, fail, read_config_json
 
 SELECTORS = ACTIONS
 CONFIDENCE = 0.95
@@ -568,7 +568,7 @@ def write_outputs(out: Path, results: dict, seeds: list[int], summary: dict) -> 
 
 
 # physics_unstable (1: a physics blow-up ended the episode), then end (why the episode ended:
-# eval_runner.episode_end) came last, after the others: a reader that picks columns by name
+# eval_rounds.episode_end) came last, after the others: a reader that picks columns by name
 # reads the files from before them and after alike.
 EPISODE_COLUMNS = ["selector", "episode", "reset_seed", "return", "length", "success",
                    "physics_unstable", "end"]
@@ -867,7 +867,8 @@ def csv_text(rows: list[list]) -> str:
 
 
 def write_atomically(path: Path, text: str) -> None:
-    """path holds its old content or text, wherever the process is killed (checkpoints.py's
+    """path holds its old content or text, wherever the process is killed
+    (sac_utils/checkpoints.py's
     temporary file and rename, synced to disk first)."""
     def write(temporary: Path) -> None:
         with open(temporary, "w", newline="") as f:
@@ -913,7 +914,7 @@ def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> 
     """Per run, step and selector: the mean return and its standard error over the episodes,
     the paired difference against tanh(mu) from the same starts with its standard error and,
     where any episode of the campaign records it, unstable_ends: the episodes a physics blow-up
-    ended, and end_<why>: the episodes that ended each way (eval_runner.episode_end; None where
+    ended, and end_<why>: the episodes that ended each way (eval_rounds.episode_end; None where
     not recorded). A folder of older files only keeps its summary as it was."""
     recorded = any(v is not None for v in unstable.values())
     reasons = sorted({why for counts in ends.values() if counts for why in counts})

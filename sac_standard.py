@@ -18,13 +18,14 @@ import torch
 import torch.nn as nn
 from torch.func import functional_call
 
-# Not the algorithm (docs/scripts.md): flags.py (bad input), run_folder.py (RunFolder: the folder,
-# logs, evaluation rounds, checkpoints; with checkpoints.py), compiled.py (compile, CUDA graphs).
-import flags
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
-from checkpoints import EpisodeRecord
-from compiled import ReLU, adam_state, adam_step, compile_at_start, cuda_graph, grad
-from run_folder import RunFolder, StopRequest
+
+# Not the algorithm (docs/scripts.md), from sac_utils/: cli (bad input), run_folder (RunFolder: the
+# folder, logs, evaluation rounds, checkpoints; with checkpoints), speedups (compile, CUDA graphs).
+from sac_utils import cli
+from sac_utils.checkpoints import EpisodeRecord
+from sac_utils.run_folder import RunFolder, StopRequest
+from sac_utils.speedups import ReLU, adam_state, adam_step, compile_at_start, cuda_graph, grad
 
 ALGORITHM = "standard"
 
@@ -71,8 +72,9 @@ class Args:
     """h1hand tasks: uniform noise of this half-width on qpos at each evaluation reset (default:
     the task's own, the paper's protocol; 0.01 is HumanoidBench's, off on bookshelf and cube)"""
     eval_selectors: tuple[Literal["mode", "tanh_mu", "mean", "q_best"], ...] = ()
-    """more evaluation actions, paired with the script's own (same starts; eval_runner.py): "mean"
-    (E[tanh(u)]), "q_best" (the critic's pick), "mode", "tanh_mu"; eval.csv columns <name>_*"""
+    """more evaluation actions, paired with the script's own (the same starts; eval_rounds.py):
+    "mean" (E[tanh(u)]), "q_best" (the critic's pick), "mode", "tanh_mu"; eval.csv columns
+    <name>_*"""
     mode_solver: Literal["exact", "grid"] = "exact"
     """how to find the mode: "exact" (iterative solve) or "grid" (the paper's Algorithm 1)"""
     eval_workers: int | None = None
@@ -122,15 +124,15 @@ def tanh_mu(mu: torch.Tensor, log_std: torch.Tensor, solver: str) -> torch.Tenso
 
 def eval_actions(args: Args) -> dict:
     """Evaluation actions by eval.csv column prefix: this script's own (unprefixed columns) and
-    the --eval-selectors, paired with it (the same start states; eval_runner.py)."""
+    the --eval-selectors, paired with it (the same start states; eval_rounds.py)."""
     return {"": tanh_mu, **{f"{s}_": s for s in args.eval_selectors}}
 
 
 def make_env(env_id: str, render: bool = False) -> gym.Env:
     """The gymnasium env; an unknown id or spaces SAC cannot use end the run in one line."""
     render_mode = {"render_mode": "rgb_array"} if render else {}
-    env = gym.make(flags.registered_env_id(env_id), **render_mode)
-    return flags.check_spaces(env, env_id)
+    env = gym.make(cli.registered_env_id(env_id), **render_mode)
+    return cli.check_spaces(env, env_id)
 
 
 def make_vector_env(env_id: str) -> gym.vector.VectorEnv:
@@ -156,14 +158,15 @@ class Linear(nn.Module):
 
 
 def mlp(sizes: tuple[int, ...]) -> nn.Sequential:
-    """An MLP with ReLU (compiled.ReLU: torch.relu, faster compiled) between layers, not after."""
+    """An MLP with ReLU (speedups.ReLU: torch.relu, faster compiled) between layers, not after."""
     layers = [m for i, o in zip(sizes, sizes[1:], strict=False) for m in (Linear(i, o), ReLU())]
     return nn.Sequential(*layers[:-1])
 
 
 def init_glorot(module: nn.Module, generator: torch.Generator | None) -> None:
-    """Glorot-uniform weights and zero biases on every layer, output heads included: HumanoidBench's
-    jaxrl_m networks (flax's variance_scaling(1, "fan_avg", "uniform")), not PyTorch's default."""
+    """Glorot-uniform weights on every layer, output heads included (Linear's biases start at
+    zero): HumanoidBench's jaxrl_m networks (flax's variance_scaling(1, "fan_avg", "uniform")),
+    not PyTorch's default."""
     for layer in module.modules():
         if isinstance(layer, Linear):
             nn.init.xavier_uniform_(layer.weight, generator=generator)
@@ -225,7 +228,7 @@ class ReplayBuffer:
     holds only its final observation (never sampled): a truncated episode bootstraps from its
     true final observation, and no transition spans a reset."""
 
-    CANDIDATES = 16  # slots drawn per batch row (see sample)
+    DRAWS_PER_ROW = 16  # slots drawn per batch row (see sample)
     ARRAYS = ("obs", "actions", "rewards", "terminated", "valid")  # what a checkpoint keeps
 
     def __init__(self, size: int, obs_dim: int, action_dim: int, device: torch.device):
@@ -238,12 +241,12 @@ class ReplayBuffer:
         self.valid = torch.zeros(size, dtype=torch.bool, device=device)  # holds a transition
 
     def add(self, obs: np.ndarray, action: np.ndarray, reward: float, terminated: bool,
-            next_obs: np.ndarray, episode_end: bool, invented: bool = False) -> None:
-        """One transition, in one copy to the buffer's device. An `invented` one (a physics
+            next_obs: np.ndarray, episode_end: bool, blow_up: bool = False) -> None:
+        """One transition, in one copy to the buffer's device. A `blow_up` one (a physics
         blow-up, reporting the previous observation) is not stored: its episode ends at the slot
         of that observation, the last it reached soundly."""
         i, j = self.ptr, (self.ptr + 1) % self.size
-        if invented:  # rare
+        if blow_up:  # rare
             self.ptr = j if self.valid[(i - 1) % self.size] else i
             return
         packed = torch.as_tensor(np.concatenate([obs, action, [reward, terminated], next_obs],
@@ -257,10 +260,10 @@ class ReplayBuffer:
 
     def sample(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
         """Uniform over the stored transitions: obs, actions, rewards, next_obs, 1 - terminated.
-        Each row keeps the first of CANDIDATES random slots that holds a transition (no
+        Each row keeps the first of DRAWS_PER_ROW random slots that holds a transition (no
         data-dependent loop, no host sync on a GPU); if none does (probability (episodes /
         slots)^16), the slot before, that episode's last transition."""
-        slots = torch.randint(2**62, (self.CANDIDATES, batch_size),
+        slots = torch.randint(2**62, (self.DRAWS_PER_ROW, batch_size),
                               device=self.obs.device) % self.filled
         first = self.valid[slots].byte().argmax(0)  # argmax returns the first maximum
         idx = slots.gather(0, first[None])[0]
@@ -307,19 +310,20 @@ def sac_losses(params: tuple[dict, dict, torch.Tensor], qf_target_params: dict,
 
 
 @torch.no_grad()  # grad turns gradients on for the losses alone
-def sac_update(learner: dict, batch: tuple[torch.Tensor, ...], noise: torch.Tensor,
+def sac_update(tensors: dict, batch: tuple[torch.Tensor, ...], noise: torch.Tensor,
                actor: Actor, qf: TwinQ, gamma: float, tau: float,
                target_entropy: float) -> tuple[torch.Tensor, ...]:
     """One gradient step of the critics, actor and temperature, and the critics' Polyak-averaged
-    targets, in place on the tensors of `learner` (learner_tensors): tensors in, so that it
+    targets, in place on `tensors` (agent_tensors): tensors in, so that it
     compiles whole, once. As HumanoidBench's jaxrl_m, all three losses use the parameters from
     before this update, and the target moves towards that critic. Returns train.csv's logs."""
-    params = (learner["actor"], learner["qf"], learner["log_alpha"])
-    # grad: torch.func.grad's (compiled.py: torch.autograd's when not compiled, the same numbers).
-    grads, logs = grad(sac_losses)(params, learner["qf_target"], batch, noise, actor, qf, gamma,
+    params = (tensors["actor"], tensors["qf"], tensors["log_alpha"])
+    # grad: torch.func.grad's (sac_utils/speedups.py: torch.autograd's when not compiled, the same
+    # numbers).
+    grads, logs = grad(sac_losses)(params, tensors["qf_target"], batch, noise, actor, qf, gamma,
                                    target_entropy)
-    torch._foreach_lerp_(list(learner["qf_target"].values()), list(learner["qf"].values()), tau)
-    for p, g, state in zip(params, grads, learner["adam"], strict=True):
+    torch._foreach_lerp_(list(tensors["qf_target"].values()), list(tensors["qf"].values()), tau)
+    for p, g, state in zip(params, grads, tensors["adam"], strict=True):
         if isinstance(p, dict):
             adam_step(list(p.values()), list(g.values()), state)
         else:
@@ -327,8 +331,8 @@ def sac_update(learner: dict, batch: tuple[torch.Tensor, ...], noise: torch.Tens
     return logs
 
 
-def make_learner(args: Args, obs_dim: int, action_space: gym.spaces.Box,
-                 device: torch.device) -> dict:
+def make_agent(args: Args, obs_dim: int, action_space: gym.spaces.Box,
+               device: torch.device) -> dict:
     """The actor, twin critics and their target, log alpha and their Adam optimizers, by their
     names in checkpoint.pt. The initial weights come from a generator of their own, so torch's
     (the actions and the batches) starts from the seed alone."""
@@ -346,10 +350,10 @@ def make_learner(args: Args, obs_dim: int, action_space: gym.spaces.Box,
             "alpha_optimizer": adam([log_alpha], lr=args.alpha_lr)}
 
 
-def learner_tensors(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.Tensor,
-                    actor_optimizer: torch.optim.Optimizer, q_optimizer: torch.optim.Optimizer,
-                    alpha_optimizer: torch.optim.Optimizer) -> dict:
-    """What sac_update reads and changes, make_learner's own tensors (so an update changes them in
+def agent_tensors(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.Tensor,
+                  actor_optimizer: torch.optim.Optimizer, q_optimizer: torch.optim.Optimizer,
+                  alpha_optimizer: torch.optim.Optimizer) -> dict:
+    """What sac_update reads and changes, make_agent's own tensors (so an update changes them in
     place; call this after a checkpoint's load, which replaces the optimizers' tensors)."""
     return {"actor": dict(actor.named_parameters()), "qf": dict(qf.named_parameters()),
             "qf_target": dict(qf_target.named_parameters()), "log_alpha": log_alpha,
@@ -369,7 +373,7 @@ def physics_blow_up(info: dict, episode_end: bool) -> bool:
 
 
 if __name__ == "__main__":
-    args = flags.parse_args(Args, ALGORITHM, eval_actions)
+    args = cli.parse_args(Args, ALGORITHM, eval_actions)
     stop = StopRequest()  # from the start: a signal during setup also ends in code 3
     run = RunFolder(args, ALGORITHM, Path(__file__).name, eval_actions(args))
     torch.set_num_threads(args.torch_threads)
@@ -380,37 +384,36 @@ if __name__ == "__main__":
     print(f"device: {device}", flush=True)
 
     env = make_env(args.env_id)  # checks the id and the spaces
-    flags.check_reset_noise(env, args.env_id, args.eval_reset_noise)
+    cli.check_reset_noise(env, args.env_id, args.eval_reset_noise)
     action_space = env.action_space  # draws the random start actions
     action_space.seed(args.seed)
     envs = make_vector_env(args.env_id)
     obs_dim, action_dim = envs.single_observation_space.shape[0], action_space.shape[0]
 
-    training = make_learner(args, obs_dim, action_space, device)
-    actor, qf = training["actor"], training["qf"]
+    agent = make_agent(args, obs_dim, action_space, device)
+    actor, qf = agent["actor"], agent["qf"]
     target_entropy = -args.target_entropy_scale * action_dim
     rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim,
                       device if args.gpu_buffer else torch.device("cpu"))
-    global_step, obs = run.open(training, rb, action_space, envs, device)  # fresh or resumed
+    global_step, obs = run.open(agent, rb, action_space, envs, device)  # fresh or resumed
 
     # Acting: a sampled action from the observation and the noise, (1, obs) -> (1, A).
     act = torch.no_grad()(lambda obs, noise: actor.squash(*actor(obs), noise)[0])
-    learner = learner_tensors(**training)
+    tensors = agent_tensors(**agent)
     update = functools.partial(sac_update, actor=actor, qf=qf, gamma=args.gamma, tau=args.tau,
                                target_entropy=target_entropy)
     noise_shape = (2, args.batch_size, action_dim)  # the next action's and the action's
-    # Speed (compiled.py): both compiled whole at start-up and, on a GPU, replayed as CUDA
-    # graphs; the warm-up calls leave the training state as it was (`restore`).
-    restore = tuple(training.values())
+    # Speed (sac_utils/speedups.py): both compiled whole at start-up and, on a GPU, replayed as CUDA
+    # graphs; the warm-up calls leave the agent as it was.
     if args.compile:
         act = compile_at_start(act, (torch.zeros((1, obs_dim), device=device),
                                      torch.zeros((1, action_dim), device=device)), (), "acting")
-        update = compile_at_start(update, (learner, rb.zero_batch(args.batch_size, device),
+        update = compile_at_start(update, (tensors, rb.zero_batch(args.batch_size, device),
                                            torch.zeros(noise_shape, device=device)),
-                                  restore, "the update")
-    update = functools.partial(update, learner)  # the learner's tensors change in place
+                                  tuple(agent.values()), "the update")
+    update = functools.partial(update, tensors)  # the agent's tensors change in place
     if device.type == "cuda" and args.cudagraphs:
-        act, update = cuda_graph(act), cuda_graph(update, restore)
+        act, update = cuda_graph(act), cuda_graph(update, tuple(agent.values()))
 
     losses = None
     while global_step < args.total_timesteps:
@@ -419,7 +422,7 @@ if __name__ == "__main__":
         else:
             action = act(torch.as_tensor(obs, dtype=torch.float32, device=device),
                          torch.randn((1, action_dim), device=device)).cpu().numpy()
-            flags.check_finite(action, "action")
+            cli.check_finite(action, "action")
         next_obs, reward, terminated, truncated, info = envs.step(action)
         global_step += 1
         episode_end = bool(terminated[0] or truncated[0])
@@ -442,10 +445,10 @@ if __name__ == "__main__":
         if global_step % args.print_interval == 0:
             run.print_progress(global_step)
         if args.snapshot_interval > 0 and global_step % args.snapshot_interval == 0:
-            run.save_snapshot(global_step, actor, qf, training["log_alpha"])
+            run.save_snapshot(global_step, actor, qf, agent["log_alpha"])
         if stop.requested or (args.checkpoint_interval > 0
                               and global_step % args.checkpoint_interval == 0):
-            run.checkpoint(global_step, training, rb, action_space, envs, stop.requested)
+            run.checkpoint(global_step, agent, rb, action_space, envs, stop.requested)
             if stop.requested:
                 run.stop(global_step)
 

@@ -1,4 +1,4 @@
-"""What evaluation costs training, now that it runs beside it (eval_runner.py).
+"""What evaluation costs training, now that it runs beside it (sac_utils/eval_rounds.py).
 
 Per task: the training pace (steps/s of the update phase, per seed and in all) of `--seeds`
 runs of sac_corrected.py side by side, with evaluation off, with the paired two actions (mode,
@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 
 import bench.endless  # noqa: E402, F401  (registers the Endless-* envs)
 import sac_corrected  # noqa: E402
-from eval_runner import Round, eval_seeds, run_round  # noqa: E402
+from sac_utils.eval_rounds import Round, eval_seeds, run_round  # noqa: E402
 
 
 @dataclass
@@ -82,14 +82,14 @@ def run_grid(args: Args, task: str, eval_flags: list[str], out: Path) -> list[fl
 
 def worst_round_seconds(task: str, actions: dict[str, str], episodes: int) -> tuple[float, int]:
     """Seconds and env steps of one worst-case round, in-process, of an untrained actor (and
-    critic, for q_best) as sac_corrected.py builds them (make_learner, its default sizes)."""
+    critic, for q_best) as sac_corrected.py builds them (make_agent, its default sizes)."""
     env = gym.make(task)
-    learner = sac_corrected.make_learner(sac_corrected.Args(env_id=task),
-                                         env.observation_space.shape[0], env.action_space,
-                                         torch.device("cpu"))
-    critic = learner["qf"] if "q_best" in actions.values() else None
+    agent = sac_corrected.make_agent(sac_corrected.Args(env_id=task),
+                                     env.observation_space.shape[0], env.action_space,
+                                     torch.device("cpu"))
+    critic = agent["qf"] if "q_best" in actions.values() else None
     round_ = Round(f"bench.endless:Endless-{task}", eval_seeds(0, 1, episodes), actions,
-                   learner["actor"], critic)
+                   agent["actor"], critic)
     start = time.perf_counter()
     result = run_round(round_)
     return time.perf_counter() - start, sum(sum(result[p]["lengths"]) for p in actions)

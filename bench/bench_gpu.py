@@ -13,7 +13,7 @@ rows after the first, which holds the CUDA-graph captures) per run and in all:
   with the update eager and as a CUDA graph, the graph with the buffer in host memory, the
   compiled update in a graph; acting on one observation (host to GPU and back included) eager,
   as a graph and compiled in a graph; the mode of one action; one env step on this CPU; an
-  evaluation round (CPU, as eval_runner.py runs it).
+  evaluation round (CPU, as sac_utils/eval_rounds.py runs it).
 - single: one run of --micro-env-id on the CPU, GPU eager, GPU graphs, graphs with the buffer in
   host memory.
 - mps: for each of --env-ids, one run alone and --processes runs sharing the GPU under MPS (as
@@ -42,15 +42,15 @@ sys.path.insert(0, str(ROOT))
 from bench_sac import (  # noqa: E402  (bench/ is on the path: the script's folder)
     random_buffer,
     script_act,
-    script_learner,
+    script_agent,
     script_update,
     training_step,
 )
 
 import sac_standard  # noqa: E402
-from compiled import cuda_graph  # noqa: E402
-from eval_runner import Round, eval_seeds, run_round  # noqa: E402
 from mode_search import mode_action  # noqa: E402
+from sac_utils.eval_rounds import Round, eval_seeds, run_round  # noqa: E402
+from sac_utils.speedups import cuda_graph  # noqa: E402
 from sweep import mps_daemon  # noqa: E402
 
 CUDA, CPU = torch.device("cuda"), torch.device("cpu")
@@ -125,9 +125,9 @@ def build_train_step(args: Args, env, **changes) -> tuple[Callable, sac_standard
     script = script_args(args, **changes)
     obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
     rb = random_buffer(20_000, obs_dim, action_dim, CUDA if script.gpu_buffer else CPU)
-    training = script_learner(script, obs_dim, env.action_space, CUDA)
-    update = script_update(script, training, rb, CUDA)
-    return training_step(script, rb, update, CUDA), training["actor"]
+    agent = script_agent(script, obs_dim, env.action_space, CUDA)
+    update = script_update(script, agent, rb, CUDA)
+    return training_step(script, rb, update, CUDA), agent["actor"]
 
 
 def time_updates(args: Args, env) -> sac_standard.Actor:
@@ -192,7 +192,7 @@ def micro(args: Args) -> None:
     actor = time_updates(args, env)
     time_acting(args, env, actor)
     print(f"env step on this CPU: {time_env_step(env, args.repeats) * 1e3:7.3f} ms", flush=True)
-    # Evaluation runs on CPU workers (eval_runner.py); one round, in-process, one thread.
+    # Evaluation runs on CPU workers (sac_utils/eval_rounds.py); one round, in-process, one thread.
     start = time.perf_counter()
     actions = {"": "mode", "tanh_mu_": "tanh_mu"}
     result = run_round(Round(args.micro_env_id, eval_seeds(0, 1, args.eval_episodes), actions,

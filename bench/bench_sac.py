@@ -32,23 +32,23 @@ import tyro
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-import flags  # noqa: E402
 import sac_standard  # noqa: E402
-from compiled import compile_at_start, cuda_graph  # noqa: E402
-from eval_runner import Round, eval_seeds, run_round  # noqa: E402
 from sac_standard import (  # noqa: E402
     ReplayBuffer,
     TwinQ,
+    agent_tensors,
     ends_without_bootstrap,
     eval_actions,
-    learner_tensors,
+    make_agent,
     make_env,
-    make_learner,
     make_vector_env,
     physics_blow_up,
     sac_update,
     tanh_mu,
 )
+from sac_utils import cli  # noqa: E402
+from sac_utils.eval_rounds import Round, eval_seeds, run_round  # noqa: E402
+from sac_utils.speedups import compile_at_start, cuda_graph  # noqa: E402
 
 # The timings' clock: process CPU seconds; the main block sets wall-clock seconds on --wall-clock.
 clock = time.process_time
@@ -122,34 +122,34 @@ def script_args(args: Args, **changes) -> sac_standard.Args:
         "compile": args.compile, **changes})
 
 
-def script_learner(script: sac_standard.Args, obs_dim: int, action_space,
-                   device: torch.device, critic_class=TwinQ) -> dict:
-    """The script's make_learner; with another critic_class (BatchedTwinQ), its critics, their
+def script_agent(script: sac_standard.Args, obs_dim: int, action_space,
+                 device: torch.device, critic_class=TwinQ) -> dict:
+    """The script's make_agent; with another critic_class (BatchedTwinQ), its critics, their
     target and their optimizer swapped for that class's."""
-    training = make_learner(script, obs_dim, action_space, device)
+    agent = make_agent(script, obs_dim, action_space, device)
     if critic_class is not TwinQ:
         qf = critic_class(obs_dim, action_space.shape[0], script.hidden_sizes).to(device)
-        training |= {"qf": qf, "qf_target": copy.deepcopy(qf),
-                     "q_optimizer": torch.optim.Adam(qf.parameters(), lr=script.q_lr, fused=True,
-                                                     capturable=device.type == "cuda")}
-    return training
+        agent |= {"qf": qf, "qf_target": copy.deepcopy(qf),
+                  "q_optimizer": torch.optim.Adam(qf.parameters(), lr=script.q_lr, fused=True,
+                                                  capturable=device.type == "cuda")}
+    return agent
 
 
-def script_update(script: sac_standard.Args, training: dict, rb: ReplayBuffer,
+def script_update(script: sac_standard.Args, agent: dict, rb: ReplayBuffer,
                   device: torch.device):
-    """update(batch, noise) of this learner (script_learner), set up as sac_standard.py's main
+    """update(batch, noise) of this agent (script_agent), set up as sac_standard.py's main
     block does: compiled at start-up with --compile, a CUDA graph on CUDA with --cudagraphs."""
-    actor, qf = training["actor"], training["qf"]
-    learner = learner_tensors(*training.values())
+    actor, qf = agent["actor"], agent["qf"]
+    tensors = agent_tensors(*agent.values())
     update = functools.partial(sac_update, actor=actor, qf=qf, gamma=script.gamma, tau=script.tau,
                                target_entropy=-script.target_entropy_scale * rb.action_dim)
     noise_shape = (2, script.batch_size, rb.action_dim)
-    restore = tuple(training.values())
+    restore = tuple(agent.values())
     if script.compile:
-        update = compile_at_start(update, (learner, rb.zero_batch(script.batch_size, device),
+        update = compile_at_start(update, (tensors, rb.zero_batch(script.batch_size, device),
                                            torch.zeros(noise_shape, device=device)),
                                   restore, "the update")
-    update = functools.partial(update, learner)
+    update = functools.partial(update, tensors)
     if device.type == "cuda" and script.cudagraphs:
         update = cuda_graph(update, restore)
     return update
@@ -193,8 +193,8 @@ def time_update(args: Args, env, critic_class=TwinQ, compiled: bool = True) -> f
     cpu = torch.device("cpu")
     script = script_args(args, compile=compiled)
     rb = random_buffer(20_000, obs_dim, action_dim, cpu)
-    update = script_update(script, script_learner(script, obs_dim, env.action_space, cpu,
-                                                  critic_class), rb, cpu)
+    update = script_update(script, script_agent(script, obs_dim, env.action_space, cpu,
+                                                critic_class), rb, cpu)
     return median_time(training_step(script, rb, update, cpu), args.repeats, args.updates)
 
 
@@ -220,8 +220,8 @@ def time_actor_forward(args: Args, env, repeats: int) -> float:
     """Seconds of one evaluation action of the script's untrained actor on one observation:
     tanh(mu) (sac_standard.tanh_mu), scaled to the env's bounds."""
     script = script_args(args)
-    actor = script_learner(script, env.observation_space.shape[0], env.action_space,
-                           torch.device("cpu"))["actor"]
+    actor = script_agent(script, env.observation_space.shape[0], env.action_space,
+                         torch.device("cpu"))["actor"]
     obs = torch.as_tensor(env.observation_space.sample(), dtype=torch.float32)[None]
 
     def forward():
@@ -268,10 +268,10 @@ def time_loop_parts(args: Args, start: int = 1000) -> dict[str, float]:
     space.seed(script.seed)
     envs = make_vector_env(args.env_id)
     obs_dim, action_dim = envs.single_observation_space.shape[0], space.shape[0]
-    training = script_learner(script, obs_dim, space, cpu)
+    agent = script_agent(script, obs_dim, space, cpu)
     rb = ReplayBuffer(script.buffer_size, obs_dim, action_dim, cpu)
-    act = script_act(script, training["actor"], obs_dim, action_dim, cpu)
-    update = script_update(script, training, rb, cpu)
+    act = script_act(script, agent["actor"], obs_dim, action_dim, cpu)
+    update = script_update(script, agent, rb, cpu)
     noise_shape = (2, script.batch_size, action_dim)
     parts = dict.fromkeys(("act", "env step", "buffer add", "batch sample", "update"), 0.0)
     obs, _ = envs.reset(seed=script.seed)
@@ -282,7 +282,7 @@ def time_loop_parts(args: Args, start: int = 1000) -> dict[str, float]:
         else:
             action = act(torch.as_tensor(obs, dtype=torch.float32, device=cpu),
                          torch.randn((1, action_dim), device=cpu)).cpu().numpy()
-            flags.check_finite(action, "action")
+            cli.check_finite(action, "action")
         t1 = clock()
         next_obs, reward, terminated, truncated, info = envs.step(action)
         t2 = clock()
@@ -310,8 +310,8 @@ def time_eval_round(args: Args, env, episodes: int) -> tuple[float, float]:
     """Seconds of one evaluation round with tanh(mu) of the script's untrained actor, and its
     steps."""
     script = script_args(args)
-    actor = script_learner(script, env.observation_space.shape[0], env.action_space,
-                           torch.device("cpu"))["actor"]
+    actor = script_agent(script, env.observation_space.shape[0], env.action_space,
+                         torch.device("cpu"))["actor"]
     start = clock()
     result = run_round(Round(env.spec.id, eval_seeds(script.seed, 1, episodes),
                              eval_actions(script), actor, mode_solver=script.mode_solver))

@@ -186,11 +186,6 @@ class H1HandEnv(gym.Env):
         spec.visual.global_.offheight = max(height, spec.visual.global_.offheight)
         return spec.compile()
 
-    @property
-    def dt(self) -> float:
-        """Seconds of simulated time per env step."""
-        return self.model.opt.timestep * N_SUBSTEPS
-
     def _reset_to_keyframe(self) -> None:
         mujoco.mj_resetDataKeyframe(self.model, self.data, 0)
 
@@ -222,7 +217,7 @@ class H1HandEnv(gym.Env):
     def start_state(self) -> bytes:
         """The state after `reset`, as bytes: MuJoCo's whole integration state plus the task's
         episode state. Steps draw no randomness, so two episodes with equal start states given
-        equal actions are one episode (eval_runner.py steps it once)."""
+        equal actions are one episode (sac_utils/eval_rounds.py steps it once)."""
         what = mujoco.mjtState.mjSTATE_INTEGRATION
         state = np.empty(mujoco.mj_stateSize(self.model, what))
         mujoco.mj_getState(self.model, self.data, state, what)

@@ -61,11 +61,11 @@ def updates(compiled: bool, steps: int = 200) -> tuple[list, dict]:
 
 
 def run_updates(compiled: bool, steps: int) -> tuple[list, dict]:
-    from compiled import compile_at_start
-    from sac_standard import learner_tensors, sac_update
+    from sac_standard import agent_tensors, sac_update
+    from sac_utils.speedups import compile_at_start
 
     actor, qf, qf_target, log_alpha, optimizers = small_learner(0)
-    tensors = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
+    tensors = agent_tensors(actor, qf, qf_target, log_alpha, *optimizers)
     update = functools.partial(sac_update, actor=actor, qf=qf, gamma=0.99, tau=0.005,
                                target_entropy=-1.5)
     if compiled:
@@ -105,7 +105,7 @@ def test_the_compiled_update_is_the_eager_update_in_one_graph():
 
 def test_the_update_steps_adam_as_torch_optim_adam_does():
     """sac_update's own Adam step (foreach ops, so that it compiles) against torch's."""
-    from compiled import adam_state, adam_step
+    from sac_utils.speedups import adam_state, adam_step
 
     torch.manual_seed(0)
     params = [torch.randn(5, 7, requires_grad=True), torch.randn(3, requires_grad=True)]
@@ -222,20 +222,20 @@ def test_without_a_cpp_compiler_the_run_names_the_fix_in_one_line(tmp_path):
 
 
 def test_the_eager_gradient_is_torch_funcs():
-    """Uncompiled, compiled.grad takes sac_losses's gradient from torch.autograd (faster eager);
+    """Uncompiled, speedups.grad takes sac_losses's gradient from torch.autograd (faster eager);
     the graph is traced from torch.func.grad. Both give the same gradient and the same logs, and
     neither leaves the logs attached to an autograd graph."""
-    from compiled import grad
-    from sac_standard import learner_tensors, sac_losses
+    from sac_standard import agent_tensors, sac_losses
+    from sac_utils.speedups import grad
 
     actor, qf, qf_target, log_alpha, optimizers = small_learner(seed=3)
-    learner = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
+    tensors = agent_tensors(actor, qf, qf_target, log_alpha, *optimizers)
     torch.manual_seed(4)
     batch = (torch.randn(32, 11), torch.rand(32, 3) * 2 - 1, torch.randn(32),
              torch.randn(32, 11), (torch.rand(32) > 0.1).float())
     noise = torch.randn(2, 32, 3)
-    params = (learner["actor"], learner["qf"], learner["log_alpha"])
-    args = (params, learner["qf_target"], batch, noise, actor, qf, 0.99, -1.5)
+    params = (tensors["actor"], tensors["qf"], tensors["log_alpha"])
+    args = (params, tensors["qf_target"], batch, noise, actor, qf, 0.99, -1.5)
     with torch.no_grad():  # as sac_update calls it
         ours, our_logs = grad(sac_losses)(*args)
         reference, reference_logs = torch.func.grad(sac_losses, has_aux=True)(*args)

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import torch
 
-from compiled import compile_at_start, cuda_graph
 from mode_search import mode_action
-from sac_standard import Actor, ReplayBuffer, TwinQ, learner_tensors, sac_update
+from sac_standard import Actor, ReplayBuffer, TwinQ, agent_tensors, sac_update
+from sac_utils.speedups import compile_at_start, cuda_graph
 from tests.test_sac import SHORT, command, read_csv, run, wait_for
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
@@ -40,7 +40,7 @@ def learner(buffer_device: torch.device, seed: int = 0, compiled: bool = False):
     for step in range(400):
         rb.add(rng.normal(size=OBS_DIM), rng.uniform(-2, 2, ACTION_DIM), rng.normal(),
                step % 40 == 39, rng.normal(size=OBS_DIM), step % 20 == 19)
-    tensors = learner_tensors(actor, qf, qf_target, log_alpha, *optimizers)
+    tensors = agent_tensors(actor, qf, qf_target, log_alpha, *optimizers)
     state = (actor, qf, qf_target, log_alpha, *optimizers)
     update = functools.partial(sac_update, actor=actor, qf=qf, gamma=0.99, tau=0.005,
                                target_entropy=-ACTION_DIM / 2)

@@ -18,8 +18,8 @@ import pytest
 import torch
 
 import evaluate
-from eval_runner import Q_BEST_CANDIDATES, Round, eval_seeds, run_round
 from mode_search import tanh_normal_log_prob
+from sac_utils.eval_rounds import Q_BEST_CANDIDATES, Round, eval_seeds, run_round
 from tests.test_sac import EAGER
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -21,7 +21,7 @@ TINY = ["--env-id", "Pendulum-v1", "--seed", "3", "--total-timesteps", "1200",
         "--learning-starts", "300", "--eval-interval", "400", "--eval-episodes", "2",
         "--hidden-sizes", "32", "32", "--batch-size", "32", "--log-interval", "100",
         "--print-interval", "1200", "--checkpoint-interval", "0"]
-# The statistics each evaluation round logs for an evaluation action (eval_runner.EVAL_STATS).
+# The statistics each evaluation round logs for an evaluation action (eval_rounds.EVAL_STATS).
 EVAL_STATS = ("return_mean", "return_std", "return_min", "return_max", "length_mean",
               "success_rate")
 # Columns that measure the machine, not the run.
@@ -54,7 +54,7 @@ def runs(tmp_path_factory) -> Path:
 
 
 def test_the_scripts_log_the_statistics_compared_here():
-    from eval_runner import EVAL_STATS as logged
+    from sac_utils.eval_rounds import EVAL_STATS as logged
 
     assert tuple(logged) == EVAL_STATS
 

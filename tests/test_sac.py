@@ -195,8 +195,8 @@ def test_replay_buffer_keeps_episode_boundaries():
 def test_replay_buffer_state_round_trip():
     import numpy as np
 
-    from checkpoints import buffer_state, load_buffer_state
     from sac_standard import ReplayBuffer
+    from sac_utils.checkpoints import buffer_state, load_buffer_state
 
     cpu = torch.device("cpu")
     rb = ReplayBuffer(size=50, obs_dim=3, action_dim=2, device=cpu)
@@ -258,7 +258,7 @@ def test_a_run_whose_checkpoint_is_lost_restarts_from_its_last_snapshot(tmp_path
     """The fallback when a machine is lost with a run's checkpoint: checkpoint.pt rebuilt from the
     last snapshot, the buffer refilled by acting before updates resume, the logs going on from
     the snapshot's step, the restart recorded."""
-    from checkpoints import restart_from_snapshot
+    from sac_utils.checkpoints import restart_from_snapshot
 
     args = [*SHORT, "--snapshot-interval", "500", "--log-interval", "100",
             "--output-dir", str(tmp_path), "--run-name", "lost"]
@@ -290,7 +290,7 @@ def test_a_run_whose_checkpoint_is_lost_restarts_from_its_last_snapshot(tmp_path
     # A run that has its checkpoint resumes exactly instead; a finished one has nothing to do.
     restarted = subprocess.run(
         [sys.executable, "-c", "import sys; from pathlib import Path; "
-         "from checkpoints import restart_from_snapshot; "
+         "from sac_utils.checkpoints import restart_from_snapshot; "
          "restart_from_snapshot(Path(sys.argv[1]), 100)", str(run_dir)],
         capture_output=True, text=True, cwd=ROOT)
     assert restarted.returncode == 2 and "finished (done.json)" in restarted.stderr
@@ -316,7 +316,7 @@ def test_bad_resumes_fail_clearly(standard_run, tmp_path):
 
 
 def test_nan_is_a_clear_error():
-    from flags import check_finite
+    from sac_utils.cli import check_finite
 
     with pytest.raises(SystemExit, match="training diverged"):
         check_finite(torch.tensor([0.0, float("nan")]).numpy(), "action")
@@ -382,7 +382,7 @@ def test_update_scores_the_actor_with_the_pre_update_critic():
     import gymnasium as gym
     import numpy as np
 
-    from sac_standard import Actor, TwinQ, learner_tensors, sac_update
+    from sac_standard import Actor, TwinQ, agent_tensors, sac_update
 
     torch.manual_seed(0)
     actor = Actor(3, (8,), gym.spaces.Box(-1.0, 1.0, (2,), np.float32), -10.0, 2.0)
@@ -397,7 +397,7 @@ def test_update_scores_the_actor_with_the_pre_update_critic():
     adam = functools.partial(torch.optim.Adam, lr=0.05)
     optimizers = (adam(actor.parameters()), adam(qf.parameters()), adam([log_alpha]))
     noise = torch.randn(2, 16, 2)  # the next action's, then the action's
-    sac_update(learner_tensors(actor, qf, qf_target, log_alpha, *optimizers), batch, noise,
+    sac_update(agent_tensors(actor, qf, qf_target, log_alpha, *optimizers), batch, noise,
                actor, qf, 0.99, 0.1, -1.0)
 
     # By hand: the actor's gradient step against the pre-update critic.

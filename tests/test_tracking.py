@@ -92,8 +92,8 @@ def test_track_logs_our_scalars_offline_and_a_resume_continues_the_run(tmp_path)
 
 
 def test_wandb_is_imported_only_with_track():
-    code = ("import sys, flags, sac_standard; "
-            "flags.check_args(sac_standard.Args(), sac_standard.eval_actions); "
+    code = ("import sys, sac_standard; from sac_utils import cli; "
+            "cli.check_args(sac_standard.Args(), sac_standard.eval_actions); "
             "print('wandb' in sys.modules)")
     result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
                             text=True)

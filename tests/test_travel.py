@@ -1,10 +1,7 @@
-"""Run folders that travel: a copy resumes the copy and never touches the original; a folder
-from before issue 37 (checkpoints with a leading seed axis) resumes, one trained with
---num-seeds is refused in one line; the .pt files load without a GPU; evaluation failures end a
-run in one line."""
+"""Run folders that travel: a copy resumes the copy and never touches the original; the .pt
+files load without a GPU; evaluation failures end a run in one line."""
 
 import hashlib
-import json
 import shutil
 import signal
 import subprocess
@@ -16,8 +13,8 @@ import pytest
 import torch
 
 import tests.toy_envs  # noqa: F401  (registers the toy envs here; workers import them by id)
-from checkpoints import episode_state, on_cpu, rng_states
-from eval_runner import EvalPool, Round
+from sac_utils.checkpoints import episode_state, on_cpu, rng_states
+from sac_utils.eval_rounds import EvalPool, Round
 from tests.test_sac import ROOT, command, read_csv, run, wait_for
 from tests.toy_envs import ToyActor
 
@@ -114,51 +111,6 @@ def test_analyze_reads_an_interrupted_run_to_its_last_evaluation(tmp_path):
     assert float(final["estimate"]) == pytest.approx((finals[3][shared] + finals[4][shared]) / 2)
 
 
-def with_seed_axis(state: dict) -> dict:
-    """A checkpoint as the scripts wrote it between --num-seeds and issue 37: each network and
-    optimizer tensor, and log alpha, with a leading seed axis of 1 (biases (1, 1, out))."""
-    def old(key: str, value: torch.Tensor) -> torch.Tensor:
-        return value[None, None] if value.dim() == 1 else value[None]
-
-    networks = {name: {k: old(k, v) if k.endswith((".weight", ".bias")) else v
-                       for k, v in state[name].items()} for name in ("actor", "qf", "qf_target")}
-    optimizers = {name: {**state[name], "state": {i: {k: v if k == "step" else old(k, v)
-                                                      for k, v in s.items()}
-                                                  for i, s in state[name]["state"].items()}}
-                  for name in ("actor_optimizer", "q_optimizer", "alpha_optimizer")}
-    return {**state, **networks, **optimizers, "log_alpha": state["log_alpha"][None],
-            "args": {**state["args"], "num_seeds": 1}}
-
-
-def test_a_checkpoint_with_the_seed_axis_resumes_to_the_same_run(tmp_path):
-    stopped_run(tmp_path, "--run-name", "now")
-    shutil.copytree(tmp_path / "now", tmp_path / "before")
-    path = tmp_path / "before" / "checkpoint.pt"
-    torch.save(with_seed_axis(torch.load(path, weights_only=False)), path)
-    assert torch.load(path, weights_only=True)["actor"]["trunk.0.weight"].shape == (1, 3, 8)
-    for name in ("now", "before"):
-        run("sac_standard.py", "--resume", str(tmp_path / name))
-    for name in ("eval.csv", "train.csv"):
-        assert read_csv(tmp_path / "before" / name) == read_csv(tmp_path / "now" / name)
-    models = [torch.load(tmp_path / name / "final_model.pt", weights_only=True)
-              for name in ("now", "before")]
-    for key, value in models[0]["actor"].items():
-        assert torch.equal(models[1]["actor"][key], value), key
-
-
-def test_a_folder_trained_with_num_seeds_is_refused_in_one_line(tmp_path):
-    stopped_run(tmp_path, "--run-name", "b0")
-    config_path = tmp_path / "b0" / "config.json"
-    config = json.loads(config_path.read_text())
-    config_path.write_text(json.dumps(config | {"batch": {
-        "first_seed": 0, "num_seeds": 2, "run_dirs": ["b0", "b1"]}}))
-    before = contents(tmp_path)
-    refused = run("sac_standard.py", "--resume", str(tmp_path / "b0"), check=False)
-    assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
-    assert "was trained in one process with 2 seeds (--num-seeds" in refused.stderr
-    assert contents(tmp_path) == before
-
-
 def test_checkpoint_parts_are_saved_on_the_cpu_and_rng_only_for_cuda_runs():
     tree = {"a": torch.ones(2), "b": [torch.zeros(1), (torch.arange(3), 5)], "c": "text"}
     moved = on_cpu(tree)
@@ -228,7 +180,7 @@ def test_a_blow_up_at_an_episodes_first_step_leaves_nothing_in_the_buffer():
 
     rb = ReplayBuffer(8, 1, 1, torch.device("cpu"))
     one = lambda x: np.array([x], np.float64)  # noqa: E731
-    rb.add(one(5), one(0.1), 0.0, False, one(6), True, invented=True)  # a blow-up at once
+    rb.add(one(5), one(0.1), 0.0, False, one(6), True, blow_up=True)  # a blow-up at once
     assert (rb.ptr, rb.filled) == (0, 0) and not rb.valid.any()
     rb.add(one(7), one(0.2), 1.0, False, one(8), True)  # a real 1-step episode
     assert (rb.ptr, rb.filled) == (2, 2)

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-import flags as flags_module
 import sac_corrected
 import sac_standard
+from sac_utils import cli as flags_module
 
 ROOT = Path(__file__).resolve().parent.parent
 SHORT = ["--env-id", "Pendulum-v1", "--total-timesteps", "600", "--learning-starts", "200",

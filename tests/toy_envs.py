@@ -1,4 +1,4 @@
-"""Tiny gymnasium envs whose episodes are known from their reset seed, for eval_runner's tests.
+"""Tiny gymnasium envs whose episodes are known from their reset seed, for eval_rounds' tests.
 
 gym.make("tests.toy_envs:Countdown-v0") imports this module, in a worker process too.
 """

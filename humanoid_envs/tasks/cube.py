@@ -75,9 +75,6 @@ class Cube(Task):
     def episode_state(self) -> tuple[np.ndarray, ...]:
         return (self.model.body_quat[self._target],)
 
-    def target_orientation(self) -> np.ndarray:
-        return self.model.body_quat[self._target].copy()
-
     def get_observation(self) -> np.ndarray:
         return np.concatenate((self.data.qpos, self.data.qvel, self.model.body_quat[self._target]))
 

@@ -11,7 +11,7 @@ import torch
 import torch.nn as nn
 import torch.utils._pytree as pytree
 
-from flags import fail
+from sac_utils.cli import fail
 
 
 class ReLUFromOutput(torch.autograd.Function):

@@ -1,4 +1,4 @@
-"""eval_runner.py: lockstep rounds, the worker pool, q_best, and their failures."""
+"""sac_utils/eval_rounds.py: lockstep rounds, the worker pool, q_best, and their failures."""
 
 import copy
 import signal
@@ -11,7 +11,9 @@ import pytest
 import torch
 
 import tests.toy_envs  # noqa: F401  (registers Countdown-v0 here; workers import it by id)
-from eval_runner import (
+from mode_search import mean_action, mode_action
+from sac_utils import eval_rounds
+from sac_utils.eval_rounds import (
     Q_BEST_CANDIDATES,
     EvalPool,
     Round,
@@ -22,7 +24,6 @@ from eval_runner import (
     round_statistics,
     run_round,
 )
-from mode_search import mean_action, mode_action
 from tests.toy_envs import ToyActor, ToyCritic, episode_of
 
 COUNTDOWN = "tests.toy_envs:Countdown-v0"
@@ -227,7 +228,6 @@ def test_a_nan_in_one_evaluation_episode_stops_the_run_in_one_line(tmp_path):
 def _stepped_round(monkeypatch, round_: Round, dedupe: bool) -> tuple[dict, int]:
     """run_round's result and how many env steps it took (with dedupe False: every episode of
     every action stepped, as before episodes were deduplicated)."""
-    import eval_runner
     from humanoid_envs.base import H1HandEnv
 
     steps = [0]
@@ -239,7 +239,7 @@ def _stepped_round(monkeypatch, round_: Round, dedupe: bool) -> tuple[dict, int]
 
     monkeypatch.setattr(H1HandEnv, "step", counted)
     if not dedupe:
-        monkeypatch.setattr(eval_runner, "start_key", lambda env: None)
+        monkeypatch.setattr(eval_rounds, "start_key", lambda env: None)
     result = run_round(copy.deepcopy(round_))
     monkeypatch.undo()
     return result, steps[0]

@@ -2,7 +2,8 @@
 named, locked (one writer), started (config.json) or resumed, logged to (eval.csv, train.csv,
 TensorBoard, W&B), checkpointed, snapshotted and finished (final_model.pt, then done.json); the
 training episodes and steps per second it reports; the graceful stop on a signal (StopRequest).
-What a checkpoint holds is checkpoints.py's. The layout: docs/scripts.md ("The run folder").
+What a checkpoint holds is sac_utils/checkpoints.py's. The layout: docs/scripts.md ("The run
+folder").
 """
 
 import copy
@@ -25,11 +26,10 @@ import torch
 import torch.nn as nn
 from torch.utils.tensorboard import SummaryWriter
 
-import checkpoints
-import eval_runner
-from checkpoints import atomic_write, save_tensors
-from eval_runner import Round, shift_measured_at
-from flags import check_checkpoint_args, check_finite, fail
+from sac_utils import checkpoints, eval_rounds
+from sac_utils.checkpoints import atomic_write, save_tensors
+from sac_utils.cli import check_checkpoint_args, check_finite, fail
+from sac_utils.eval_rounds import Round, shift_measured_at
 
 INTERRUPTED_EXIT_CODE = 3
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
@@ -68,7 +68,7 @@ class RunFolder:
     def __init__(self, args, algorithm: str, script: str, eval_actions: dict):
         self.args, self.algorithm, self.script = args, algorithm, script
         self.eval_actions = eval_actions
-        self.eval_columns = ["global_step", "wall_time", "eval_round", *eval_runner.eval_columns(
+        self.eval_columns = ["global_step", "wall_time", "eval_round", *eval_rounds.eval_columns(
             eval_actions, shift=shift_measured_at(eval_actions) is not None)]
         self.dir = run_dir(args, algorithm)
         if (self.dir / "done.json").exists():
@@ -76,11 +76,11 @@ class RunFolder:
             sys.exit(0)
         self.pending_rounds: list[dict] = []
 
-    def open(self, training: dict, buffer, action_space: gym.Space,
+    def open(self, agent: dict, buffer, action_space: gym.Space,
              envs: gym.vector.VectorEnv, device: torch.device) -> tuple[int, np.ndarray]:
         """Locks the folder (one writer) and checks it before writing; then a fresh start
         (config.json, the env reset with the seed) or a resume from checkpoint.pt (in place into
-        `training`, the buffer and the random streams, the episode under way replayed). Returns
+        `agent`, the buffer and the random streams, the episode under way replayed). Returns
         the step and the observation the run goes on from."""
         args, self.device = self.args, device
         lock = lock_run_folder(self.dir)
@@ -90,7 +90,7 @@ class RunFolder:
             check_csv(self.dir / "eval.csv", self.eval_columns)
             check_csv(self.dir / "train.csv", list(TRAIN_COLUMNS))
             global_step, self.elapsed, self.progress = checkpoints.load_checkpoint(
-                ckpt, training, buffer, action_space, device)
+                ckpt, agent, buffer, action_space, device)
             obs = checkpoints.replay_episode(envs, args.seed, ckpt)
             self.pending_rounds = ckpt.get("pending_rounds", [])
             print(f"resuming {self.dir} at step {global_step}", flush=True)
@@ -116,17 +116,17 @@ class RunFolder:
                               global_step, ckpt is not None, self.algorithm)
         self.session_start = self.row_start = time.time()
         self.row_step = global_step
-        workers = eval_runner.default_workers() if args.eval_workers is None else args.eval_workers
-        self.eval_pool = eval_runner.EvalPool(workers, self.log_round)
+        workers = eval_rounds.default_workers() if args.eval_workers is None else args.eval_workers
+        self.eval_pool = eval_rounds.EvalPool(workers, self.log_round)
         for state in self.pending_rounds:  # the rounds a stop left unfinished, rerun first
             self.eval_pool.submit(self.evaluation_round(
                 state["global_step"], state["wall_time"],
-                *checkpoints.pending_round_networks(training["actor"], training["qf"], state)))
+                *checkpoints.pending_round_networks(agent["actor"], agent["qf"], state)))
         return global_step, obs
 
     def evaluate(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
-        """Submits this step's evaluation round to a worker (eval_runner.py); its eval.csv row
-        is written in step order (log_round)."""
+        """Submits this step's evaluation round to a worker (sac_utils/eval_rounds.py); its eval.csv
+        row is written in step order (log_round)."""
         self.eval_pool.submit(self.evaluation_round(global_step, self.wall_time(), actor, qf))
 
     def poll_evaluations(self) -> None:
@@ -139,7 +139,7 @@ class RunFolder:
         starts."""
         args, actions = self.args, self.eval_actions
         eval_round = global_step // args.eval_interval
-        seeds = eval_runner.eval_seeds(args.seed, eval_round, args.eval_episodes)
+        seeds = eval_rounds.eval_seeds(args.seed, eval_round, args.eval_episodes)
         return Round(args.env_id, seeds, actions,
                      copy.deepcopy(actor).cpu(),
                      copy.deepcopy(qf).cpu() if "q_best" in actions.values() else None,
@@ -152,7 +152,7 @@ class RunFolder:
 
     def log_round(self, round_: Round, result: dict) -> None:
         """A finished evaluation round's eval.csv row (EvalPool hands them back in step order)."""
-        row = round_.info | eval_runner.round_row(result, round_.actions)
+        row = round_.info | eval_rounds.round_row(result, round_.actions)
         write_row(*self.logs["eval"], self.logs["tb"], self.logs["tracker"], "eval", row,
                   round_.videos.get(""))
         self.progress["last_eval"] = (row["global_step"], row["return_mean"])
@@ -220,14 +220,14 @@ class RunFolder:
         save_tensors(self.dir / "snapshots" / f"step{global_step}.pt",
                      self.policy_weights(actor, qf) | {"log_alpha": log_alpha.detach().clone()})
 
-    def checkpoint(self, global_step: int, training: dict, buffer, action_space: gym.Space,
+    def checkpoint(self, global_step: int, agent: dict, buffer, action_space: gym.Space,
                    envs: gym.vector.VectorEnv, stopping: bool) -> None:
         """checkpoint.pt (checkpoints.checkpoint_state). A stop checkpoints at once, keeping the
         rounds still running for the resumed run to rerun; otherwise they finish first."""
         unfinished = self.eval_pool.abandon() if stopping else []
         self.eval_pool.drain()
         save_tensors(self.dir / "checkpoint.pt", checkpoints.checkpoint_state(
-            self.args, global_step, self.wall_time(), self.progress, training, buffer,
+            self.args, global_step, self.wall_time(), self.progress, agent, buffer,
             action_space, envs.get_attr("record")[0], checkpoints.rng_states(self.device),
             unfinished))
 

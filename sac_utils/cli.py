@@ -18,7 +18,7 @@ import gymnasium as gym
 import numpy as np
 import tyro
 
-from eval_runner import action_name
+from sac_utils.eval_rounds import action_name
 
 # Flags that may differ when resuming: they change where and how fast, not what is computed.
 TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
@@ -77,12 +77,6 @@ def parse_args(args_class: type, algorithm: str, eval_actions: Callable) -> obje
         return args
     path = Path(args.resume) / "config.json"
     config = read_run_config(Path(args.resume), algorithm)
-    # Folders made with --num-seeds (removed by issue 37) record the seeds trained together.
-    batch = config["batch"] if isinstance(config.get("batch"), dict) else {}
-    if batch.get("num_seeds", 1) != 1:
-        fail(f"{args.resume} was trained in one process with {batch['num_seeds']} seeds "
-             "(--num-seeds, since removed); finish it with the commit that made it "
-             f"({config.get('git_commit')}, in config.json)")
     stored = {f.name: config[f.name] for f in dataclasses.fields(args_class)
               if f.name in config and f.name not in RUNTIME_FIELDS}
     for key in ("hidden_sizes", "eval_selectors"):  # JSON lists back to the flags' tuples

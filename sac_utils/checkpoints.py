@@ -21,7 +21,7 @@ import torch
 import torch.nn as nn
 import torch.utils._pytree as pytree
 
-from flags import fail
+from sac_utils.cli import fail
 
 CHECKPOINT_KEYS = ("args", "global_step", "elapsed", "progress", "actor", "qf", "qf_target",
                    "log_alpha", "q_optimizer", "actor_optimizer", "alpha_optimizer", "buffer",
@@ -57,10 +57,6 @@ def read_checkpoint(path: Path) -> dict:
     if missing:
         fail(f"{path} lacks {missing}: not a checkpoint of this script; restore a copy, or "
              "delete it to restart the run from step 0")
-    if "episode" not in ckpt["rng"]:
-        fail(f"{path} was written by an older version of this script (before --num-seeds); "
-             "finish the run with that version (its commit is in config.json), or delete the "
-             "checkpoint to restart it from step 0")
     return ckpt
 
 
@@ -146,17 +142,10 @@ def pending_round_networks(actor: nn.Module, qf: nn.Module,
                            state: dict) -> tuple[nn.Module, nn.Module]:
     """CPU copies of the networks as an unfinished round had them (pending_round_state)."""
     round_actor, round_qf = copy.deepcopy(actor).cpu(), copy.deepcopy(qf).cpu()
-    round_actor.load_state_dict(fit_shapes(state["actor"], round_actor.state_dict()))
+    round_actor.load_state_dict(state["actor"])
     if state["qf"] is not None:
-        round_qf.load_state_dict(fit_shapes(state["qf"], round_qf.state_dict()))
+        round_qf.load_state_dict(state["qf"])
     return round_actor, round_qf
-
-
-def fit_shapes(state: dict, like: dict) -> dict:
-    """A checkpoint's tensors in the shapes of the run's own (`like`, by name): checkpoints
-    written between --num-seeds and its removal (issue 37) hold each with a leading seed axis of
-    1, and the same numbers."""
-    return {k: v.reshape(like[k].shape) if k in like else v for k, v in state.items()}
 
 
 # The checkpoint as a whole.
@@ -175,36 +164,32 @@ def load_buffer_state(buffer, state: dict) -> None:
         getattr(buffer, a)[: buffer.filled].copy_(state[a])
 
 
-def checkpoint_state(args, global_step: int, elapsed: float, progress: dict, training: dict,
+def checkpoint_state(args, global_step: int, elapsed: float, progress: dict, agent: dict,
                      buffer, action_space: gym.Space, episode: dict, rng: dict,
                      unfinished: list) -> dict:
-    """checkpoint.pt: `training` by name (modules and optimizers by state_dict), the replay
+    """checkpoint.pt: `agent` by name (modules and optimizers by state_dict), the replay
     buffer, the random states, the episode under way and the unfinished evaluation rounds."""
     return {"args": dataclasses.asdict(args), "global_step": global_step, "elapsed": elapsed,
             "progress": progress,
             **{name: obj.detach().clone() if torch.is_tensor(obj) else obj.state_dict()
-               for name, obj in training.items()},
+               for name, obj in agent.items()},
             "buffer": buffer_state(buffer),
             "rng": rng | {"action_space": action_space.np_random.bit_generator.state,
                           "episode": episode_state(episode, action_space.shape[0])},
             "pending_rounds": [pending_round_state(r) for r in unfinished]}
 
 
-def load_checkpoint(ckpt: dict, training: dict, buffer, action_space: gym.Space,
+def load_checkpoint(ckpt: dict, agent: dict, buffer, action_space: gym.Space,
                     device: torch.device) -> tuple[int, float, dict]:
     """The run's state from its checkpoint (checkpoint_state), in place into the objects of
-    `training` and the buffer; returns the step, the training time so far and the progress."""
-    for name, obj in training.items():
+    `agent` and the buffer; returns the step, the training time so far and the progress."""
+    for name, obj in agent.items():
         if torch.is_tensor(obj):
             with torch.no_grad():
-                obj.copy_(ckpt[name].reshape(obj.shape))
-        elif isinstance(obj, nn.Module):
-            obj.load_state_dict(fit_shapes(ckpt[name], obj.state_dict()))
-        else:  # an optimizer
-            params, state = obj.param_groups[0]["params"], ckpt[name]
-            obj.load_state_dict({"state": {
-                i: fit_shapes(s, {"exp_avg": params[i], "exp_avg_sq": params[i]})
-                for i, s in state["state"].items()}, "param_groups": state["param_groups"]})
+                obj.copy_(ckpt[name])
+        else:  # a module or an optimizer
+            obj.load_state_dict(ckpt[name])
+        if isinstance(obj, torch.optim.Optimizer):
             for group in obj.param_groups:
                 group["capturable"] = device.type == "cuda"  # the checkpoint's is its device's
     load_buffer_state(buffer, ckpt["buffer"])
@@ -226,7 +211,7 @@ def restart_from_snapshot(run_dir: Path, refill: int) -> dict:
     restarts/step<N>/ (the resume cuts them back to the step). Returns the restart's record."""
     import importlib
 
-    from flags import read_config_json
+    from sac_utils.cli import read_config_json
 
     if (run_dir / "done.json").exists():
         fail(f"{run_dir} is finished (done.json); there is nothing to restart")
@@ -253,12 +238,12 @@ def restart_from_snapshot(run_dir: Path, refill: int) -> dict:
     args = dataclasses.replace(script.Args(), **stored)
     action_space = script.make_env(args.env_id).action_space
     obs_dim, action_dim = config["obs_dim"], action_space.shape[0]
-    training = script.make_learner(args, obs_dim, action_space, torch.device("cpu"))
-    training["actor"].load_state_dict(snapshot["actor"])
-    training["qf"].load_state_dict(snapshot["qf"])
-    training["qf_target"].load_state_dict(snapshot["qf"])
+    agent = script.make_agent(args, obs_dim, action_space, torch.device("cpu"))
+    agent["actor"].load_state_dict(snapshot["actor"])
+    agent["qf"].load_state_dict(snapshot["qf"])
+    agent["qf_target"].load_state_dict(snapshot["qf"])
     with torch.no_grad():
-        training["log_alpha"].copy_(snapshot["log_alpha"])
+        agent["log_alpha"].copy_(snapshot["log_alpha"])
 
     seed = int(np.random.SeedSequence([args.seed, step]).generate_state(1)[0])
     random.seed(seed)
@@ -273,7 +258,7 @@ def restart_from_snapshot(run_dir: Path, refill: int) -> dict:
                 "last_eval": last_eval and (int(last_eval["global_step"]),
                                             float(last_eval["return_mean"]))}
     elapsed = float(train_rows[-1]["wall_time"]) if train_rows else 0.0
-    state = checkpoint_state(args, step, elapsed, progress, training,
+    state = checkpoint_state(args, step, elapsed, progress, agent,
                              script.ReplayBuffer(2, obs_dim, action_dim, torch.device("cpu")),
                              action_space, {"seed": seed, "rng": None, "actions": []},
                              rng_states(torch.device("cpu")), [])
@@ -287,7 +272,7 @@ def restart_from_snapshot(run_dir: Path, refill: int) -> dict:
         if (run_dir / name).exists():
             atomic_write(kept / name, lambda tmp, name=name: tmp.write_bytes(
                 (run_dir / name).read_bytes()))
-    from run_folder import cpu_model, git_commit
+    from sac_utils.run_folder import cpu_model, git_commit
 
     record = {"step": step, "snapshot": str(path.relative_to(run_dir)), "refill": refill,
               "updates_from": progress["updates_from"], "seed": seed,
