@@ -94,29 +94,6 @@ SWEEP_FLAGS = (
 )
 # The training scripts' exit code after a graceful stop on a signal: "resume with --resume".
 EXIT_INTERRUPTED = 3
-# Training speed of one run for the compute estimate: either script on h1hand-powerlift-v0, one
-# torch thread, one gradient update per step, an evaluation round every 10,000 steps: about
-# 9.5 ms of CPU per step on our 2-core machines (docs/sweep.md).
-DEFAULT_STEPS_PER_SECOND = 105.0
-# One run's training speed per env id, the same measurement on each preset's env ids
-# (bench/bench_presets.py: process CPU time per training-loop step after the start steps, one
-# torch thread, the faster of two runs on our shared 2-core machine; evaluation rounds not
-# counted; docs/sweep.md, "Beyond the paper"). The estimate uses these unless --steps-per-second is
-# given; other env ids get the default above.
-CPU_STEPS_PER_SECOND = {
-    "Hopper-v5": 217.0,
-    "HalfCheetah-v5": 270.0,
-    "Ant-v5": 179.0,
-    "Humanoid-v5": 129.0,
-    "h1hand-powerlift-v0": 115.0,
-    "h1hand-cube-v0": 126.0,
-    "h1hand-bookshelf_simple-v0": 105.0,
-    "h1hand-bookshelf_hard-v0": 100.0,
-}
-# The same on one GPU node (one H100, 16 CPU cores): 16 runs at once with CUDA graphs under MPS
-# (--workers 16 --mps), h1hand-powerlift-v0, update phase, steps/s of all 16 together
-# (bench/bench_gpu.py; docs/speed.md, "Speed on a GPU").
-DEFAULT_GPU_NODE_STEPS_PER_SECOND = 3350.0
 IDENTITY_FILE = "sweep_run.json"
 ATTEMPT_FILE = "sweep_attempt.json"
 LOG_FILE = "sweep.log"
@@ -163,12 +140,13 @@ class Args:
     wandb_entity: str | None = None
     """the W&B entity of the runs"""
     dry_run: bool = False
-    """print the grid, the run folders, what exists and a compute estimate; start nothing"""
+    """print the grid, the run folders, their state and the env steps left; start nothing"""
     steps_per_second: float | None = None
-    """training speed of one run for the compute estimate (env steps per second; default: the
-    speed measured for its env id, CPU_STEPS_PER_SECOND, else 105)"""
-    gpu_node_steps_per_second: float = DEFAULT_GPU_NODE_STEPS_PER_SECOND
-    """for the estimate on one GPU node: env steps per second of all its runs together"""
+    """with --dry-run: one run's env steps per second, for the run-hours left (measured speeds
+    per env id: docs/sweep.md)"""
+    gpu_node_steps_per_second: float | None = None
+    """with --dry-run: env steps per second of one GPU node's runs together, for the node-hours
+    left (measured: docs/sweep.md)"""
     analyze: str | None = None
     """when all runs are done, run analyze.py on the output folder into this report folder"""
     analyze_args: str = ""
@@ -361,16 +339,17 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
 
 def check_ranges(args: Args) -> None:
     """Every numeric flag's valid range, checked before anything is created or written."""
+    def positive(speed: float | None) -> bool:
+        return speed is None or (math.isfinite(speed) and speed > 0)
+
     rules = (
         ("seeds", all(seed >= 0 for seed in args.seeds), "non-negative integers"),
         ("workers", args.workers >= 1, "at least 1"),
         ("checkpoint_interval", args.checkpoint_interval >= 1,
          "at least 1 (a run is only resumable from a checkpoint)"),
-        ("steps_per_second", args.steps_per_second is None
-         or (math.isfinite(args.steps_per_second) and args.steps_per_second > 0),
+        ("steps_per_second", positive(args.steps_per_second), "a positive number"),
+        ("gpu_node_steps_per_second", positive(args.gpu_node_steps_per_second),
          "a positive number"),
-        ("gpu_node_steps_per_second", math.isfinite(args.gpu_node_steps_per_second)
-         and args.gpu_node_steps_per_second > 0, "a positive number"),
         ("time_min", args.time_min >= 1, "at least 1 minute"),
         ("cpus_per_task", args.cpus_per_task >= 1, "at least 1"),
         ("gpus_per_task", args.gpus_per_task >= 0, "0 or more"),
@@ -858,48 +837,33 @@ def script_default_total_timesteps(script: Path) -> int:
 
 def print_plan(runs: list[Run], states: dict[Run, str], args: Args,
                extra_args: tuple[str, ...]) -> None:
-    n_env = len({r.env_id for r in runs})
-    n_seed = len({r.seed for r in runs})
-    n_script = len({r.script for r in runs})
+    """--dry-run: the grid, each run's folder, state and action, and the env steps left; a time
+    only from speeds the user gives (measured ones: docs/sweep.md)."""
+    n_env, n_seed, n_script = (len({getattr(run, key) for run in runs})
+                               for key in ("env_id", "seed", "script"))
     print(f"grid: {n_env} env ids x {n_seed} seeds x {n_script} scripts = {len(runs)} runs, "
           f"arguments after --: {shlex.join(extra_args) or '(none)'}")
     print(f"output folder: {runs[0].output_dir}")
     if args.preset and not args.scripts:
         print(f"preset {args.preset}: {PRESETS[args.preset].why}")
-    total = steps_left = 0
-    left = {}
+    total = steps_left = longest = 0
     for run in runs:
-        state = states[run]
         budget = total_timesteps(run)
-        total += budget
-        left[run] = 0 if state == "done" else budget - (last_eval_step(run.run_dir) or 0)
-        steps_left += left[run]
-        print(f"  {run.name:<60} {state:<12} {action_for(state)}")
-    hours, longest, speeds = cpu_estimate(left, args.steps_per_second)
-    print(f"compute: {len(runs)} runs, {total:,} env steps in all, {steps_left:,} still to run; "
-          f"at {speeds} that is {hours:,.1f} run-hours ({hours / len(runs):,.1f} h per run, "
-          f"the longest {longest:,.1f} h)")
-    node_hours = steps_left / args.gpu_node_steps_per_second / 3600
-    print(f"on one GPU node at {args.gpu_node_steps_per_second:,g} steps/s in all (16 runs at once "
-          f"under MPS: --workers 16 --mps): {node_hours:,.1f} h ({node_hours / 24:,.1f} days)")
-
-
-def cpu_steps_per_second(env_id: str, given: float | None) -> float:
-    """One run's CPU training speed for the estimate: --steps-per-second, else measured."""
-    return given if given is not None else CPU_STEPS_PER_SECOND.get(env_id,
-                                                                    DEFAULT_STEPS_PER_SECOND)
-
-
-def cpu_estimate(steps_left: dict[Run, int], given: float | None) -> tuple[float, float, str]:
-    """Run-hours on CPU cores for the steps each run has left, the longest run's hours, and the
-    speeds used, in words."""
-    hours = [left / cpu_steps_per_second(run.env_id, given) / 3600
-             for run, left in steps_left.items()]
-    if given is not None:
-        return sum(hours), max(hours), f"{given:g} steps/s per run"
-    speeds = {run.env_id: cpu_steps_per_second(run.env_id, None) for run in steps_left}
-    return sum(hours), max(hours), "the steps/s per run measured for each env id (" + ", ".join(
-        f"{env_id} {speed:g}" for env_id, speed in speeds.items()) + ")"
+        left = 0 if states[run] == "done" else budget - (last_eval_step(run.run_dir) or 0)
+        total, steps_left, longest = total + budget, steps_left + left, max(longest, left)
+        print(f"  {run.name:<60} {states[run]:<12} {action_for(states[run])}")
+    print(f"compute: {len(runs)} runs, {total:,} env steps in all, {steps_left:,} still to run")
+    if args.steps_per_second:
+        hours = steps_left / args.steps_per_second / 3600
+        print(f"at {args.steps_per_second:g} steps/s per run: {hours:,.1f} run-hours (the "
+              f"longest run {longest / args.steps_per_second / 3600:,.1f} h)")
+    if args.gpu_node_steps_per_second:
+        hours = steps_left / args.gpu_node_steps_per_second / 3600
+        print(f"on one GPU node at {args.gpu_node_steps_per_second:,g} steps/s in all: "
+              f"{hours:,.1f} h ({hours / 24:,.1f} days)")
+    if not (args.steps_per_second or args.gpu_node_steps_per_second):
+        print("for the time it takes, give --steps-per-second (one run) or "
+              "--gpu-node-steps-per-second; measured speeds: docs/sweep.md")
 
 
 def action_for(state: str) -> str:
