@@ -5,6 +5,7 @@ seed and a hash of the arguments after `--`). Running the same command again ski
 runs, resumes interrupted ones (`--resume`) and starts missing ones. On Slurm the grid is one
 job array submitted through submitit; a job that is preempted or reaches its time limit
 checkpoints its run and is requeued, and the requeued job continues it with `--resume`.
+The guide: docs/sweep.md.
 
     python sweep.py --env-ids Pendulum-v1 --seeds 0 1 --output-dir runs -- --total-timesteps 2000
     python sweep.py --preset paper --launcher slurm --partition gpu --output-dir runs
@@ -47,21 +48,17 @@ import tyro
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
 
 ROOT = Path(__file__).resolve().parent
-PAPER_ENV_IDS = (
-    "h1hand-powerlift-v0",
-    "h1hand-cube-v0",
-    "h1hand-bookshelf_simple-v0",
-    "h1hand-bookshelf_hard-v0",
-)
+PAPER_ENV_IDS = ("h1hand-powerlift-v0", "h1hand-cube-v0", "h1hand-bookshelf_simple-v0",
+                 "h1hand-bookshelf_hard-v0")
+CLASSIC_ENV_IDS = ("Hopper-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
 PAPER_SEEDS = (0, 1, 2, 3, 4)
 DEFAULT_SCRIPTS = ("sac_standard.py", "sac_corrected.py")
 
 
 @dataclass(frozen=True)
 class Preset:
-    """A named grid: env ids, seeds, scripts, and each env id's step budget (absent: the script's
-    default, which is the paper's 10M). The scripts' defaults are the paper's protocol (its
-    Tables I and II), so a preset adds no other arguments."""
+    """A named grid. The scripts' defaults are the paper's protocol, so a preset adds no
+    arguments beyond a step budget for some env ids (the others get the script's 10M)."""
 
     env_ids: tuple[str, ...]
     seeds: tuple[int, ...]
@@ -70,21 +67,15 @@ class Preset:
     why: str
 
 
-# A corrected run also evaluates tanh(mu) of the same actor from the same start states, and the
-# two scripts make identical training decisions for a seed: its paired columns are the standard
-# run of that seed (tests/test_protocol.py pins this on real runs), so presets run
-# sac_corrected.py only.
 ONE_RUN_IS_BOTH = ("sac_corrected.py only: each run's paired tanh(mu) evaluation is the "
                    "sac_standard.py run of its seed (identical training decisions), so analyze.py "
                    "gets both algorithms from half the runs")
-CLASSIC_STEPS = 1_000_000
 PRESETS = {
     "paper": Preset(PAPER_ENV_IDS, PAPER_SEEDS, ("sac_corrected.py",), {}, ONE_RUN_IS_BOTH),
     # Beyond the paper: the correction's worth against the action dimension (3 to 61).
     "dimensions": Preset(
-        ("Hopper-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5", *PAPER_ENV_IDS), PAPER_SEEDS,
-        ("sac_corrected.py",),
-        dict.fromkeys(("Hopper-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5"), CLASSIC_STEPS),
+        (*CLASSIC_ENV_IDS, *PAPER_ENV_IDS), PAPER_SEEDS, ("sac_corrected.py",),
+        dict.fromkeys(CLASSIC_ENV_IDS, 1_000_000),
         ONE_RUN_IS_BOTH + "; classic tasks 1M steps each, h1hand tasks the paper's 10M"),
 }
 # sweep.py sets these for every run itself; the same flags after `--` would contradict them.
@@ -92,15 +83,13 @@ SWEEP_FLAGS = (
     "--env-id", "--seed", "--output-dir", "--run-name", "--resume", "--checkpoint-interval",
     "--track", "--wandb-project-name", "--wandb-entity", "--wandb-group",
 )
-# The training scripts' exit code after a graceful stop on a signal: "resume with --resume".
+# run_folder.INTERRUPTED_EXIT_CODE ("resume with --resume"); not imported from there, nor
+# checkpoints.atomic_write below: those modules import torch, which this process does without.
 EXIT_INTERRUPTED = 3
 IDENTITY_FILE = "sweep_run.json"
 ATTEMPT_FILE = "sweep_attempt.json"
 LOG_FILE = "sweep.log"
-SLURM_POLL_SECONDS = 2.0
-LOG_TAIL_LINES = 8
-# The scripts' number of evaluation processes: how fast a run goes, not what it computes, so it
-# may differ on --resume and is no part of a run's identity.
+# How fast a run goes, not what it computes: it may differ on --resume, no part of the identity.
 EVAL_WORKERS_FLAGS = ("--eval-workers", "--eval_workers")
 LAUNCH_ACTIONS = ("start", "resume", "retry")
 
@@ -207,21 +196,14 @@ class Run:
         return self.output_dir / self.name
 
     def identity(self) -> dict:
-        return {
-            "script": self.script.name,
-            "env_id": self.env_id,
-            "seed": self.seed,
-            "extra_args": list(self.extra_args),
-        }
+        return {"script": self.script.name, "env_id": self.env_id, "seed": self.seed,
+                "extra_args": list(self.extra_args)}
 
 
 def args_hash(extra_args: tuple[str, ...]) -> str:
-    """Short stable hash of the arguments every run of a sweep gets."""
+    """Short stable hash of the arguments every run of a sweep gets (it names existing folders:
+    never change it)."""
     return hashlib.sha256(json.dumps(list(extra_args)).encode()).hexdigest()[:8]
-
-
-# ---------------------------------------------------------------------------------------------
-# Files
 
 
 def write_json(path: Path, data: dict) -> None:
@@ -237,7 +219,7 @@ def read_json(path: Path) -> dict | None:
         return None
 
 
-def log_tail(run_dir: Path, lines: int = LOG_TAIL_LINES) -> list[str]:
+def log_tail(run_dir: Path, lines: int = 8) -> list[str]:
     try:
         return (run_dir / LOG_FILE).read_text(errors="replace").splitlines()[-lines:]
     except FileNotFoundError:
@@ -254,18 +236,15 @@ def last_eval_step(run_dir: Path) -> int | None:
     return int(float(rows[-1]["global_step"])) if rows else None
 
 
-# ---------------------------------------------------------------------------------------------
-# The grid and its checks (nothing is written until all of them pass)
+# The grid and its checks: nothing is written until all of them pass.
 
 
 def resolve_script(script: str) -> Path:
     for candidate in (Path(script), ROOT / script):
         if candidate.is_file():
             return candidate.resolve()
-    raise SweepError(
-        f"unknown script {script!r}: no such file here or in {ROOT}; "
-        f"the project's scripts are {' and '.join(DEFAULT_SCRIPTS)}"
-    )
+    raise SweepError(f"unknown script {script!r}: no such file here or in {ROOT}; "
+                     f"the project's scripts are {' and '.join(DEFAULT_SCRIPTS)}")
 
 
 def check_env_ids(env_ids: list[str]) -> None:
@@ -281,15 +260,13 @@ def check_extra_args(extra_args: tuple[str, ...]) -> None:
     for arg in extra_args:
         flag = arg.split("=", 1)[0]
         if flag in SWEEP_FLAGS:
-            raise SweepError(
-                f"{flag} after `--` is set by sweep.py for every run: use sweep.py's own "
-                "--env-ids, --seeds, --output-dir, --checkpoint-interval or --track instead"
-            )
+            raise SweepError(f"{flag} after `--` is set by sweep.py for every run: use sweep.py's "
+                             "own --env-ids, --seeds, --output-dir, --checkpoint-interval or "
+                             "--track instead")
 
 
 def split_eval_workers(extra_args: tuple[str, ...]) -> tuple[tuple[str, ...], int | None]:
-    """The arguments after `--` without --eval-workers, and its value (the last one given, as
-    the scripts read it; None if not given)."""
+    """The arguments after `--` without --eval-workers, and its last value (None: not given)."""
     kept: list[str] = []
     value: int | None = None
     args = iter(extra_args)
@@ -325,8 +302,8 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     check_extra_args(extra_args)
     run_args, eval_workers = split_eval_workers(extra_args)
     output_dir = Path(args.output_dir).resolve()
-    tracking = ("--track", "--wandb-project-name", args.wandb_project_name,
-                *(("--wandb-entity", args.wandb_entity) if args.wandb_entity else ())) \
+    entity = ("--wandb-entity", args.wandb_entity) if args.wandb_entity else ()
+    tracking = ("--track", "--wandb-project-name", args.wandb_project_name, *entity) \
         if args.track else ()
     return [
         Run(script, env_id, seed, preset_args(preset, env_id, run_args) + run_args,
@@ -338,7 +315,6 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
 
 
 def check_ranges(args: Args) -> None:
-    """Every numeric flag's valid range, checked before anything is created or written."""
     def positive(speed: float | None) -> bool:
         return speed is None or (math.isfinite(speed) and speed > 0)
 
@@ -405,20 +381,18 @@ def check_output_dir(runs: list[Run]) -> None:
         )
 
 
-# ---------------------------------------------------------------------------------------------
-# Cores for evaluation: each run trains on one core and evaluates in --eval-workers processes
+# Cores for evaluation: each run trains on one core and evaluates in --eval-workers processes.
+# Why sweep.py passes the count, even on Slurm: docs/sweep.md, "Cores for evaluation".
 
 
 def eval_workers_per_run(cores: int, runs_at_once: int) -> int:
-    """The cores the training processes leave free, shared among the runs. At least one worker:
-    with none, every evaluation round would stop the run's training while it plays its
-    episodes; one worker on an oversubscribed core costs less."""
+    # At least one: in-process evaluation stops training for every round, which costs more than
+    # one worker on an oversubscribed core.
     return max(1, (cores - runs_at_once) // runs_at_once)
 
 
 def slurm_cpus_per_task(args: Args) -> int:
-    """The CPUs each task gets: --cpus-per-task, unless --sbatch cpus-per-task=N overrides it
-    (submitit writes additional sbatch parameters over its own)."""
+    # submitit writes additional sbatch parameters over its own: --sbatch cpus-per-task=N wins.
     given = sbatch_options(args.sbatch).get("cpus_per_task", args.cpus_per_task)
     if not (str(given).isascii() and str(given).isdigit()) or int(given) < 1:
         raise SweepError(f"--sbatch cpus-per-task={given}: must be a whole number, at least 1")
@@ -430,11 +404,7 @@ def plural(count: int, noun: str) -> str:
 
 
 def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, str]:
-    """Each run's --eval-workers, and the division in words. The user's --eval-workers after
-    `--` stands. On Slurm each run is one task and the count is passed explicitly rather than
-    left to the scripts' default (the CPUs in their affinity mask): Slurm confines a task to its
-    CPUs only under task/affinity or task/cgroup; elsewhere (TaskPlugin=task/none, as in
-    tests/slurm/) the mask is the whole node, and every run would start a worker per node core."""
+    """Each run's --eval-workers (the user's, after `--`, stands), and the division in words."""
     if given is not None:
         return given, f"evaluation: {plural(given, 'worker')} per run (--eval-workers after `--`)"
     if args.launcher == "slurm":
@@ -450,19 +420,20 @@ def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, s
     return count, f"evaluation: {plural(count, 'worker')} per run ({why})"
 
 
-# ---------------------------------------------------------------------------------------------
-# State of a run
+# The state of a run.
+
+
+def squeue_states(job_id: str) -> list[str] | None:
+    """The states of the job's tasks still queued or running; None when squeue fails."""
+    result = subprocess.run(["squeue", "-h", "-j", job_id, "-o", "%T"], capture_output=True,
+                            text=True, timeout=60)
+    return result.stdout.split() if result.returncode == 0 else None
 
 
 def slurm_job_state(job_id: str) -> str | None:
     """squeue's state of a queued or running job, None when it is no longer in the queue."""
-    if shutil.which("squeue") is None:
-        return None
-    result = subprocess.run(
-        ["squeue", "-h", "-j", job_id, "-o", "%T"], capture_output=True, text=True, timeout=60
-    )
-    states = result.stdout.split()
-    return states[0].lower() if result.returncode == 0 and states else None
+    states = squeue_states(job_id) if shutil.which("squeue") else None
+    return states[0].lower() if states else None
 
 
 def process_alive(attempt: dict) -> bool:
@@ -479,9 +450,9 @@ def process_alive(attempt: dict) -> bool:
 
 
 def lock_holder(run_dir: Path) -> str | None:
-    """The pid written in run_dir/lock while a training script holds its flock on it, else None.
-    The kernel drops the flock when its holder dies, so a lock file alone means nothing. Only a
-    probe: the lock is released at once, and the file is never created here."""
+    """The pid in run_dir/lock while a training script holds its flock, else None. The kernel
+    drops the flock with its holder, so the file alone means nothing. A probe only: released at
+    once, and the file is never created here."""
     try:
         fd = os.open(run_dir / "lock", os.O_RDONLY)
     except FileNotFoundError:
@@ -491,7 +462,7 @@ def lock_holder(run_dir: Path) -> str | None:
     except BlockingIOError:
         return os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
     finally:
-        os.close(fd)  # also releases the probe's lock
+        os.close(fd)
     return None
 
 
@@ -519,15 +490,12 @@ def run_state(run_dir: Path) -> str:
     return "not started"
 
 
-def progress(run_dir: Path) -> str:
-    config = read_json(run_dir / "config.json") or {}
-    step = last_eval_step(run_dir)
-    total = config.get("total_timesteps")
-    return f"{step if step is not None else 0}/{total if total is not None else '?'}"
+def action_for(state: str) -> str:
+    return {"done": "skip", "running": "skip (running)", "pending": "skip (queued)",
+            "interrupted": "resume", "failed": "retry"}.get(state, "start")
 
 
-# ---------------------------------------------------------------------------------------------
-# Starting one run (shared by both launchers)
+# Starting one run (both launchers).
 
 
 def run_command(run: Run) -> tuple[str, list[str]]:
@@ -540,15 +508,10 @@ def run_command(run: Run) -> tuple[str, list[str]]:
     if (run.run_dir / "config.json").exists():
         return "resume", [*python, "--resume", str(run.run_dir), *runtime, *tracking]
     return "start", [
-        *python,
-        "--env-id", run.env_id,
-        "--seed", str(run.seed),
-        "--output-dir", str(run.output_dir),
-        "--run-name", run.name,
+        *python, "--env-id", run.env_id, "--seed", str(run.seed),
+        "--output-dir", str(run.output_dir), "--run-name", run.name,
         "--checkpoint-interval", str(run.checkpoint_interval),
-        *run.extra_args,
-        *runtime,
-        *tracking,
+        *run.extra_args, *runtime, *tracking,
     ]
 
 
@@ -556,7 +519,7 @@ def start_run(run: Run, *, new_session: bool, block_user_signals: bool) -> subpr
     """Start or resume the run in its own process, its output appended to its log file."""
     action, command = run_command(run)
     job_id = slurm_array_task_id()
-    where = f"{socket.gethostname()}" + (f", Slurm job {job_id}" if job_id else "")
+    where = socket.gethostname() + (f", Slurm job {job_id}" if job_id else "")
     # On Slurm the signal before the time limit reaches every process of the job; the child
     # must get it only once, through checkpoint(), or it would take a second signal as "exit now".
     preexec = _block_user_signals if block_user_signals else None
@@ -599,16 +562,13 @@ def prepare_run_dir(run: Run, **extra: str) -> None:
     write_json(run.run_dir / IDENTITY_FILE, {**run.identity(), "run_name": run.name, **extra})
 
 
-# ---------------------------------------------------------------------------------------------
-# Local launcher
+# The local launcher.
 
 
 @contextlib.contextmanager
 def mps_daemon() -> Iterator[None]:
-    """NVIDIA's Multi-Process Service while the block runs: one MPS server holds the GPU and the
-    CUDA processes started inside the block (they inherit its pipe folder) share it, their
-    kernels running concurrently, instead of time-slicing the GPU one context at a time. A private
-    pipe folder keeps it apart from any MPS daemon already on the machine."""
+    """NVIDIA's Multi-Process Service while the block runs, for the CUDA processes started in it
+    (docs/speed.md). A private pipe folder keeps it apart from any MPS daemon already there."""
     if shutil.which("nvidia-cuda-mps-control") is None:
         raise SweepError("--mps needs nvidia-cuda-mps-control (NVIDIA's driver tools) on PATH; "
                          "drop --mps on a machine without it")
@@ -679,16 +639,13 @@ def launch_local(runs: list[Run], workers: int) -> None:
             signal.signal(signum, handler)
 
 
-# ---------------------------------------------------------------------------------------------
-# Slurm launcher
+# The Slurm launcher.
 
 
 class SlurmRun:
-    """A run as one task of a Slurm job array (submitit's checkpointable callable).
-
-    On preemption or near the time limit Slurm signals the job; submitit calls checkpoint(),
-    which makes the script checkpoint after its current step and exit, and requeues the job;
-    the requeued job calls this again, which resumes the run."""
+    """A run as one task of a Slurm job array (submitit's checkpointable callable): on
+    preemption or near the time limit submitit calls checkpoint(), which makes the script
+    checkpoint and exit, and requeues the job, which then resumes the run."""
 
     def __init__(self) -> None:
         self._child: subprocess.Popen | None = None
@@ -739,26 +696,20 @@ def check_slurm(partition: str | None) -> None:
     """Fail before anything is written when Slurm is not there or not answering."""
     for tool in ("sbatch", "squeue", "srun", "sinfo"):
         if shutil.which(tool) is None:
-            raise SweepError(
-                f"Slurm not found: `{tool}` is not on PATH. Run sweep.py on a login node of "
-                "the cluster, or use --launcher local."
-            )
+            raise SweepError(f"Slurm not found: `{tool}` is not on PATH. Run sweep.py on a login "
+                             "node of the cluster, or use --launcher local.")
     try:
-        result = subprocess.run(
-            ["sinfo", "-h", "-o", "%P"], capture_output=True, text=True, timeout=60
-        )
+        result = subprocess.run(["sinfo", "-h", "-o", "%P"], capture_output=True, text=True,
+                                timeout=60)
     except subprocess.TimeoutExpired as error:
         raise SweepError("Slurm not reachable: `sinfo` did not answer within 60 s") from error
     if result.returncode != 0:
-        raise SweepError(
-            f"Slurm not reachable: `sinfo` failed: {result.stderr.strip()}\n"
-            "Check that slurmctld is up (`scontrol ping`), or use --launcher local."
-        )
+        raise SweepError(f"Slurm not reachable: `sinfo` failed: {result.stderr.strip()}\n"
+                         "Check that slurmctld is up (`scontrol ping`), or use --launcher local.")
     partitions = [name.rstrip("*") for name in result.stdout.split()]
     if partition is not None and partition not in partitions:
         raise SweepError(
-            f"unknown Slurm partition {partition!r}: this cluster has {', '.join(partitions)}"
-        )
+            f"unknown Slurm partition {partition!r}: this cluster has {', '.join(partitions)}")
 
 
 def sbatch_options(options: list[str]) -> dict[str, str | bool]:
@@ -800,21 +751,17 @@ def launch_slurm(runs: list[Run], args: Args) -> str:
 def wait_for_slurm(job_id: str) -> None:
     last = None
     while True:
-        result = subprocess.run(
-            ["squeue", "-h", "-j", job_id, "-o", "%T"], capture_output=True, text=True, timeout=60
-        )
-        states = result.stdout.split()
-        if result.returncode == 0 and not states:
+        states = squeue_states(job_id)
+        if states is not None and not states:  # none left (None: squeue failed; ask again)
             return
-        summary = ", ".join(f"{states.count(s)} {s.lower()}" for s in sorted(set(states)))
+        summary = ", ".join(f"{states.count(s)} {s.lower()}" for s in sorted(set(states or [])))
         if summary != last:
             print(f"Slurm job {job_id}: {summary}", flush=True)
             last = summary
-        time.sleep(SLURM_POLL_SECONDS)
+        time.sleep(2.0)
 
 
-# ---------------------------------------------------------------------------------------------
-# Reports
+# Reports.
 
 
 def total_timesteps(run: Run) -> int:
@@ -866,16 +813,7 @@ def print_plan(runs: list[Run], states: dict[Run, str], args: Args,
               "--gpu-node-steps-per-second; measured speeds: docs/sweep.md")
 
 
-def action_for(state: str) -> str:
-    return {
-        "done": "skip", "running": "skip (running)", "pending": "skip (queued)",
-        "interrupted": "resume", "failed": "retry",
-    }.get(state, "start")
-
-
 def print_status(output_dir: Path) -> None:
-    if not output_dir.is_dir():
-        raise SweepError(f"{output_dir} does not exist: give the --output-dir of a sweep")
     run_dirs = [
         d for d in sorted(output_dir.iterdir())
         if d.is_dir() and not d.name.startswith(".")
@@ -889,7 +827,9 @@ def print_status(output_dir: Path) -> None:
     for run_dir in run_dirs:
         state = run_state(run_dir)
         counts[state] = counts.get(state, 0) + 1
-        print(f"{run_dir.name:<{width}}  {state:<12} {progress(run_dir)}")
+        total = (read_json(run_dir / "config.json") or {}).get("total_timesteps")
+        progress = f"{last_eval_step(run_dir) or 0}/{total if total is not None else '?'}"
+        print(f"{run_dir.name:<{width}}  {state:<12} {progress}")
         if state == "failed":
             for line in log_tail(run_dir):
                 print(f"    | {line}")
@@ -897,12 +837,8 @@ def print_status(output_dir: Path) -> None:
 
 
 def free_checkpoints(output_dir: Path) -> None:
-    """Deletes checkpoint.pt of every finished run under output_dir: a finished run (done.json)
-    never resumes, and its final_model.pt and snapshots hold what evaluation needs, while its
-    checkpoint holds the replay buffer (2-3 GB at 1M steps on h1hand). Unfinished runs are left
-    alone."""
-    if not output_dir.is_dir():
-        raise SweepError(f"{output_dir} does not exist: give the --output-dir of a sweep")
+    """Deletes the checkpoint.pt (the replay buffer) of every finished run: it never resumes,
+    and its final_model.pt and snapshots hold what evaluation needs."""
     freed = 0
     for done in sorted(output_dir.rglob("done.json")):
         run_dir = done.parent
@@ -919,15 +855,7 @@ def free_checkpoints(output_dir: Path) -> None:
     print(f"freed {freed / 2**30:.2f} GiB")
 
 
-def run_analysis(output_dir: Path, report_dir: str, options: str) -> int:
-    command = [sys.executable, str(ROOT / "analyze.py"), str(output_dir), "--out", report_dir,
-               *shlex.split(options)]
-    print(f"all runs done: {shlex.join(command)}", flush=True)
-    return subprocess.run(command).returncode
-
-
-# ---------------------------------------------------------------------------------------------
-# Entry points
+# Entry points.
 
 
 def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
@@ -944,7 +872,11 @@ def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
         return 0
     todo = [dataclasses.replace(run, eval_workers=count) for run in todo]
     print(f"{len(runs)} runs: {len(runs) - len(todo)} done or under way, {len(todo)} to launch")
-    report_in_use(runs, states)
+    for run in runs:
+        holder = lock_holder(run.run_dir) if states[run] == "running" else None
+        if holder is not None:
+            print(f"{run.name}: in use by process {holder} (it holds {run.run_dir / 'lock'}): "
+                  "skipped", flush=True)
     if todo:
         print(division, flush=True)
     if todo and args.launcher == "local":
@@ -964,14 +896,6 @@ def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
     return finish(runs, args)
 
 
-def report_in_use(runs: list[Run], states: dict[Run, str]) -> None:
-    for run in runs:
-        holder = lock_holder(run.run_dir) if states[run] == "running" else None
-        if holder is not None:
-            print(f"{run.name}: in use by process {holder} (it holds {run.run_dir / 'lock'}): "
-                  "skipped", flush=True)
-
-
 def finish(runs: list[Run], args: Args) -> int:
     states = [run_state(run.run_dir) for run in runs]
     print(", ".join(f"{states.count(s)} {s}" for s in sorted(set(states))))
@@ -980,9 +904,12 @@ def finish(runs: list[Run], args: Args) -> int:
             print(f"{run.name} failed; last lines of {run.run_dir / LOG_FILE}:")
             print("\n".join(f"    | {line}" for line in log_tail(run.run_dir)))
     if all(state == "done" for state in states):
-        if args.analyze:
-            return run_analysis(runs[0].output_dir, args.analyze, args.analyze_args)
-        return 0
+        if not args.analyze:
+            return 0
+        command = [sys.executable, str(ROOT / "analyze.py"), str(runs[0].output_dir),
+                   "--out", args.analyze, *shlex.split(args.analyze_args)]
+        print(f"all runs done: {shlex.join(command)}", flush=True)
+        return subprocess.run(command).returncode
     if args.analyze:
         print("not all runs are done: analysis skipped; run this command again to finish them")
     return 1 if "failed" in states else EXIT_INTERRUPTED
@@ -990,27 +917,26 @@ def finish(runs: list[Run], args: Args) -> int:
 
 def main(argv: list[str]) -> int:
     """`sweep.py status DIR`, `sweep.py free DIR` or `sweep.py [OPTIONS] [-- ARGS FOR EVERY
-    RUN]`; the exit code."""
-    if argv[:1] in (["status"], ["free"]):
-        status_args = tyro.cli(StatusArgs, args=argv[1:], prog=f"sweep.py {argv[0]}")
-        (print_status if argv[0] == "status" else free_checkpoints)(Path(status_args.output_dir))
-        return 0
-    split = argv.index("--") if "--" in argv else len(argv)
-    args = tyro.cli(Args, args=argv[:split], prog="sweep.py", description=__doc__)
-    return sweep(args, tuple(argv[split + 1 :]))
-
-
-def cli() -> int:
+    RUN]`; the exit code (2: bad input, one line on stderr)."""
     try:
-        return main(sys.argv[1:])
+        if argv[:1] in (["status"], ["free"]):
+            given = tyro.cli(StatusArgs, args=argv[1:], prog=f"sweep.py {argv[0]}")
+            output_dir = Path(given.output_dir)
+            if not output_dir.is_dir():
+                raise SweepError(f"{output_dir} does not exist: give the --output-dir of a sweep")
+            (print_status if argv[0] == "status" else free_checkpoints)(output_dir)
+            return 0
+        split = argv.index("--") if "--" in argv else len(argv)
+        args = tyro.cli(Args, args=argv[:split], prog="sweep.py", description=__doc__)
+        return sweep(args, tuple(argv[split + 1 :]))
     except SweepError as error:
         print(f"sweep.py: error: {error}", file=sys.stderr)
         return 2
 
 
 if __name__ == "__main__":
-    # Run as the module `sweep`, not `__main__`: what is pickled for a Slurm job then refers
-    # to `sweep.SlurmRun` and `sweep.Run`, which the job imports from this file.
+    # submitit pickles SlurmRun and Run by reference to their module; as `__main__` they would
+    # travel by value instead. Running as the module `sweep` makes the job import this file.
     import sweep
 
-    sys.exit(sweep.cli())
+    sys.exit(sweep.main(sys.argv[1:]))
