@@ -5,30 +5,27 @@ seed and a hash of the arguments after `--`). Running the same command again ski
 runs, resumes interrupted ones (`--resume`) and starts missing ones. On Slurm the grid is one
 job array submitted through submitit; a job that is preempted or reaches its time limit
 checkpoints its run and is requeued, and the requeued job continues it with `--resume`.
+The guide: docs/sweep.md.
 
     python sweep.py --env-ids Pendulum-v1 --seeds 0 1 --output-dir runs -- --total-timesteps 2000
     python sweep.py --preset paper --launcher slurm --partition gpu --output-dir runs
     python sweep.py status runs
     python sweep.py free runs      # finished runs' checkpoint.pt (their replay buffers) deleted
+    python sweep.py restart runs/RUN  # a run whose checkpoint is lost, from its last snapshot
 """
 
 from __future__ import annotations
 
 import contextlib
-import csv
 import dataclasses
 import difflib
-import fcntl
 import functools
-import hashlib
 import importlib.util
-import json
 import math
 import os
 import shlex
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -45,23 +42,37 @@ import submitit
 import tyro
 
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
+from sac_utils.sweep_run import (
+    EXIT_INTERRUPTED,
+    IDENTITY_FILE,
+    LAUNCH_ACTIONS,
+    LOG_FILE,
+    Run,
+    SlurmRun,
+    action_for,
+    last_eval_step,
+    lock_holder,
+    log_tail,
+    prepare_run_dir,
+    read_json,
+    record_exit,
+    run_state,
+    squeue_states,
+    start_run,
+)
 
 ROOT = Path(__file__).resolve().parent
-PAPER_ENV_IDS = (
-    "h1hand-powerlift-v0",
-    "h1hand-cube-v0",
-    "h1hand-bookshelf_simple-v0",
-    "h1hand-bookshelf_hard-v0",
-)
+PAPER_ENV_IDS = ("h1hand-powerlift-v0", "h1hand-cube-v0", "h1hand-bookshelf_simple-v0",
+                 "h1hand-bookshelf_hard-v0")
+CLASSIC_ENV_IDS = ("Hopper-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
 PAPER_SEEDS = (0, 1, 2, 3, 4)
 DEFAULT_SCRIPTS = ("sac_standard.py", "sac_corrected.py")
 
 
 @dataclass(frozen=True)
 class Preset:
-    """A named grid: env ids, seeds, scripts, and each env id's step budget (absent: the script's
-    default, which is the paper's 10M). The scripts' defaults are the paper's protocol (its
-    Tables I and II), so a preset adds no other arguments."""
+    """A named grid. The scripts' defaults are the paper's protocol, so a preset adds no
+    arguments beyond a step budget for some env ids (the others get the script's 10M)."""
 
     env_ids: tuple[str, ...]
     seeds: tuple[int, ...]
@@ -70,21 +81,15 @@ class Preset:
     why: str
 
 
-# A corrected run also evaluates tanh(mu) of the same actor from the same start states, and the
-# two scripts make identical training decisions for a seed: its paired columns are the standard
-# run of that seed (tests/test_protocol.py pins this on real runs), so presets run
-# sac_corrected.py only.
 ONE_RUN_IS_BOTH = ("sac_corrected.py only: each run's paired tanh(mu) evaluation is the "
                    "sac_standard.py run of its seed (identical training decisions), so analyze.py "
                    "gets both algorithms from half the runs")
-CLASSIC_STEPS = 1_000_000
 PRESETS = {
     "paper": Preset(PAPER_ENV_IDS, PAPER_SEEDS, ("sac_corrected.py",), {}, ONE_RUN_IS_BOTH),
     # Beyond the paper: the correction's worth against the action dimension (3 to 61).
     "dimensions": Preset(
-        ("Hopper-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5", *PAPER_ENV_IDS), PAPER_SEEDS,
-        ("sac_corrected.py",),
-        dict.fromkeys(("Hopper-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5"), CLASSIC_STEPS),
+        (*CLASSIC_ENV_IDS, *PAPER_ENV_IDS), PAPER_SEEDS, ("sac_corrected.py",),
+        dict.fromkeys(CLASSIC_ENV_IDS, 1_000_000),
         ONE_RUN_IS_BOTH + "; classic tasks 1M steps each, h1hand tasks the paper's 10M"),
 }
 # sweep.py sets these for every run itself; the same flags after `--` would contradict them.
@@ -92,40 +97,8 @@ SWEEP_FLAGS = (
     "--env-id", "--seed", "--output-dir", "--run-name", "--resume", "--checkpoint-interval",
     "--track", "--wandb-project-name", "--wandb-entity", "--wandb-group",
 )
-# The training scripts' exit code after a graceful stop on a signal: "resume with --resume".
-EXIT_INTERRUPTED = 3
-# Training speed of one run for the compute estimate: either script on h1hand-powerlift-v0, one
-# torch thread, one gradient update per step, an evaluation round every 10,000 steps: about
-# 9.5 ms of CPU per step on our 2-core machines (docs/sweep.md).
-DEFAULT_STEPS_PER_SECOND = 105.0
-# One run's training speed per env id, the same measurement on each preset's env ids
-# (bench/bench_presets.py: process CPU time per training-loop step after the start steps, one
-# torch thread, the faster of two runs on our shared 2-core machine; evaluation rounds not
-# counted; docs/sweep.md, "Beyond the paper"). The estimate uses these unless --steps-per-second is
-# given; other env ids get the default above.
-CPU_STEPS_PER_SECOND = {
-    "Hopper-v5": 217.0,
-    "HalfCheetah-v5": 270.0,
-    "Ant-v5": 179.0,
-    "Humanoid-v5": 129.0,
-    "h1hand-powerlift-v0": 115.0,
-    "h1hand-cube-v0": 126.0,
-    "h1hand-bookshelf_simple-v0": 105.0,
-    "h1hand-bookshelf_hard-v0": 100.0,
-}
-# The same on one GPU node (one H100, 16 CPU cores): 16 runs at once with CUDA graphs under MPS
-# (--workers 16 --mps), h1hand-powerlift-v0, update phase, steps/s of all 16 together
-# (bench/bench_gpu.py; docs/speed.md, "Speed on a GPU").
-DEFAULT_GPU_NODE_STEPS_PER_SECOND = 3350.0
-IDENTITY_FILE = "sweep_run.json"
-ATTEMPT_FILE = "sweep_attempt.json"
-LOG_FILE = "sweep.log"
-SLURM_POLL_SECONDS = 2.0
-LOG_TAIL_LINES = 8
-# The scripts' number of evaluation processes: how fast a run goes, not what it computes, so it
-# may differ on --resume and is no part of a run's identity.
+# How fast a run goes, not what it computes: it may differ on --resume, no part of the identity.
 EVAL_WORKERS_FLAGS = ("--eval-workers", "--eval_workers")
-LAUNCH_ACTIONS = ("start", "resume", "retry")
 
 
 class SweepError(Exception):
@@ -163,12 +136,13 @@ class Args:
     wandb_entity: str | None = None
     """the W&B entity of the runs"""
     dry_run: bool = False
-    """print the grid, the run folders, what exists and a compute estimate; start nothing"""
+    """print the grid, the run folders, their state and the env steps left; start nothing"""
     steps_per_second: float | None = None
-    """training speed of one run for the compute estimate (env steps per second; default: the
-    speed measured for its env id, CPU_STEPS_PER_SECOND, else 105)"""
-    gpu_node_steps_per_second: float = DEFAULT_GPU_NODE_STEPS_PER_SECOND
-    """for the estimate on one GPU node: env steps per second of all its runs together"""
+    """with --dry-run: one run's env steps per second, for the run-hours left (measured speeds
+    per env id: docs/sweep.md)"""
+    gpu_node_steps_per_second: float | None = None
+    """with --dry-run: env steps per second of one GPU node's runs together, for the node-hours
+    left (measured: docs/sweep.md)"""
     analyze: str | None = None
     """when all runs are done, run analyze.py on the output folder into this report folder"""
     analyze_args: str = ""
@@ -203,91 +177,24 @@ class StatusArgs:
     """the sweep's output folder"""
 
 
-@dataclass(frozen=True)
-class Run:
-    """One cell of the grid: a script trained on one env id with one seed."""
-
-    script: Path
-    env_id: str
-    seed: int
-    extra_args: tuple[str, ...]
-    output_dir: Path
-    checkpoint_interval: int
-    tracking: tuple[str, ...] = ()  # W&B flags: where the run logs, not what it computes
-    eval_workers: int | None = None  # --eval-workers; None: the script's default
-
-    @property
-    def algorithm(self) -> str:
-        return self.script.stem.removeprefix("sac_")
-
-    @property
-    def name(self) -> str:
-        return f"{self.env_id}__{self.algorithm}__seed{self.seed}__{args_hash(self.extra_args)}"
-
-    @property
-    def run_dir(self) -> Path:
-        return self.output_dir / self.name
-
-    def identity(self) -> dict:
-        return {
-            "script": self.script.name,
-            "env_id": self.env_id,
-            "seed": self.seed,
-            "extra_args": list(self.extra_args),
-        }
+@dataclass
+class RestartArgs:
+    run_dir: Annotated[str, tyro.conf.Positional]
+    """the run folder whose checkpoint.pt is lost (it restarts from its last snapshot)"""
+    refill: int = 100_000
+    """steps of acting with the snapshot's policy, refilling the replay buffer, before the
+    updates resume (counted as the run's steps)"""
 
 
-def args_hash(extra_args: tuple[str, ...]) -> str:
-    """Short stable hash of the arguments every run of a sweep gets."""
-    return hashlib.sha256(json.dumps(list(extra_args)).encode()).hexdigest()[:8]
-
-
-# ---------------------------------------------------------------------------------------------
-# Files
-
-
-def write_json(path: Path, data: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    os.replace(tmp, path)
-
-
-def read_json(path: Path) -> dict | None:
-    try:
-        return json.loads(path.read_text())
-    except (FileNotFoundError, json.JSONDecodeError):
-        return None
-
-
-def log_tail(run_dir: Path, lines: int = LOG_TAIL_LINES) -> list[str]:
-    try:
-        return (run_dir / LOG_FILE).read_text(errors="replace").splitlines()[-lines:]
-    except FileNotFoundError:
-        return []
-
-
-def last_eval_step(run_dir: Path) -> int | None:
-    try:
-        lines = (run_dir / "eval.csv").read_text().splitlines(keepends=True)
-    except FileNotFoundError:
-        return None
-    # A run killed mid-write leaves a last line without its line end: not a row yet.
-    rows = list(csv.DictReader(line for line in lines if line.endswith("\n")))
-    return int(float(rows[-1]["global_step"])) if rows else None
-
-
-# ---------------------------------------------------------------------------------------------
-# The grid and its checks (nothing is written until all of them pass)
+# The grid and its checks: nothing is written until all of them pass.
 
 
 def resolve_script(script: str) -> Path:
     for candidate in (Path(script), ROOT / script):
         if candidate.is_file():
             return candidate.resolve()
-    raise SweepError(
-        f"unknown script {script!r}: no such file here or in {ROOT}; "
-        f"the project's scripts are {' and '.join(DEFAULT_SCRIPTS)}"
-    )
+    raise SweepError(f"unknown script {script!r}: no such file here or in {ROOT}; "
+                     f"the project's scripts are {' and '.join(DEFAULT_SCRIPTS)}")
 
 
 def check_env_ids(env_ids: list[str]) -> None:
@@ -303,15 +210,13 @@ def check_extra_args(extra_args: tuple[str, ...]) -> None:
     for arg in extra_args:
         flag = arg.split("=", 1)[0]
         if flag in SWEEP_FLAGS:
-            raise SweepError(
-                f"{flag} after `--` is set by sweep.py for every run: use sweep.py's own "
-                "--env-ids, --seeds, --output-dir, --checkpoint-interval or --track instead"
-            )
+            raise SweepError(f"{flag} after `--` is set by sweep.py for every run: use sweep.py's "
+                             "own --env-ids, --seeds, --output-dir, --checkpoint-interval or "
+                             "--track instead")
 
 
 def split_eval_workers(extra_args: tuple[str, ...]) -> tuple[tuple[str, ...], int | None]:
-    """The arguments after `--` without --eval-workers, and its value (the last one given, as
-    the scripts read it; None if not given)."""
+    """The arguments after `--` without --eval-workers, and its last value (None: not given)."""
     kept: list[str] = []
     value: int | None = None
     args = iter(extra_args)
@@ -347,8 +252,8 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     check_extra_args(extra_args)
     run_args, eval_workers = split_eval_workers(extra_args)
     output_dir = Path(args.output_dir).resolve()
-    tracking = ("--track", "--wandb-project-name", args.wandb_project_name,
-                *(("--wandb-entity", args.wandb_entity) if args.wandb_entity else ())) \
+    entity = ("--wandb-entity", args.wandb_entity) if args.wandb_entity else ()
+    tracking = ("--track", "--wandb-project-name", args.wandb_project_name, *entity) \
         if args.track else ()
     return [
         Run(script, env_id, seed, preset_args(preset, env_id, run_args) + run_args,
@@ -360,17 +265,17 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
 
 
 def check_ranges(args: Args) -> None:
-    """Every numeric flag's valid range, checked before anything is created or written."""
+    def positive(speed: float | None) -> bool:
+        return speed is None or (math.isfinite(speed) and speed > 0)
+
     rules = (
         ("seeds", all(seed >= 0 for seed in args.seeds), "non-negative integers"),
         ("workers", args.workers >= 1, "at least 1"),
         ("checkpoint_interval", args.checkpoint_interval >= 1,
          "at least 1 (a run is only resumable from a checkpoint)"),
-        ("steps_per_second", args.steps_per_second is None
-         or (math.isfinite(args.steps_per_second) and args.steps_per_second > 0),
+        ("steps_per_second", positive(args.steps_per_second), "a positive number"),
+        ("gpu_node_steps_per_second", positive(args.gpu_node_steps_per_second),
          "a positive number"),
-        ("gpu_node_steps_per_second", math.isfinite(args.gpu_node_steps_per_second)
-         and args.gpu_node_steps_per_second > 0, "a positive number"),
         ("time_min", args.time_min >= 1, "at least 1 minute"),
         ("cpus_per_task", args.cpus_per_task >= 1, "at least 1"),
         ("gpus_per_task", args.gpus_per_task >= 0, "0 or more"),
@@ -426,20 +331,18 @@ def check_output_dir(runs: list[Run]) -> None:
         )
 
 
-# ---------------------------------------------------------------------------------------------
-# Cores for evaluation: each run trains on one core and evaluates in --eval-workers processes
+# Cores for evaluation: each run trains on one core and evaluates in --eval-workers processes.
+# Why sweep.py passes the count, even on Slurm: docs/sweep.md, "Cores for evaluation".
 
 
 def eval_workers_per_run(cores: int, runs_at_once: int) -> int:
-    """The cores the training processes leave free, shared among the runs. At least one worker:
-    with none, every evaluation round would stop the run's training while it plays its
-    episodes; one worker on an oversubscribed core costs less."""
+    # At least one: in-process evaluation stops training for every round, which costs more than
+    # one worker on an oversubscribed core.
     return max(1, (cores - runs_at_once) // runs_at_once)
 
 
 def slurm_cpus_per_task(args: Args) -> int:
-    """The CPUs each task gets: --cpus-per-task, unless --sbatch cpus-per-task=N overrides it
-    (submitit writes additional sbatch parameters over its own)."""
+    # submitit writes additional sbatch parameters over its own: --sbatch cpus-per-task=N wins.
     given = sbatch_options(args.sbatch).get("cpus_per_task", args.cpus_per_task)
     if not (str(given).isascii() and str(given).isdigit()) or int(given) < 1:
         raise SweepError(f"--sbatch cpus-per-task={given}: must be a whole number, at least 1")
@@ -451,11 +354,7 @@ def plural(count: int, noun: str) -> str:
 
 
 def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, str]:
-    """Each run's --eval-workers, and the division in words. The user's --eval-workers after
-    `--` stands. On Slurm each run is one task and the count is passed explicitly rather than
-    left to the scripts' default (the CPUs in their affinity mask): Slurm confines a task to its
-    CPUs only under task/affinity or task/cgroup; elsewhere (TaskPlugin=task/none, as in
-    tests/slurm/) the mask is the whole node, and every run would start a worker per node core."""
+    """Each run's --eval-workers (the user's, after `--`, stands), and the division in words."""
     if given is not None:
         return given, f"evaluation: {plural(given, 'worker')} per run (--eval-workers after `--`)"
     if args.launcher == "slurm":
@@ -471,165 +370,13 @@ def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, s
     return count, f"evaluation: {plural(count, 'worker')} per run ({why})"
 
 
-# ---------------------------------------------------------------------------------------------
-# State of a run
-
-
-def slurm_job_state(job_id: str) -> str | None:
-    """squeue's state of a queued or running job, None when it is no longer in the queue."""
-    if shutil.which("squeue") is None:
-        return None
-    result = subprocess.run(
-        ["squeue", "-h", "-j", job_id, "-o", "%T"], capture_output=True, text=True, timeout=60
-    )
-    states = result.stdout.split()
-    return states[0].lower() if result.returncode == 0 and states else None
-
-
-def process_alive(attempt: dict) -> bool:
-    """Whether the attempt's process still runs (knowable only on the host that ran it)."""
-    if attempt.get("host") != socket.gethostname() or attempt.get("returncode") is not None:
-        return False
-    try:
-        os.kill(attempt["pid"], 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # alive, but another user's
-        pass
-    return True
-
-
-def lock_holder(run_dir: Path) -> str | None:
-    """The pid written in run_dir/lock while a training script holds its flock on it, else None.
-    The kernel drops the flock when its holder dies, so a lock file alone means nothing. Only a
-    probe: the lock is released at once, and the file is never created here."""
-    try:
-        fd = os.open(run_dir / "lock", os.O_RDONLY)
-    except FileNotFoundError:
-        return None
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        return os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-    finally:
-        os.close(fd)  # also releases the probe's lock
-    return None
-
-
-def run_state(run_dir: Path) -> str:
-    """done, running, pending (queued on Slurm), interrupted, failed or not started."""
-    if (run_dir / "done.json").exists():
-        return "done"
-    # Before the attempt file: a process this sweep did not start (a sweep launched twice, a
-    # requeued job racing one not dead yet) is at work on the folder.
-    if lock_holder(run_dir) is not None:
-        return "running"
-    identity = read_json(run_dir / IDENTITY_FILE) or {}
-    if identity.get("slurm_job_id"):
-        queued = slurm_job_state(identity["slurm_job_id"])
-        if queued is not None:
-            return "running" if queued in ("running", "completing") else "pending"
-    attempt = read_json(run_dir / ATTEMPT_FILE) or {}
-    if process_alive(attempt):
-        return "running"
-    returncode = attempt.get("returncode")
-    if returncode is not None and returncode != EXIT_INTERRUPTED and returncode >= 0:
-        return "failed"
-    if (run_dir / "config.json").exists():
-        return "interrupted"
-    return "not started"
-
-
-def progress(run_dir: Path) -> str:
-    config = read_json(run_dir / "config.json") or {}
-    step = last_eval_step(run_dir)
-    total = config.get("total_timesteps")
-    return f"{step if step is not None else 0}/{total if total is not None else '?'}"
-
-
-# ---------------------------------------------------------------------------------------------
-# Starting one run (shared by both launchers)
-
-
-def run_command(run: Run) -> tuple[str, list[str]]:
-    """Resume a run that has started (its config.json exists), else start it."""
-    python = [sys.executable, str(run.script)]
-    tracking = [*run.tracking, "--wandb-group", f"{run.env_id}__{run.algorithm}"] \
-        if run.tracking else []
-    # A runtime flag: passed on resume too, where the stored arguments do not hold it.
-    runtime = ["--eval-workers", str(run.eval_workers)] if run.eval_workers is not None else []
-    if (run.run_dir / "config.json").exists():
-        return "resume", [*python, "--resume", str(run.run_dir), *runtime, *tracking]
-    return "start", [
-        *python,
-        "--env-id", run.env_id,
-        "--seed", str(run.seed),
-        "--output-dir", str(run.output_dir),
-        "--run-name", run.name,
-        "--checkpoint-interval", str(run.checkpoint_interval),
-        *run.extra_args,
-        *runtime,
-        *tracking,
-    ]
-
-
-def start_run(run: Run, *, new_session: bool, block_user_signals: bool) -> subprocess.Popen:
-    """Start or resume the run in its own process, its output appended to its log file."""
-    action, command = run_command(run)
-    job_id = slurm_array_task_id()
-    where = f"{socket.gethostname()}" + (f", Slurm job {job_id}" if job_id else "")
-    # On Slurm the signal before the time limit reaches every process of the job; the child
-    # must get it only once, through checkpoint(), or it would take a second signal as "exit now".
-    preexec = _block_user_signals if block_user_signals else None
-    with open(run.run_dir / LOG_FILE, "a") as log:
-        log.write(f"=== sweep.py {action} on {where} at {time.strftime('%F %T')}: "
-                  f"{shlex.join(command)}\n")
-        log.flush()
-        child = subprocess.Popen(
-            command, stdout=log, stderr=subprocess.STDOUT, start_new_session=new_session,
-            preexec_fn=preexec, env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        )
-    write_json(run.run_dir / ATTEMPT_FILE, {
-        "action": action, "host": socket.gethostname(), "pid": child.pid,
-        "slurm_job_id": job_id, "started": time.time(), "returncode": None,
-    })
-    return child
-
-
-def _block_user_signals() -> None:
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGUSR1, signal.SIGUSR2})
-
-
-def record_exit(run: Run, returncode: int | None) -> None:
-    attempt = read_json(run.run_dir / ATTEMPT_FILE) or {}
-    attempt.update(returncode=returncode, ended=time.time())
-    write_json(run.run_dir / ATTEMPT_FILE, attempt)
-    with open(run.run_dir / LOG_FILE, "a") as log:
-        log.write(f"=== sweep.py: exit code {returncode} at {time.strftime('%F %T')}\n")
-
-
-def slurm_array_task_id() -> str | None:
-    array_job = os.environ.get("SLURM_ARRAY_JOB_ID")
-    if array_job:
-        return f"{array_job}_{os.environ['SLURM_ARRAY_TASK_ID']}"
-    return os.environ.get("SLURM_JOB_ID")
-
-
-def prepare_run_dir(run: Run, **extra: str) -> None:
-    run.run_dir.mkdir(parents=True, exist_ok=True)
-    write_json(run.run_dir / IDENTITY_FILE, {**run.identity(), "run_name": run.name, **extra})
-
-
-# ---------------------------------------------------------------------------------------------
-# Local launcher
+# The local launcher.
 
 
 @contextlib.contextmanager
 def mps_daemon() -> Iterator[None]:
-    """NVIDIA's Multi-Process Service while the block runs: one MPS server holds the GPU and the
-    CUDA processes started inside the block (they inherit its pipe folder) share it, their
-    kernels running concurrently, instead of time-slicing the GPU one context at a time. A private
-    pipe folder keeps it apart from any MPS daemon already on the machine."""
+    """NVIDIA's Multi-Process Service while the block runs, for the CUDA processes started in it
+    (docs/speed.md). A private pipe folder keeps it apart from any MPS daemon already there."""
     if shutil.which("nvidia-cuda-mps-control") is None:
         raise SweepError("--mps needs nvidia-cuda-mps-control (NVIDIA's driver tools) on PATH; "
                          "drop --mps on a machine without it")
@@ -700,86 +447,27 @@ def launch_local(runs: list[Run], workers: int) -> None:
             signal.signal(signum, handler)
 
 
-# ---------------------------------------------------------------------------------------------
-# Slurm launcher
-
-
-class SlurmRun:
-    """A run as one task of a Slurm job array (submitit's checkpointable callable).
-
-    On preemption or near the time limit Slurm signals the job; submitit calls checkpoint(),
-    which makes the script checkpoint after its current step and exit, and requeues the job;
-    the requeued job calls this again, which resumes the run."""
-
-    def __init__(self) -> None:
-        self._child: subprocess.Popen | None = None
-        self._returncode: int | None = None
-
-    def __getstate__(self) -> dict:
-        return {}  # a fresh instance for each job; a process cannot travel
-
-    def __setstate__(self, state: dict) -> None:
-        self.__init__()
-
-    def __call__(self, run: Run) -> str:
-        if (run.run_dir / "done.json").exists():
-            return str(run.run_dir)
-        self._child = start_run(run, new_session=False, block_user_signals=True)
-        # Poll with os.waitpid, not Popen.wait: checkpoint() runs in a signal handler on this
-        # same thread, and Popen.wait holds a lock there that it would wait on forever.
-        while self._reap(block=False) is None:
-            time.sleep(1.0)
-        record_exit(run, self._returncode)
-        if self._returncode == 0:
-            return str(run.run_dir)
-        if self._returncode == EXIT_INTERRUPTED:
-            raise RuntimeError(f"{run.name} was interrupted: rerun the sweep to resume it")
-        tail = "\n".join(log_tail(run.run_dir))
-        raise RuntimeError(f"{run.name} failed (exit code {self._returncode}):\n{tail}")
-
-    def checkpoint(self, run: Run) -> submitit.helpers.DelayedSubmission:
-        if self._child is not None and self._returncode is None:
-            self._child.send_signal(signal.SIGTERM)
-            self._reap(block=True)
-            record_exit(run, self._returncode)
-        return submitit.helpers.DelayedSubmission(SlurmRun(), run)
-
-    def _reap(self, block: bool) -> int | None:
-        if self._returncode is None:
-            try:
-                pid, status = os.waitpid(self._child.pid, 0 if block else os.WNOHANG)
-            except ChildProcessError:  # reaped by the frame this signal handler interrupted
-                return EXIT_INTERRUPTED
-            if pid:
-                self._returncode = os.waitstatus_to_exitcode(status)
-                self._child.returncode = self._returncode
-        return self._returncode
+# The Slurm launcher (the job's side: sweep_run.SlurmRun).
 
 
 def check_slurm(partition: str | None) -> None:
     """Fail before anything is written when Slurm is not there or not answering."""
     for tool in ("sbatch", "squeue", "srun", "sinfo"):
         if shutil.which(tool) is None:
-            raise SweepError(
-                f"Slurm not found: `{tool}` is not on PATH. Run sweep.py on a login node of "
-                "the cluster, or use --launcher local."
-            )
+            raise SweepError(f"Slurm not found: `{tool}` is not on PATH. Run sweep.py on a login "
+                             "node of the cluster, or use --launcher local.")
     try:
-        result = subprocess.run(
-            ["sinfo", "-h", "-o", "%P"], capture_output=True, text=True, timeout=60
-        )
+        result = subprocess.run(["sinfo", "-h", "-o", "%P"], capture_output=True, text=True,
+                                timeout=60)
     except subprocess.TimeoutExpired as error:
         raise SweepError("Slurm not reachable: `sinfo` did not answer within 60 s") from error
     if result.returncode != 0:
-        raise SweepError(
-            f"Slurm not reachable: `sinfo` failed: {result.stderr.strip()}\n"
-            "Check that slurmctld is up (`scontrol ping`), or use --launcher local."
-        )
+        raise SweepError(f"Slurm not reachable: `sinfo` failed: {result.stderr.strip()}\n"
+                         "Check that slurmctld is up (`scontrol ping`), or use --launcher local.")
     partitions = [name.rstrip("*") for name in result.stdout.split()]
     if partition is not None and partition not in partitions:
         raise SweepError(
-            f"unknown Slurm partition {partition!r}: this cluster has {', '.join(partitions)}"
-        )
+            f"unknown Slurm partition {partition!r}: this cluster has {', '.join(partitions)}")
 
 
 def sbatch_options(options: list[str]) -> dict[str, str | bool]:
@@ -804,7 +492,7 @@ def launch_slurm(runs: list[Run], args: Args) -> str:
         signal_delay_s=args.signal_delay_s,
         array_parallelism=args.max_parallel,
         stderr_to_stdout=True,
-        # The job unpickles SlurmRun from this file, wherever the sweep was started from.
+        # The job unpickles SlurmRun from sac_utils/sweep_run.py, wherever the sweep started.
         setup=[f"export PYTHONPATH={shlex.quote(str(ROOT))}${{PYTHONPATH:+:$PYTHONPATH}}"],
         additional_parameters=sbatch_options(args.sbatch),
         **({"gpus_per_task": args.gpus_per_task} if args.gpus_per_task else {}),
@@ -821,21 +509,17 @@ def launch_slurm(runs: list[Run], args: Args) -> str:
 def wait_for_slurm(job_id: str) -> None:
     last = None
     while True:
-        result = subprocess.run(
-            ["squeue", "-h", "-j", job_id, "-o", "%T"], capture_output=True, text=True, timeout=60
-        )
-        states = result.stdout.split()
-        if result.returncode == 0 and not states:
+        states = squeue_states(job_id)
+        if states is not None and not states:  # none left (None: squeue failed; ask again)
             return
-        summary = ", ".join(f"{states.count(s)} {s.lower()}" for s in sorted(set(states)))
+        summary = ", ".join(f"{states.count(s)} {s.lower()}" for s in sorted(set(states or [])))
         if summary != last:
             print(f"Slurm job {job_id}: {summary}", flush=True)
             last = summary
-        time.sleep(SLURM_POLL_SECONDS)
+        time.sleep(2.0)
 
 
-# ---------------------------------------------------------------------------------------------
-# Reports
+# Reports.
 
 
 def total_timesteps(run: Run) -> int:
@@ -858,60 +542,36 @@ def script_default_total_timesteps(script: Path) -> int:
 
 def print_plan(runs: list[Run], states: dict[Run, str], args: Args,
                extra_args: tuple[str, ...]) -> None:
-    n_env = len({r.env_id for r in runs})
-    n_seed = len({r.seed for r in runs})
-    n_script = len({r.script for r in runs})
+    """--dry-run: the grid, each run's folder, state and action, and the env steps left; a time
+    only from speeds the user gives (measured ones: docs/sweep.md)."""
+    n_env, n_seed, n_script = (len({getattr(run, key) for run in runs})
+                               for key in ("env_id", "seed", "script"))
     print(f"grid: {n_env} env ids x {n_seed} seeds x {n_script} scripts = {len(runs)} runs, "
           f"arguments after --: {shlex.join(extra_args) or '(none)'}")
     print(f"output folder: {runs[0].output_dir}")
     if args.preset and not args.scripts:
         print(f"preset {args.preset}: {PRESETS[args.preset].why}")
-    total = steps_left = 0
-    left = {}
+    total = steps_left = longest = 0
     for run in runs:
-        state = states[run]
         budget = total_timesteps(run)
-        total += budget
-        left[run] = 0 if state == "done" else budget - (last_eval_step(run.run_dir) or 0)
-        steps_left += left[run]
-        print(f"  {run.name:<60} {state:<12} {action_for(state)}")
-    hours, longest, speeds = cpu_estimate(left, args.steps_per_second)
-    print(f"compute: {len(runs)} runs, {total:,} env steps in all, {steps_left:,} still to run; "
-          f"at {speeds} that is {hours:,.1f} run-hours ({hours / len(runs):,.1f} h per run, "
-          f"the longest {longest:,.1f} h)")
-    node_hours = steps_left / args.gpu_node_steps_per_second / 3600
-    print(f"on one GPU node at {args.gpu_node_steps_per_second:,g} steps/s in all (16 runs at once "
-          f"under MPS: --workers 16 --mps): {node_hours:,.1f} h ({node_hours / 24:,.1f} days)")
-
-
-def cpu_steps_per_second(env_id: str, given: float | None) -> float:
-    """One run's CPU training speed for the estimate: --steps-per-second, else measured."""
-    return given if given is not None else CPU_STEPS_PER_SECOND.get(env_id,
-                                                                    DEFAULT_STEPS_PER_SECOND)
-
-
-def cpu_estimate(steps_left: dict[Run, int], given: float | None) -> tuple[float, float, str]:
-    """Run-hours on CPU cores for the steps each run has left, the longest run's hours, and the
-    speeds used, in words."""
-    hours = [left / cpu_steps_per_second(run.env_id, given) / 3600
-             for run, left in steps_left.items()]
-    if given is not None:
-        return sum(hours), max(hours), f"{given:g} steps/s per run"
-    speeds = {run.env_id: cpu_steps_per_second(run.env_id, None) for run in steps_left}
-    return sum(hours), max(hours), "the steps/s per run measured for each env id (" + ", ".join(
-        f"{env_id} {speed:g}" for env_id, speed in speeds.items()) + ")"
-
-
-def action_for(state: str) -> str:
-    return {
-        "done": "skip", "running": "skip (running)", "pending": "skip (queued)",
-        "interrupted": "resume", "failed": "retry",
-    }.get(state, "start")
+        left = 0 if states[run] == "done" else budget - (last_eval_step(run.run_dir) or 0)
+        total, steps_left, longest = total + budget, steps_left + left, max(longest, left)
+        print(f"  {run.name:<60} {states[run]:<12} {action_for(states[run])}")
+    print(f"compute: {len(runs)} runs, {total:,} env steps in all, {steps_left:,} still to run")
+    if args.steps_per_second:
+        hours = steps_left / args.steps_per_second / 3600
+        print(f"at {args.steps_per_second:g} steps/s per run: {hours:,.1f} run-hours (the "
+              f"longest run {longest / args.steps_per_second / 3600:,.1f} h)")
+    if args.gpu_node_steps_per_second:
+        hours = steps_left / args.gpu_node_steps_per_second / 3600
+        print(f"on one GPU node at {args.gpu_node_steps_per_second:,g} steps/s in all: "
+              f"{hours:,.1f} h ({hours / 24:,.1f} days)")
+    if not (args.steps_per_second or args.gpu_node_steps_per_second):
+        print("for the time it takes, give --steps-per-second (one run) or "
+              "--gpu-node-steps-per-second; measured speeds: docs/sweep.md")
 
 
 def print_status(output_dir: Path) -> None:
-    if not output_dir.is_dir():
-        raise SweepError(f"{output_dir} does not exist: give the --output-dir of a sweep")
     run_dirs = [
         d for d in sorted(output_dir.iterdir())
         if d.is_dir() and not d.name.startswith(".")
@@ -925,7 +585,9 @@ def print_status(output_dir: Path) -> None:
     for run_dir in run_dirs:
         state = run_state(run_dir)
         counts[state] = counts.get(state, 0) + 1
-        print(f"{run_dir.name:<{width}}  {state:<12} {progress(run_dir)}")
+        total = (read_json(run_dir / "config.json") or {}).get("total_timesteps")
+        progress = f"{last_eval_step(run_dir) or 0}/{total if total is not None else '?'}"
+        print(f"{run_dir.name:<{width}}  {state:<12} {progress}")
         if state == "failed":
             for line in log_tail(run_dir):
                 print(f"    | {line}")
@@ -933,12 +595,8 @@ def print_status(output_dir: Path) -> None:
 
 
 def free_checkpoints(output_dir: Path) -> None:
-    """Deletes checkpoint.pt of every finished run under output_dir: a finished run (done.json)
-    never resumes, and its final_model.pt and snapshots hold what evaluation needs, while its
-    checkpoint holds the replay buffer (2-3 GB at 1M steps on h1hand). Unfinished runs are left
-    alone."""
-    if not output_dir.is_dir():
-        raise SweepError(f"{output_dir} does not exist: give the --output-dir of a sweep")
+    """Deletes the checkpoint.pt (the replay buffer) of every finished run: it never resumes,
+    and its final_model.pt and snapshots hold what evaluation needs."""
     freed = 0
     for done in sorted(output_dir.rglob("done.json")):
         run_dir = done.parent
@@ -955,15 +613,7 @@ def free_checkpoints(output_dir: Path) -> None:
     print(f"freed {freed / 2**30:.2f} GiB")
 
 
-def run_analysis(output_dir: Path, report_dir: str, options: str) -> int:
-    command = [sys.executable, str(ROOT / "analyze.py"), str(output_dir), "--out", report_dir,
-               *shlex.split(options)]
-    print(f"all runs done: {shlex.join(command)}", flush=True)
-    return subprocess.run(command).returncode
-
-
-# ---------------------------------------------------------------------------------------------
-# Entry points
+# Entry points.
 
 
 def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
@@ -980,7 +630,11 @@ def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
         return 0
     todo = [dataclasses.replace(run, eval_workers=count) for run in todo]
     print(f"{len(runs)} runs: {len(runs) - len(todo)} done or under way, {len(todo)} to launch")
-    report_in_use(runs, states)
+    for run in runs:
+        holder = lock_holder(run.run_dir) if states[run] == "running" else None
+        if holder is not None:
+            print(f"{run.name}: in use by process {holder} (it holds {run.run_dir / 'lock'}): "
+                  "skipped", flush=True)
     if todo:
         print(division, flush=True)
     if todo and args.launcher == "local":
@@ -1000,14 +654,6 @@ def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
     return finish(runs, args)
 
 
-def report_in_use(runs: list[Run], states: dict[Run, str]) -> None:
-    for run in runs:
-        holder = lock_holder(run.run_dir) if states[run] == "running" else None
-        if holder is not None:
-            print(f"{run.name}: in use by process {holder} (it holds {run.run_dir / 'lock'}): "
-                  "skipped", flush=True)
-
-
 def finish(runs: list[Run], args: Args) -> int:
     states = [run_state(run.run_dir) for run in runs]
     print(", ".join(f"{states.count(s)} {s}" for s in sorted(set(states))))
@@ -1016,37 +662,45 @@ def finish(runs: list[Run], args: Args) -> int:
             print(f"{run.name} failed; last lines of {run.run_dir / LOG_FILE}:")
             print("\n".join(f"    | {line}" for line in log_tail(run.run_dir)))
     if all(state == "done" for state in states):
-        if args.analyze:
-            return run_analysis(runs[0].output_dir, args.analyze, args.analyze_args)
-        return 0
+        if not args.analyze:
+            return 0
+        command = [sys.executable, str(ROOT / "analyze.py"), str(runs[0].output_dir),
+                   "--out", args.analyze, *shlex.split(args.analyze_args)]
+        print(f"all runs done: {shlex.join(command)}", flush=True)
+        return subprocess.run(command).returncode
     if args.analyze:
         print("not all runs are done: analysis skipped; run this command again to finish them")
     return 1 if "failed" in states else EXIT_INTERRUPTED
 
 
 def main(argv: list[str]) -> int:
-    """`sweep.py status DIR`, `sweep.py free DIR` or `sweep.py [OPTIONS] [-- ARGS FOR EVERY
-    RUN]`; the exit code."""
-    if argv[:1] in (["status"], ["free"]):
-        status_args = tyro.cli(StatusArgs, args=argv[1:], prog=f"sweep.py {argv[0]}")
-        (print_status if argv[0] == "status" else free_checkpoints)(Path(status_args.output_dir))
-        return 0
-    split = argv.index("--") if "--" in argv else len(argv)
-    args = tyro.cli(Args, args=argv[:split], prog="sweep.py", description=__doc__)
-    return sweep(args, tuple(argv[split + 1 :]))
-
-
-def cli() -> int:
+    """`sweep.py status DIR`, `sweep.py free DIR`, `sweep.py restart RUN_DIR` or `sweep.py
+    [OPTIONS] [-- ARGS FOR EVERY RUN]`; the exit code (2: bad input, one line on stderr)."""
     try:
-        return main(sys.argv[1:])
+        if argv[:1] in (["status"], ["free"]):
+            given = tyro.cli(StatusArgs, args=argv[1:], prog=f"sweep.py {argv[0]}")
+            output_dir = Path(given.output_dir)
+            if not output_dir.is_dir():
+                raise SweepError(f"{output_dir} does not exist: give the --output-dir of a sweep")
+            (print_status if argv[0] == "status" else free_checkpoints)(output_dir)
+            return 0
+        if argv[:1] == ["restart"]:
+            given = tyro.cli(RestartArgs, args=argv[1:], prog="sweep.py restart")
+            from sac_utils.checkpoints import restart_from_snapshot  # torch: only here
+
+            record = restart_from_snapshot(Path(given.run_dir), given.refill)
+            print(f"{given.run_dir}: checkpoint.pt written from {record['snapshot']}; the run "
+                  f"acts until step {record['updates_from']:,}, then updates resume (recorded in "
+                  "config.json's restarts); continue it with the sweep's command, or --resume")
+            return 0
+        split = argv.index("--") if "--" in argv else len(argv)
+        args = tyro.cli(Args, args=argv[:split], prog="sweep.py", description=__doc__)
+        return sweep(args, tuple(argv[split + 1 :]))
     except SweepError as error:
         print(f"sweep.py: error: {error}", file=sys.stderr)
         return 2
 
 
 if __name__ == "__main__":
-    # Run as the module `sweep`, not `__main__`: what is pickled for a Slurm job then refers
-    # to `sweep.SlurmRun` and `sweep.Run`, which the job imports from this file.
-    import sweep
+    sys.exit(main(sys.argv[1:]))
 
-    sys.exit(sweep.cli())

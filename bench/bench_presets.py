@@ -1,5 +1,5 @@
-"""Training speed of one run on each env id of a sweep.py preset: the measurement behind
-sweep.py's per-env CPU_STEPS_PER_SECOND, which its --dry-run compute estimate uses.
+"""Training speed of one run on each env id of a sweep.py preset: the measurement behind the
+table of speeds in docs/sweep.md, which `sweep.py --dry-run --steps-per-second` takes.
 
     .venv/bin/python bench/bench_presets.py --preset dimensions
 
@@ -8,7 +8,7 @@ Per env id: bench_sac.py's training-loop cost (process CPU seconds of a sac_stan
 steps, over the steps between; one torch thread; no evaluation, no checkpoint), median over
 --repeats. CPU time rather than wall time, so that a shared machine inflates it less; it counts
 neither the evaluation rounds (10 episodes of mode and 10 of tanh(mu) every 10,000 steps) nor
-the process start, which the script's estimate leaves out too.
+the process start.
 """
 
 import statistics

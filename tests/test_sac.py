@@ -258,8 +258,6 @@ def test_a_run_whose_checkpoint_is_lost_restarts_from_its_last_snapshot(tmp_path
     """The fallback when a machine is lost with a run's checkpoint: checkpoint.pt rebuilt from the
     last snapshot, the buffer refilled by acting before updates resume, the logs going on from
     the snapshot's step, the restart recorded."""
-    from sac_utils.checkpoints import restart_from_snapshot
-
     args = [*SHORT, "--snapshot-interval", "500", "--log-interval", "100",
             "--output-dir", str(tmp_path), "--run-name", "lost"]
     run_dir = tmp_path / "lost"
@@ -269,9 +267,13 @@ def test_a_run_whose_checkpoint_is_lost_restarts_from_its_last_snapshot(tmp_path
     process.send_signal(signal.SIGKILL)  # no checkpoint: --checkpoint-interval 0
     process.wait()
     before = read_csv(run_dir / "train.csv")
-    record = restart_from_snapshot(run_dir, refill=200)
+    restarted = run("sweep.py", "restart", str(run_dir), "--refill", "200")
+    assert "checkpoint.pt written from snapshots/step1000.pt" in restarted.stdout
+    (record,) = json.loads((run_dir / "config.json").read_text())["restarts"]
     assert (record["step"], record["refill"], record["updates_from"]) == (1000, 200, 1200)
     assert read_csv(run_dir / "restarts" / "step1000" / "train.csv") == before  # kept as it was
+    twice = run("sweep.py", "restart", str(run_dir), check=False)  # its checkpoint is there now
+    assert twice.returncode == 2 and "continue it exactly with --resume" in twice.stderr
     resumed = run("sac_corrected.py", "--resume", str(run_dir))
     assert "updates resume at step 1200" in resumed.stdout
 
@@ -287,13 +289,10 @@ def test_a_run_whose_checkpoint_is_lost_restarts_from_its_last_snapshot(tmp_path
     final = torch.load(run_dir / "final_model.pt", weights_only=True)
     assert any(not torch.equal(v, final["actor"][k]) for k, v in snapshot["actor"].items())
 
-    # A run that has its checkpoint resumes exactly instead; a finished one has nothing to do.
-    restarted = subprocess.run(
-        [sys.executable, "-c", "import sys; from pathlib import Path; "
-         "from sac_utils.checkpoints import restart_from_snapshot; "
-         "restart_from_snapshot(Path(sys.argv[1]), 100)", str(run_dir)],
-        capture_output=True, text=True, cwd=ROOT)
-    assert restarted.returncode == 2 and "finished (done.json)" in restarted.stderr
+    # A finished run has nothing to restart: one line, exit code 2.
+    again = run("sweep.py", "restart", str(run_dir), check=False)
+    assert again.returncode == 2 and "finished (done.json)" in again.stderr
+    assert len(again.stderr.strip().splitlines()) == 1
 
 
 def test_bad_resumes_fail_clearly(standard_run, tmp_path):

@@ -259,22 +259,30 @@ def test_dry_run_prints_the_plan_and_starts_nothing(reference, tmp_path):
     assert not (tmp_path / "paper").exists() and not (tmp_path / "dims").exists()
 
 
-def test_dry_run_estimate_uses_each_env_ids_measured_speed(tmp_path):
-    """Without --steps-per-second, each run is costed at the CPU speed measured for its env id
-    (sweep.CPU_STEPS_PER_SECOND); an env id not measured gets the default."""
+def test_dry_run_counts_the_steps_left_and_takes_its_speeds_from_the_user(tmp_path):
+    """sweep.py holds no table of speeds (docs/sweep.md does): --dry-run counts the env steps
+    still to run (an interrupted run's from its last evaluation) and gives hours only for a
+    speed it is given."""
     import sweep as sweep_module
 
-    out = sweep("--env-ids", "Pendulum-v1", "Hopper-v5", "--seeds", "0", "1", "--scripts",
-                "sac_corrected.py", "--output-dir", str(tmp_path / "out"), "--dry-run", "--",
-                "--total-timesteps", "3600000").stdout
-    hopper = sweep_module.CPU_STEPS_PER_SECOND["Hopper-v5"]
-    pendulum = sweep_module.DEFAULT_STEPS_PER_SECOND
-    assert "Pendulum-v1" not in sweep_module.CPU_STEPS_PER_SECOND
-    hours = [3600000 / speed / 3600 for speed in (pendulum, hopper)]  # per run
-    assert (f"(Pendulum-v1 {pendulum:g}, Hopper-v5 {hopper:g}) that is "
-            f"{2 * sum(hours):,.1f} run-hours ({sum(hours) / 2:,.1f} h per run, the longest "
-            f"{max(hours):,.1f} h)") in out
-    assert not (tmp_path / "out").exists()
+    budget = ("--total-timesteps", "3600000")
+    grid = ["--env-ids", "Pendulum-v1", "Hopper-v5", "--seeds", "0", "1", "--scripts",
+            "sac_corrected.py", "--output-dir", str(tmp_path), "--dry-run"]
+    args = sweep_module.Args(env_ids=["Pendulum-v1"], seeds=[0], scripts=["sac_corrected.py"],
+                             output_dir=str(tmp_path))
+    (started,) = sweep_module.build_grid(args, budget)
+    sweep_module.prepare_run_dir(started)
+    (started.run_dir / "config.json").write_text("{}")
+    (started.run_dir / "eval.csv").write_text("global_step,return_mean\n900000,1.0\n")
+
+    out = sweep(*grid, "--", *budget).stdout
+    assert f"{started.name:<60} interrupted  resume" in out
+    assert "14,400,000 env steps in all, 13,500,000 still to run" in out
+    assert "run-hours" not in out and "GPU node" not in out and "docs/sweep.md" in out
+    # 13.5M steps at 250 steps/s per run: 15 run-hours, a whole run 4 h.
+    out = sweep(*grid, "--steps-per-second", "250", "--", *budget).stdout
+    assert "at 250 steps/s per run: 15.0 run-hours (the longest run 4.0 h)" in out
+    assert [p.name for p in tmp_path.iterdir()] == [started.name]
 
 
 def test_a_preset_with_per_env_budgets_accepts_its_own_runs(tmp_path):

@@ -178,6 +178,7 @@ def test_resume_with_other_workers_finds_the_same_folders(tmp_path, monkeypatch,
 
 def test_run_command_passes_the_division_once_and_the_identity_ignores_it(tmp_path):
     import sweep as sweep_module
+    from sac_utils.sweep_run import run_command
 
     def grid(*extra: str, **options) -> list:
         args = sweep_module.Args(env_ids=["Pendulum-v1"], seeds=[0], output_dir=str(tmp_path),
@@ -189,11 +190,11 @@ def test_run_command_passes_the_division_once_and_the_identity_ignores_it(tmp_pa
                                                                     "--eval-workers", "3")):
         (run,) = grid("--batch-size", "32", *extra)
         assert (run.name, run.identity(), run.eval_workers) == (plain.name, plain.identity(), 3)
-        _, command = sweep_module.run_command(run)
+        _, command = run_command(run)
         assert command.count("--eval-workers") == 1 and command[-2:] == ["--eval-workers", "3"]
         assert not any(arg.startswith("--eval_workers") for arg in command)
     # None: the script's default.
-    assert "--eval-workers" not in sweep_module.run_command(plain)[1]
+    assert "--eval-workers" not in run_command(plain)[1]
 
     divided = sweep_module.eval_division
     assert divided(sweep_module.Args(launcher="slurm", cpus_per_task=4), None, 9)[0] == 3
