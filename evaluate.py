@@ -52,7 +52,6 @@ import torch.nn as nn
 import tyro
 
 import sac_corrected as sac
-from sac_utils import checkpoints
 from sac_utils.cli import check_reset_noise, fail, read_config_json
 from sac_utils.eval_rounds import (
     ACTIONS,
@@ -63,6 +62,7 @@ from sac_utils.eval_rounds import (
     eval_seeds,
     start_key,
 )
+from sac_utils.files import write_text_atomically
 
 SELECTORS = ACTIONS
 CONFIDENCE = 0.95
@@ -706,7 +706,7 @@ def evaluate_policies(args: Args, settings: dict,
     """Runs the planned policies' jobs in one pool. As a policy's last job comes back, its
     run's files are rewritten with it, and the marker with the seconds so far (`seconds`
     before this attempt, plus this attempt's); returns the seconds at the end."""
-    write_atomically(args.out / PARTIAL_FILE, json.dumps(settings | {"seconds": seconds},
+    write_text_atomically(args.out / PARTIAL_FILE, json.dumps(settings | {"seconds": seconds},
                                                          indent=2) + "\n")
     if not planned:  # all finished by an attempt killed before it wrote evaluation.json
         return seconds
@@ -724,7 +724,7 @@ def evaluate_policies(args: Args, settings: dict,
         waiting.pop(0)
         results.clear()
         write_run_files(args.out, policy.run, finished)
-        write_atomically(args.out / PARTIAL_FILE, json.dumps(
+        write_text_atomically(args.out / PARTIAL_FILE, json.dumps(
             settings | {"seconds": seconds + time.perf_counter() - start}, indent=2) + "\n")
 
     workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
@@ -742,7 +742,7 @@ def write_campaign(args: Args, selectors: list[str], policies: list[Policy],
                 "reset_noise": args.reset_noise, "selectors": selectors, "solver": args.solver,
                 "seconds": round(seconds, 1), "workers": args.workers,
                 "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
-    write_atomically(args.out / CAMPAIGN_FILE, json.dumps(settings, indent=2) + "\n")
+    write_text_atomically(args.out / CAMPAIGN_FILE, json.dumps(settings, indent=2) + "\n")
     (args.out / PARTIAL_FILE).unlink(missing_ok=True)
 
 
@@ -854,9 +854,9 @@ def write_run_files(out: Path, run: str, finished: dict[tuple[str, int], PolicyR
     """The run's episodes.csv and shift.csv: every finished policy of it, by step."""
     steps = sorted(step for name, step in finished if name == run)
     (out / run).mkdir(exist_ok=True)
-    write_atomically(out / run / "episodes.csv", csv_text(
+    write_text_atomically(out / run / "episodes.csv", csv_text(
         [EPISODES_HEADER, *(row for step in steps for row in finished[run, step][0])]))
-    write_atomically(out / run / "shift.csv", csv_text(
+    write_text_atomically(out / run / "shift.csv", csv_text(
         [SHIFT_HEADER, *(finished[run, step][1] for step in steps)]))
 
 
@@ -864,19 +864,6 @@ def csv_text(rows: list[list]) -> str:
     text = io.StringIO()
     csv.writer(text).writerows(rows)
     return text.getvalue()
-
-
-def write_atomically(path: Path, text: str) -> None:
-    """path holds its old content or text, wherever the process is killed
-    (sac_utils/checkpoints.py's
-    temporary file and rename, synced to disk first)."""
-    def write(temporary: Path) -> None:
-        with open(temporary, "w", newline="") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-
-    checkpoints.atomic_write(path, write)
 
 
 def read_campaign(out: Path) -> tuple[dict, dict, dict, dict]:

@@ -12,7 +12,6 @@ import json
 import os
 import random
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import gymnasium as gym
@@ -22,17 +21,11 @@ import torch.nn as nn
 import torch.utils._pytree as pytree
 
 from sac_utils.cli import fail
+from sac_utils.files import atomic_write, complete_lines
 
 CHECKPOINT_KEYS = ("args", "global_step", "elapsed", "progress", "actor", "qf", "qf_target",
                    "log_alpha", "q_optimizer", "actor_optimizer", "alpha_optimizer", "buffer",
                    "rng")
-
-
-def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
-    """Writes via a temporary file and os.replace: a kill leaves the old file or the new one."""
-    tmp = path.with_name(path.name + ".tmp")
-    write(tmp)
-    os.replace(tmp, path)
 
 
 def on_cpu(tree):
@@ -289,7 +282,4 @@ def logged_rows(path: Path, step: int) -> list[dict]:
     """A run CSV's whole rows up to `step` (none if the file is missing)."""
     if not path.exists():
         return []
-    with path.open(newline="") as f:
-        lines = f.read().splitlines(keepends=True)
-    rows = csv.DictReader([lines[0], *(r for r in lines[1:] if r.endswith("\n"))])
-    return [r for r in rows if int(r["global_step"]) <= step]
+    return [r for r in csv.DictReader(complete_lines(path)) if int(r["global_step"]) <= step]

@@ -18,8 +18,8 @@ import gymnasium as gym
 import numpy as np
 import tyro
 
-from sac_utils.eval_rounds import action_name
-
+# A training script's exit code after a graceful stop on a signal: "resume with --resume".
+INTERRUPTED_EXIT_CODE = 3
 # Flags that may differ when resuming: they change where and how fast, not what is computed.
 TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
 RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "snapshot_interval",
@@ -110,6 +110,8 @@ def same_type(value: object, default: object) -> bool:
 def check_args(args, eval_actions: Callable) -> None:
     """Every flag's valid range, checked before anything is created or written. eval_actions:
     the script's own (it names the evaluation actions that --eval-selectors may add to)."""
+    from sac_utils.eval_rounds import action_name  # torch: not for sweep.py, which imports cli
+
     finite = math.isfinite
     own_actions = [action_name(a) for a in
                    eval_actions(dataclasses.replace(args, eval_selectors=())).values()]

@@ -27,11 +27,11 @@ import torch.nn as nn
 from torch.utils.tensorboard import SummaryWriter
 
 from sac_utils import checkpoints, eval_rounds
-from sac_utils.checkpoints import atomic_write, save_tensors
-from sac_utils.cli import check_checkpoint_args, check_finite, fail
+from sac_utils.checkpoints import save_tensors
+from sac_utils.cli import INTERRUPTED_EXIT_CODE, check_checkpoint_args, check_finite, fail
 from sac_utils.eval_rounds import Round, shift_measured_at
+from sac_utils.files import atomic_write, complete_lines
 
-INTERRUPTED_EXIT_CODE = 3
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
                  "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
                  "episode_return_mean", "episode_length_mean")
@@ -340,9 +340,7 @@ def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
     the file ends up with no duplicate or missing rows."""
     kept = []
     if keep_until_step is not None and path.exists():
-        with path.open(newline="") as f:  # rows as written: csv ends them with \r\n
-            lines = f.read().splitlines(keepends=True)[1:]
-        kept = [r for r in lines if r.endswith("\n") and int(r.split(",")[0]) <= keep_until_step]
+        kept = [r for r in complete_lines(path)[1:] if int(r.split(",")[0]) <= keep_until_step]
     atomic_write(path, lambda tmp: tmp.write_text(",".join(columns) + "\n" + "".join(kept)))
     f = open(path, "a", newline="")  # noqa: SIM115  (kept open for the whole run)
     return f, csv.DictWriter(f, columns)

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import submitit
 
-# run_folder.INTERRUPTED_EXIT_CODE ("resume with --resume"); not imported from there, nor
-# checkpoints.atomic_write below: those modules import torch, which this process does without.
-EXIT_INTERRUPTED = 3
+from sac_utils.cli import INTERRUPTED_EXIT_CODE as EXIT_INTERRUPTED
+from sac_utils.files import complete_lines, write_text_atomically
+
 IDENTITY_FILE = "sweep_run.json"
 ATTEMPT_FILE = "sweep_attempt.json"
 LOG_FILE = "sweep.log"
@@ -70,9 +70,7 @@ def args_hash(extra_args: tuple[str, ...]) -> str:
 
 
 def write_json(path: Path, data: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    os.replace(tmp, path)
+    write_text_atomically(path, json.dumps(data, indent=2) + "\n")
 
 
 def read_json(path: Path) -> dict | None:
@@ -91,11 +89,9 @@ def log_tail(run_dir: Path, lines: int = 8) -> list[str]:
 
 def last_eval_step(run_dir: Path) -> int | None:
     try:
-        lines = (run_dir / "eval.csv").read_text().splitlines(keepends=True)
+        rows = list(csv.DictReader(complete_lines(run_dir / "eval.csv")))
     except FileNotFoundError:
         return None
-    # A run killed mid-write leaves a last line without its line end: not a row yet.
-    rows = list(csv.DictReader(line for line in lines if line.endswith("\n")))
     return int(float(rows[-1]["global_step"])) if rows else None
 
 

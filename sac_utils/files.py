@@ -1,0 +1,32 @@
+"""Files written whole or not at all, and read without a half-written last line: a run, a sweep
+or an evaluation may be killed at any moment. No torch here: sweep.py's processes import it."""
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+
+def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
+    """Writes via a temporary file and os.replace: a kill leaves the old file or the new one."""
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def write_text_atomically(path: Path, text: str) -> None:
+    """path holds its old content or `text`, wherever the process is killed, synced to disk
+    before the rename (a machine that loses power keeps one or the other too)."""
+    def write(tmp: Path) -> None:
+        with open(tmp, "w", newline="") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+
+    atomic_write(path, write)
+
+
+def complete_lines(path: Path) -> list[str]:
+    """The file's lines with their ends, as written (csv ends rows with \\r\\n); a last line
+    without its end, left by a kill mid-write, is not one yet."""
+    with path.open(newline="") as f:
+        return [line for line in f.read().splitlines(keepends=True) if line.endswith("\n")]
