@@ -47,6 +47,8 @@ PICTURE_FOLDERS = ("docs", "results")
 
 # Our scripts, whose flags the pages must get right, as their --help lists them.
 SCRIPTS = ("sac_standard.py", "sac_corrected.py", "evaluate.py", "analyze.py", "sweep.py")
+# Subcommands with flags of their own: their --help's flags count as the script's.
+SUBCOMMANDS = {"sweep.py": ("restart",)}
 # Arguments after a standalone `--` on a sweep.py command go to the training script.
 SWEEP_PASSES_TO = "sac_corrected.py"
 # Flags that the pages show on their own (a code span without the program's name) but that
@@ -167,32 +169,36 @@ def test_slugs_are_githubs() -> None:
 
 @functools.cache
 def accepted_flags() -> dict[str, frozenset[str]]:
-    """Each script's flags, from the option lines of its --help (tyro: `--cuda, --no-cuda`)."""
+    """Each script's flags, from the option lines of its --help and its subcommands' (tyro:
+    `--cuda, --no-cuda`)."""
     env = {**os.environ, "COLUMNS": "200"}
+    calls = [(script, ()) for script in SCRIPTS]
+    calls += [(script, (sub,)) for script, subs in SUBCOMMANDS.items() for sub in subs]
     procs = {
-        script: subprocess.Popen(
-            [sys.executable, script, "--help"],
+        (script, sub): subprocess.Popen(
+            [sys.executable, script, *sub, "--help"],
             cwd=ROOT,
             env=env,
             text=True,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
         )
-        for script in SCRIPTS
+        for script, sub in calls
     }
     option_line = re.compile(
         r"^[\s│|]{0,3}(?:-[a-zA-Z], )?(--[a-z0-9][a-z0-9-]*(?:, --[a-z0-9][a-z0-9-]*)*)"
     )
-    flags = {}
-    for script, proc in procs.items():
+    flags: dict[str, frozenset[str]] = {}
+    for (script, sub), proc in procs.items():
         out, err = proc.communicate(timeout=300)
         assert proc.returncode == 0, f"{script} --help failed: {err[-2000:]}"
         found = set()
         for line in out.splitlines():
             if match := option_line.match(line):
                 found.update(match.group(1).split(", "))
-        assert "--help" in found and len(found) > 5, f"read no options from {script} --help:\n{out}"
-        flags[script] = frozenset(found)
+        assert "--help" in found and len(found) > (1 if sub else 5), \
+            f"read no options from {script} {' '.join(sub)} --help:\n{out}"
+        flags[script] = flags.get(script, frozenset()) | found
     return flags
 
 
