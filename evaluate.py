@@ -15,11 +15,11 @@ critic: our files' "qf", or the critic inside the SB3 .zip.
 
 SOURCE may also be a folder of run folders (a campaign): then every run's final_model.pt and
 snapshots/step<N>.pt (or those at --steps) are evaluated, each from the same --episodes starts
-of its run's seed, and --out receives one episodes.csv per run and the campaign's summary
-(summary.md, per_seed.csv, across_seeds.csv, paired_difference.png; see
-`summarize_campaign`). Given that --out folder as SOURCE, the summary is rewritten from its
-CSVs without running an episode. Each policy's rows are written to --out as soon as it is
-evaluated: the same command again, after a kill, evaluates only the policies not there yet.
+of its run's seed, and --out receives one episodes.csv per run and, per seed, per_seed.csv and
+summary.md (`summarize_campaign`); across seeds is analyze.py's (`--robust OUT`). Given that
+--out folder as SOURCE, the summary is rewritten from its CSVs without running an episode. Each
+policy's rows are written to --out as soon as it is evaluated: the same command again, after a
+kill, evaluates only the policies not there yet.
 
 The episodes run through eval_runner.py, the training runs' own evaluation: split into jobs of
 JOB_EPISODES episodes, each job stepping all its episodes of every selector in lockstep, the
@@ -63,9 +63,9 @@ from eval_runner import (
     start_key,
 )
 from flags import check_reset_noise, fail, read_config_json
+from sac_utils import stats
 
 SELECTORS = ACTIONS
-CONFIDENCE = 0.95
 # Episodes per job. Fixed, not derived from --workers: a job's episodes share one batch per
 # actor call, and the numbers must not depend on how many processes ran the jobs.
 JOB_EPISODES = 10
@@ -248,34 +248,25 @@ def load_weights(path: Path) -> dict:
     if broken:
         fail(f"{path}: the actor's {broken[0]} holds NaN/inf (training diverged); evaluate "
              "an earlier model")
-    return in_scripts_layout(state)
+    return without_seed_axis(state)
 
 
-def in_scripts_layout(state: dict) -> dict:
+def without_seed_axis(state: dict) -> dict:
     """The file's actor and critic in the scripts' layout: (in, out) weights, (out,) biases.
-    Older files hold them otherwise: with a leading seed axis of 1 ((1, in, out) and (1, 1, out),
-    written with --num-seeds, which issue 37 removed), or as nn.Linear's (out, in) weights
-    (before --num-seeds), told apart from today's by the critic's one-output layer: (1, width),
-    not (width, 1). Every file of ours holds the critic."""
-    critic = state.get("qf")
-    if not isinstance(critic, dict) or not all(torch.is_tensor(v) for v in critic.values()):
-        critic = {}
-    layers = sorted((k for k in critic if k.startswith("qf1.") and k.endswith(".weight")),
-                    key=lambda k: int(k.split(".")[1]))
-    head = critic[layers[-1]] if layers else None
-    transposed = head is not None and head.dim() == 2 and head.shape[0] == 1 < head.shape[1]
-
+    Files written with --num-seeds (results/*-1M's) hold them with a leading seed axis of 1:
+    (1, in, out) and (1, 1, out)."""
     def fit(key: str, value: torch.Tensor) -> torch.Tensor:
-        if value.dim() == 3:  # the seed axis
+        if value.dim() == 3:
             return value[0] if key.endswith(".weight") else value[0, 0]
-        return value.t() if transposed and key.endswith(".weight") and value.dim() == 2 else value
+        return value
 
-    parts = ("actor", "qf") if critic else ("actor",)
+    parts = [p for p in ("actor", "qf") if isinstance(state.get(p), dict)
+             and all(torch.is_tensor(v) for v in state[p].values())]
     return state | {part: {k: fit(k, v) for k, v in state[part].items()} for part in parts}
 
 
 def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Actor:
-    """Our Actor with the layer widths read off its weights (in_scripts_layout), checked against
+    """Our Actor with the layer widths read off its weights (without_seed_axis), checked against
     the env."""
     env = sac.make_env(env_id)
     obs_dim, action_dim = env.observation_space.shape[0], int(np.prod(env.action_space.shape))
@@ -452,17 +443,10 @@ def progress_bar(label: str, total: int) -> Callable[[int], None]:
 
 
 def mean_with_ci(values: np.ndarray, reps: int, seed: int) -> tuple[float, float, float]:
-    """The mean over episodes with rliable's bootstrap CI (episodes as runs of one task)."""
-    # Imported here, not at the top: a worker process re-imports this module, and rliable (arch,
-    # scipy) is 3 s of a worker's start-up that it never uses.
-    from rliable import library as rly
-
-    # rliable draws from NumPy's legacy global generator, which takes seeds below 2**32 only.
-    np.random.seed(seed % 2**32)  # noqa: NPY002
-    point, interval = rly.get_interval_estimates(
-        {"x": np.asarray(values, float)[:, None]}, lambda s: np.array([s.mean()]), reps=reps,
-        confidence_interval_size=CONFIDENCE)
-    return float(point["x"][0]), float(interval["x"][0, 0]), float(interval["x"][1, 0])
+    """The mean over episodes with its percentile bootstrap CI (seeds below 2**32, as NumPy's
+    legacy generator takes them)."""
+    point, low, high = stats.bootstrap_mean(values, reps, np.random.RandomState(seed % 2**32))
+    return float(point), float(low), float(high)
 
 
 def distinct_starts(env_id: str, seeds: list[int], reset_noise: float | None) -> int | None:
@@ -499,17 +483,13 @@ def summarise(results: dict, shift: dict, args: Args, info: dict, env_id: str,
         summary["paired_difference_minus_tanh_mu"] = {
             s: paired_difference(results[s]["returns"], results["tanh_mu"]["returns"], args)
             for s in results if s != "tanh_mu"}
-    if "mode" in results and "tanh_mu" in results:  # the key before there were more selectors
-        mode = dict(summary["paired_difference_minus_tanh_mu"]["mode"])
-        mode["share_mode_better"] = mode.pop("share_better")
-        summary["paired_difference_mode_minus_tanh_mu"] = mode
     summary["shift_at_visited_states"] = shift
     return summary
 
 
 def paired_difference(returns: list[float], baseline: list[float], args: Args) -> dict:
     """Episode by episode (the same start state), returns minus the baseline's, with its CI."""
-    diffs = np.array(returns) - np.array(baseline)
+    diffs = stats.paired_difference(returns, baseline)
     mean, low, high = mean_with_ci(diffs, args.reps, args.seed)
     return {"mean": mean, "ci_low": low, "ci_high": high,
             "share_better": float(np.mean(diffs > 0)), "share_equal": float(np.mean(diffs == 0))}
@@ -671,7 +651,7 @@ def evaluate_campaign(args: Args) -> None:
               + (f"; {len(left)} policies under {args.source} are not in it: evaluate them "
                  "into another --out" if left else ""), file=sys.stderr)
         (args.out / PARTIAL_FILE).unlink(missing_ok=True)  # a kill just after the end leaves it
-        summarize_campaign(args.out, args.reps, args.seed)
+        summarize_campaign(args.out)
         return
     print(f"{args.out}: {len(finished)} of {len(policies)} policies already evaluated, "
           f"{len(left)} left", file=sys.stderr)
@@ -685,7 +665,7 @@ def evaluate_campaign(args: Args) -> None:
         write_campaign(args, selectors, policies, seconds)
     except OSError as error:
         fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable folder")
-    summarize_campaign(args.out, args.reps, args.seed)
+    summarize_campaign(args.out)
 
 
 def plan_policy(policy: Policy, selectors: list[str], args: Args) -> tuple[Policy, list[int],
@@ -905,10 +885,6 @@ def read_campaign(out: Path) -> tuple[dict, dict, dict, dict]:
     return settings, returns, unstable, ends
 
 
-def standard_error(values: np.ndarray) -> float:
-    return float(values.std(ddof=1) / math.sqrt(len(values))) if len(values) > 1 else math.nan
-
-
 def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> list[dict]:
     """Per run, step and selector: the mean return and its standard error over the episodes,
     the paired difference against tanh(mu) from the same starts with its standard error and,
@@ -924,41 +900,17 @@ def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> 
         row = {"env_id": settings["runs"][run]["env_id"], "run": run,
                "seed": settings["runs"][run]["seed"], "step": step, "selector": selector,
                "episodes": len(values), "return_mean": values.mean(),
-               "return_se": standard_error(values)}
+               "return_se": stats.standard_error(values)}
         baseline = returns.get((run, step, "tanh_mu"))
         if selector != "tanh_mu" and baseline is not None:
-            diffs = values - np.array(baseline)
+            diffs = stats.paired_difference(values, baseline)
             row |= {"tanh_mu_return_mean": float(np.mean(baseline)),
-                    "difference_mean": diffs.mean(), "difference_se": standard_error(diffs),
+                    "difference_mean": diffs.mean(), "difference_se": stats.standard_error(diffs),
                     "share_better": float(np.mean(diffs > 0))}
         if recorded:
             row["unstable_ends"] = unstable.get((run, step, selector))
         counts = ends.get((run, step, selector))
         row |= {f"end_{why}": None if counts is None else counts[why] for why in reasons}
-        rows.append(row)
-    return rows
-
-
-def across_seed_rows(per_seed: list[dict], reps: int, seed: int) -> list[dict]:
-    """Per task, step and selector, over seeds: the mean return, and the mean paired difference
-    with a t-interval and, labelled apart, rliable's percentile bootstrap over seeds (with five
-    seeds or fewer the bootstrap is narrower than the data allows: read the t-interval)."""
-    from analyze import t_interval  # here: a worker re-imports this module, and never uses it
-
-    groups: dict[tuple[str, int, str], list[dict]] = {}
-    for row in per_seed:
-        groups.setdefault((row["env_id"], row["step"], row["selector"]), []).append(row)
-    rows = []
-    for (env_id, step, selector), group in groups.items():  # per_seed's order
-        row = {"env_id": env_id, "step": step, "selector": selector, "seeds": len(group),
-               "return_mean": float(np.mean([r["return_mean"] for r in group]))}
-        if "difference_mean" in group[0]:
-            diffs = np.array([r["difference_mean"] for r in group])
-            _, boot_low, boot_high = mean_with_ci(diffs, reps, seed)
-            row |= {"difference_mean": float(diffs.mean()),
-                    **dict(zip(("t_low", "t_high"), t_interval(diffs)[1:], strict=True)),
-                    "bootstrap_low": boot_low, "bootstrap_high": boot_high,
-                    "seeds_won": int((diffs > 0).sum())}
         rows.append(row)
     return rows
 
@@ -972,20 +924,18 @@ def write_rows(path: Path, rows: list[dict]) -> None:
                          for row in rows)
 
 
-def summarize_campaign(out: Path, reps: int, seed: int) -> None:
-    """From the CSVs under out: per_seed.csv, across_seeds.csv, summary.md (printed) and
-    paired_difference.png. The precision check: each seed's paired difference should have a
-    standard error below PRECISION of tanh(mu)'s mean return."""
+def summarize_campaign(out: Path) -> None:
+    """From the CSVs under out: per_seed.csv and summary.md (printed). Everything across seeds
+    is analyze.py's (`analyze.py RUNS --robust OUT`). The precision check: each seed's paired
+    difference should have a standard error below PRECISION of tanh(mu)'s mean return."""
     settings, returns, unstable, ends = read_campaign(out)
     per_seed = per_seed_rows(settings, returns, unstable, ends)
-    across = across_seed_rows(per_seed, reps, seed)
     write_rows(out / "per_seed.csv", per_seed)
-    write_rows(out / "across_seeds.csv", across)
-    text = campaign_markdown(settings, per_seed, across, reps)
+    text = campaign_markdown(settings, per_seed)
     (out / "summary.md").write_text(text)
-    plot_campaign(settings, per_seed, across).savefig(out / "paired_difference.png", dpi=120)
     print(text, end="")
-    print(f"wrote {out / 'summary.md'}, per_seed.csv, across_seeds.csv, paired_difference.png")
+    print(f"wrote {out / 'summary.md'} and per_seed.csv; across seeds: analyze.py RUNS "
+          f"--robust {out}")
 
 
 def _num(x: float, digits: int = 1) -> str:
@@ -997,8 +947,7 @@ def _count(ends: dict, row: dict, selector: str) -> str:
     return "n/r" if count is None else str(count)
 
 
-def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
-                      reps: int) -> str:
+def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
     noise = settings["reset_noise"]
     lines = [f"# Evaluation of {len(settings['runs'])} runs from `{settings['source']}`", "",
              f"`{' '.join(settings['command'])}`", "",
@@ -1007,38 +956,21 @@ def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
              f"of every action and every step of a run starts from the same state (reset seeds "
              f"from the run's seed, round {settings['eval_round']}; reset noise on qpos: "
              f"{'the task' + chr(39) + 's own' if noise is None else f'+-{noise}'}). "
-             f"{settings['seconds']:.0f} s of evaluation.", "",
-             "## Across seeds", "",
-             "Mean over seeds of each seed's paired difference against tanh(mu) (its mean over "
-             "the episodes), a Student-t 95% interval over seeds, and rliable's percentile "
-             f"bootstrap over seeds ({reps} replications), which with five seeds or fewer is "
-             "narrower than the data allows; won: seeds whose difference is above zero.", "",
-             "| task | step | action | seeds | return | minus tanh(mu) | t-interval | bootstrap "
-             "| won |", "|---|---|---|---|---|---|---|---|---|"]
-    for r in across:
-        if "difference_mean" not in r:
-            lines.append(f"| {r['env_id']} | {r['step']} | {r['selector']} | {r['seeds']} | "
-                         f"{r['return_mean']:.1f} | | | | |")
-            continue
-        lines.append(f"| {r['env_id']} | {r['step']} | {r['selector']} | {r['seeds']} | "
-                     f"{r['return_mean']:.1f} | {_num(r['difference_mean'])} | "
-                     f"[{_num(r['t_low'])}, {_num(r['t_high'])}] | "
-                     f"[{_num(r['bootstrap_low'])}, {_num(r['bootstrap_high'])}] | "
-                     f"{r['seeds_won']} of {r['seeds']} |")
+             f"{settings['seconds']:.0f} s of evaluation. Across seeds: analyze.py --robust.", ""]
     # Blow-up counts only where some episodes.csv records them: an older folder's summary
     # stays as it was.
     ends = {(r["run"], r["step"], r["selector"]): r["unstable_ends"] for r in per_seed
             if "unstable_ends" in r}
-    lines += ["", "## Per seed", "",
+    lines += ["## Per seed", "",
               "Paired difference against tanh(mu) with its standard error over the episodes; "
-              f"precision: that standard error as a share of tanh(mu)'s mean return (asked: below "
-              f"{PRECISION:.0%})"
+              f"verdict: ahead / behind where more than {stats.VERDICT_SE:g} standard errors "
+              f"from zero, else level; precision: that standard error as a share of tanh(mu)'s "
+              f"mean return (asked: below {PRECISION:.0%})"
               + ("; unstable ends: the episodes a physics blow-up ended, the action's / tanh(mu)'s "
-                 "(n/r: not recorded, evaluated before episodes.csv had physics_unstable)."
-                 if ends else "."), "",
-              "| task | seed | step | action | return | tanh(mu) | minus tanh(mu) | SE | "
+                 "(n/r: not recorded)." if ends else "."), "",
+              "| task | seed | step | action | return | tanh(mu) | minus tanh(mu) | SE | verdict | "
               "precision | better in |" + (" unstable ends |" if ends else ""),
-              "|---|---|---|---|---|---|---|---|---|---|" + ("---|" if ends else "")]
+              "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if ends else "")]
     failed = []
     for r in per_seed:
         if "difference_mean" not in r:
@@ -1050,6 +982,7 @@ def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
         lines.append(f"| {r['env_id']} | {r['seed']} | {r['step']} | {r['selector']} | "
                      f"{r['return_mean']:.1f} | {r['tanh_mu_return_mean']:.1f} | "
                      f"{_num(r['difference_mean'])} | {r['difference_se']:.1f} | "
+                     f"{stats.verdict(r['difference_mean'], r['difference_se'])} | "
                      f"{share:.1%} | {r['share_better']:.0%} |"
                      + (f" {_count(ends, r, r['selector'])} / {_count(ends, r, 'tanh_mu')} |"
                         if ends else ""))
@@ -1060,63 +993,11 @@ def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
     return "\n".join(lines)
 
 
-def plot_campaign(settings: dict, per_seed: list[dict], across: list[dict]):
-    """Per task and action, the paired difference: each seed (with its standard error) and the
-    mean over seeds with its t-interval; against the training step when several were
-    evaluated, else side by side at the one step."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    tasks = sorted({r["env_id"] for r in across})
-    actions = [s for s in settings["selectors"] if s != "tanh_mu"]
-    fig, axes = plt.subplots(len(tasks), len(actions), squeeze=False,
-                             figsize=(4.2 * len(actions), 3.2 * len(tasks)), layout="constrained")
-    for i, task in enumerate(tasks):
-        for j, action in enumerate(actions):
-            ax = axes[i, j]
-            mine = [r for r in per_seed if r["env_id"] == task and r["selector"] == action]
-            mean = [r for r in across if r["env_id"] == task and r["selector"] == action]
-            seeds = sorted({r["seed"] for r in mine})
-            one_step = len(mean) == 1
-            for k, seed in enumerate(seeds):
-                rows = [r for r in mine if r["seed"] == seed]
-                x = [k] if one_step else [r["step"] / 1e6 for r in rows]
-                ax.errorbar(x, [r["difference_mean"] for r in rows],
-                            [r["difference_se"] for r in rows], marker="o", ms=4, lw=0.8,
-                            alpha=0.7, capsize=3, label=f"seed {seed}")
-            x = [len(seeds) + 0.5] if one_step else [r["step"] / 1e6 for r in mean]
-            y = np.array([r["difference_mean"] for r in mean])
-            low, high = (np.array([r[k] for r in mean]) for k in ("t_low", "t_high"))
-            if one_step:
-                ax.errorbar(x, y, [y - low, high - y] if not np.isnan(low).any() else None,
-                            fmt="ks", ms=7, capsize=5, lw=2, label="mean, 95% t-interval")
-                ax.set_xticks([*range(len(seeds)), x[0]],
-                              [*(f"seed {s}" for s in seeds), "mean"], fontsize=8)
-                ax.set_xlabel(f"at step {mean[0]['step']:,}")
-            else:
-                ax.plot(x, y, "k-", lw=2, label="mean")
-                if not np.isnan(low).any():
-                    ax.fill_between(x, low, high, color="k", alpha=0.12, label="95% t-interval")
-                ax.set_xlabel("training step (millions)")
-            ax.axhline(0, color="grey", lw=0.8, ls=":")
-            n = max((r["seeds"] for r in mean), default=0)
-            ax.set_title(f"{task}\n{action} minus tanh(mu), n = {n} seeds", fontsize=9)
-            ax.set_ylabel("return difference")
-            if i == j == 0 and not one_step:
-                ax.legend(fontsize=7)
-    fig.suptitle(f"Paired difference, {settings['episodes']} starts per seed and step "
-                 f"(reset noise {settings['reset_noise']}); bars: standard error over the "
-                 "episodes, mean: 95% t-interval over seeds", fontsize=10)
-    return fig
-
-
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     check_args(args)
     if (args.source / CAMPAIGN_FILE).is_file():
-        summarize_campaign(args.source, args.reps, args.seed)
+        summarize_campaign(args.source)
         return
     if (args.source / PARTIAL_FILE).is_file():
         command = " ".join((recorded_settings(args.source) or {}).get("command", []))
