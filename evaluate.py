@@ -1,5 +1,5 @@
 """Does the correction help my policy? A trained SAC policy evaluated with several evaluation
-actions (selectors), paired: every selector starts its episode k from the same state.
+actions, paired: every action starts its episode k from the same state.
 
     python evaluate.py runs/h1hand-cube-v0__corrected__seed0__20261122-120000
     python evaluate.py final_model.pt --env-id Hopper-v5 --episodes 100 --selectors mode mean
@@ -22,7 +22,7 @@ policy's rows are written to --out as soon as it is evaluated: the same command 
 kill, evaluates only the policies not there yet.
 
 The episodes run through eval_runner.py, the training runs' own evaluation: split into jobs of
-JOB_EPISODES episodes, each job stepping all its episodes of every selector in lockstep, the
+JOB_EPISODES episodes, each job stepping all its episodes of every action in lockstep, the
 jobs spread over --workers processes. A job is the same whatever runs it, so the numbers do not
 depend on --workers; with a run's seed and --eval-round N they are those of the run's N-th
 evaluation.
@@ -65,7 +65,6 @@ from eval_runner import (
 from flags import check_reset_noise, fail, read_config_json
 from sac_utils import stats
 
-SELECTORS = ACTIONS
 # Episodes per job. Fixed, not derived from --workers: a job's episodes share one batch per
 # actor call, and the numbers must not depend on how many processes ran the jobs.
 JOB_EPISODES = 10
@@ -78,9 +77,9 @@ class Args:
     env_id: str | None = None
     """the env to evaluate in (default: the run's; required for an SB3 .zip)"""
     episodes: int = 50
-    """episodes per selector"""
+    """episodes per evaluation action"""
     seed: int = 0
-    """episode k of every selector resets with a seed derived from (--seed, --eval-round, k)"""
+    """episode k of every action resets with a seed derived from (--seed, --eval-round, k)"""
     eval_round: int = 0
     """with a run's seed, its evaluation round N gives the same start states as the run's
     N-th evaluation (0, the default, is a round no training run evaluates)"""
@@ -98,9 +97,9 @@ class Args:
     """evaluation actions: the mode, tanh(mu), the mean E[tanh(u)], the critic's pick of those
     three at each state (q_best), a sampled action (stochastic, seeded)"""
     video: Path | None = None
-    """write the first episode of each selector as an MP4 into this folder"""
+    """write the first episode of each action as an MP4 into this folder"""
     out: Path | None = None
-    """write episodes.csv (one row per episode and selector) and summary.json here"""
+    """write episodes.csv (one row per episode and action) and summary.json here"""
     reps: int = 10_000
     """bootstrap replications of the confidence intervals"""
     workers: int | None = None
@@ -137,7 +136,7 @@ def check_args(args: Args) -> None:
         ("episodes", args.episodes >= 1, "at least 1"),
         ("seed", args.seed >= 0, "a non-negative integer"),
         ("eval_round", args.eval_round >= 0, "0 or more"),
-        ("selectors", len(args.selectors) >= 1, f"one or more of {', '.join(SELECTORS)}"),
+        ("selectors", len(args.selectors) >= 1, f"one or more of {', '.join(ACTIONS)}"),
         ("reps", args.reps >= 1, "at least 1"),
         ("reset_noise", args.reset_noise is None
          or (np.isfinite(args.reset_noise) and args.reset_noise >= 0),
@@ -197,7 +196,7 @@ class SB3Critic(nn.Module):
 
 
 def load_policy(args: Args) -> tuple[nn.Module, nn.Module | None, str, dict]:
-    """The actor, the critic (only when a selector needs it, else None), the env id and a
+    """The actor, the critic (only when an action needs it, else None), the env id and a
     description of where they came from."""
     source, need_critic = args.source, "q_best" in args.selectors
     if source.suffix == ".zip":
@@ -356,16 +355,16 @@ def load_sb3(path: Path, env_id: str | None) -> tuple[nn.Module, str, dict]:
 
 # ----------------------------------------------------------------------------- evaluate
 def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: list[int],
-              selectors: list[str], args: Args, label: str = "") -> list[Round]:
-    """The episodes as rounds of JOB_EPISODES, each with every selector (eval.csv prefix =
-    selector name); the first one films each selector's first episode."""
-    shift_of = "mode" if "mode" in selectors else selectors[0]
+              actions: list[str], args: Args, label: str = "") -> list[Round]:
+    """The episodes as rounds of JOB_EPISODES, each with every action (eval.csv prefix =
+    action name); the first one films each action's first episode."""
+    shift_of = "mode" if "mode" in actions else actions[0]
     jobs = []
     for start in range(0, len(seeds), JOB_EPISODES):
         part = seeds[start:start + JOB_EPISODES]
-        videos = {s: args.video / f"{s}.mp4" for s in selectors} if args.video and start == 0 \
+        videos = {s: args.video / f"{s}.mp4" for s in actions} if args.video and start == 0 \
             else {}
-        jobs.append(Round(env_id, part, {s: s for s in selectors}, actor, critic,
+        jobs.append(Round(env_id, part, {s: s for s in actions}, actor, critic,
                           mode_solver=args.solver, reset_noise=args.reset_noise,
                           shift_of=shift_of, videos=videos,
                           label=f"{label}episodes {start}-{start + len(part) - 1}"))
@@ -401,14 +400,14 @@ def run_jobs(jobs: list[Round], workers: int, progress: Callable[[int], None],
     return results
 
 
-def merge(results: list[dict], selectors: list[str]) -> tuple[dict, dict]:
-    """The jobs' episodes concatenated per selector, q_best's choice shares pooled over its
+def merge(results: list[dict], actions: list[str]) -> tuple[dict, dict]:
+    """The jobs' episodes concatenated per action, q_best's choice shares pooled over its
     states; and the shift statistics pooled over the jobs' visited states (each is a mean over
     states, so a job weighs as many states as it visited)."""
     merged = {s: {k: [x for r in results for x in r[s][k]]
                   for k in ("returns", "lengths", "successes", "unstable", "ends")}
-              for s in selectors}
-    for s in selectors:
+              for s in actions}
+    for s in actions:
         if "shares" in results[0][s]:
             # q_best chose once per step of each of its episodes: a job's steps are its states.
             weights = np.array([sum(r[s]["lengths"]) for r in results], float)
@@ -469,16 +468,16 @@ def summarise(results: dict, shift: dict, args: Args, info: dict, env_id: str,
                "eval_round": args.eval_round, "reset_noise": args.reset_noise,
                "distinct_starts": starts, "solver": args.solver,
                "episodes_per_job": JOB_EPISODES, "selectors": {}}
-    for selector, episodes in results.items():
+    for action, episodes in results.items():
         mean, low, high = mean_with_ci(np.array(episodes["returns"]), args.reps, args.seed)
-        summary["selectors"][selector] = {
+        summary["selectors"][action] = {
             "return_mean": mean, "ci_low": low, "ci_high": high,
             "return_std": float(np.std(episodes["returns"])),
             "length_mean": float(np.mean(episodes["lengths"])),
             "unstable_ends": int(np.sum(episodes["unstable"])),
             "ends": dict(collections.Counter(episodes["ends"]))}
         if "shares" in episodes:
-            summary["selectors"][selector]["choice_shares"] = episodes["shares"]
+            summary["selectors"][action]["choice_shares"] = episodes["shares"]
     if "tanh_mu" in results:
         summary["paired_difference_minus_tanh_mu"] = {
             s: paired_difference(results[s]["returns"], results["tanh_mu"]["returns"], args)
@@ -497,17 +496,17 @@ def paired_difference(returns: list[float], baseline: list[float], args: Args) -
 
 def print_summary(summary: dict) -> None:
     print(f"\n{summary['source']} on {summary['env_id']}: {summary['episodes']} episodes per "
-          f"selector, the same start states for each (seed {summary['seed']}, round "
+          f"action, the same start states for each (seed {summary['seed']}, round "
           f"{summary['eval_round']})\n")
     # A task that resets without noise gives every episode one start: the "episodes" of a
-    # deterministic selector are one episode repeated, and a CI over them means nothing.
+    # deterministic action are one episode repeated, and a CI over them means nothing.
     one = summary["distinct_starts"] == 1 and summary["episodes"] > 1
     if one:
         print(f"All {summary['episodes']} episodes start from the same state ({summary['env_id']} "
-              "resets without noise): each deterministic selector ran one episode, so there is "
+              "resets without noise): each deterministic action ran one episode, so there is "
               "no CI. For distinct starts, evaluate with --reset-noise 0.01 (HumanoidBench's "
               "reset noise on its other tasks).\n")
-    print(f"{'selector':<10} {'mean return':>12}  {'95% CI':>23}  {'std':>9}  {'length':>7}")
+    print(f"{'action':<10} {'mean return':>12}  {'95% CI':>23}  {'std':>9}  {'length':>7}")
     for name, s in summary["selectors"].items():
         ci = f"[{s['ci_low']:10.2f}, {s['ci_high']:10.2f}]" if not one or name == "sample" \
             else f"{'(one episode)':>24}"
@@ -556,10 +555,10 @@ EPISODE_COLUMNS = ["selector", "episode", "reset_seed", "return", "length", "suc
 
 def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
     """episodes.csv's rows (EPISODE_COLUMNS) of merged results, episode k from reset seed k."""
-    for selector, episodes in results.items():
+    for action, episodes in results.items():
         for k, seed in enumerate(seeds):
             success = episodes["successes"][k]
-            yield [selector, k, seed, repr(episodes["returns"][k]), episodes["lengths"][k],
+            yield [action, k, seed, repr(episodes["returns"][k]), episodes["lengths"][k],
                    "" if success is None else success, int(episodes["unstable"][k]),
                    episodes["ends"][k]]
 
@@ -637,13 +636,13 @@ def evaluate_campaign(args: Args) -> None:
     policies = campaign_policies(args.source, args.steps)
     for env_id in sorted({p.env_id for p in policies}):
         check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
-    selectors = list(dict.fromkeys(args.selectors))
-    settings = campaign_settings(args, selectors)
+    actions = list(dict.fromkeys(args.selectors))
+    settings = campaign_settings(args, actions)
     recorded = recorded_settings(args.out)
     if recorded is not None:
         check_same_settings(args.out, recorded, settings)
     # Rows in --out count only under a record of the settings they were evaluated with.
-    finished = {} if recorded is None else finished_policies(args.out, policies, selectors, args)
+    finished = {} if recorded is None else finished_policies(args.out, policies, actions, args)
     left = [p for p in policies if (p.run, p.step) not in finished]
     if (args.out / CAMPAIGN_FILE).is_file():
         # evaluation.json marks --out complete: nothing is evaluated again, nor added to it.
@@ -655,28 +654,28 @@ def evaluate_campaign(args: Args) -> None:
         return
     print(f"{args.out}: {len(finished)} of {len(policies)} policies already evaluated, "
           f"{len(left)} left", file=sys.stderr)
-    planned = [plan_policy(policy, selectors, args) for policy in left]  # fails before writing
+    planned = [plan_policy(policy, actions, args) for policy in left]  # fails before writing
     try:
         args.out.mkdir(parents=True, exist_ok=True)
         seconds = evaluate_policies(args, settings, planned, finished,
                                     recorded.get("seconds", 0.0) if recorded else 0.0)
         for run in dict.fromkeys(p.run for p in policies):  # as one attempt would leave them:
             write_run_files(args.out, run, finished)  # rows of policies now gone, dropped
-        write_campaign(args, selectors, policies, seconds)
+        write_campaign(args, actions, policies, seconds)
     except OSError as error:
         fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable folder")
     summarize_campaign(args.out)
 
 
-def plan_policy(policy: Policy, selectors: list[str], args: Args) -> tuple[Policy, list[int],
+def plan_policy(policy: Policy, actions: list[str], args: Args) -> tuple[Policy, list[int],
                                                                            list[Round]]:
     """A policy, its reset seeds (its run's seed: a run's steps start from the same states)
     and its jobs."""
     state = load_weights(policy.path)
     actor = build_actor(state["actor"], policy.env_id, policy.config, policy.path).eval()
-    critic = build_critic(state, actor, policy.path) if "q_best" in selectors else None
+    critic = build_critic(state, actor, policy.path) if "q_best" in actions else None
     seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
-    return policy, seeds, make_jobs(actor, critic, policy.env_id, seeds, selectors, args,
+    return policy, seeds, make_jobs(actor, critic, policy.env_id, seeds, actions, args,
                                     label=f"{policy.run} step {policy.step}: ")
 
 
@@ -690,7 +689,7 @@ def evaluate_policies(args: Args, settings: dict,
                                                          indent=2) + "\n")
     if not planned:  # all finished by an attempt killed before it wrote evaluation.json
         return seconds
-    selectors = settings["selectors"]
+    actions = settings["selectors"]
     start, waiting, results = time.perf_counter(), list(planned), []
 
     def keep(result: dict) -> None:
@@ -700,7 +699,7 @@ def evaluate_policies(args: Args, settings: dict,
         if len(results) < len(jobs):
             return
         finished[policy.run, policy.step] = policy_rows(policy, seeds,
-                                                        *merge(results, selectors))
+                                                        *merge(results, actions))
         waiting.pop(0)
         results.clear()
         write_run_files(args.out, policy.run, finished)
@@ -709,17 +708,17 @@ def evaluate_policies(args: Args, settings: dict,
 
     workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
     run_jobs([job for *_, jobs in planned for job in jobs], workers, progress_bar(
-        f"{len(planned)} policies x {' '.join(selectors)}", len(planned) * args.episodes), keep)
+        f"{len(planned)} policies x {' '.join(actions)}", len(planned) * args.episodes), keep)
     return seconds + time.perf_counter() - start
 
 
-def write_campaign(args: Args, selectors: list[str], policies: list[Policy],
+def write_campaign(args: Args, actions: list[str], policies: list[Policy],
                    seconds: float) -> None:
     """evaluation.json, which marks --out complete (written last, in one step); then the marker
     of an evaluation under way goes."""
     settings = {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
                 "episodes": args.episodes, "eval_round": args.eval_round,
-                "reset_noise": args.reset_noise, "selectors": selectors, "solver": args.solver,
+                "reset_noise": args.reset_noise, "selectors": actions, "solver": args.solver,
                 "seconds": round(seconds, 1), "workers": args.workers,
                 "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
     write_atomically(args.out / CAMPAIGN_FILE, json.dumps(settings, indent=2) + "\n")
@@ -743,11 +742,11 @@ SHIFT_HEADER = ["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}" for c in Q_BEST_CA
 PolicyRows = tuple[list[list], list]
 
 
-def campaign_settings(args: Args, selectors: list[str]) -> dict:
+def campaign_settings(args: Args, actions: list[str]) -> dict:
     """What the marker records: the command, and the settings a resume must repeat."""
     return {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
             "episodes": args.episodes, "eval_round": args.eval_round,
-            "reset_noise": args.reset_noise, "selectors": selectors, "solver": args.solver,
+            "reset_noise": args.reset_noise, "selectors": actions, "solver": args.solver,
             "steps": list(args.steps)}
 
 
@@ -785,9 +784,9 @@ def check_same_settings(out: Path, recorded: dict, settings: dict) -> None:
              + "): give the same source and flags to resume it, or another --out")
 
 
-def finished_policies(out: Path, policies: list[Policy], selectors: list[str],
+def finished_policies(out: Path, policies: list[Policy], actions: list[str],
                       args: Args) -> dict[tuple[str, int], PolicyRows]:
-    """The policies whose rows in out are complete (every selector's every episode, from the
+    """The policies whose rows in out are complete (every action's every episode, from the
     reset seeds this command gives it, and its shift row), by (run, step)."""
     finished = {}
     for run, group in itertools.groupby(policies, key=lambda p: p.run):
@@ -796,7 +795,7 @@ def finished_policies(out: Path, policies: list[Policy], selectors: list[str],
         shifts = rows_by_step(out / run / "shift.csv", SHIFT_HEADER)
         for policy in group:
             seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
-            expected = [[s, str(k), str(seed)] for s in selectors for k, seed in enumerate(seeds)]
+            expected = [[s, str(k), str(seed)] for s in actions for k, seed in enumerate(seeds)]
             rows, shift = episodes.get(policy.step, []), shifts.get(policy.step, [])
             if [row[1:4] for row in rows] == expected and len(shift) == 1:
                 finished[run, policy.step] = (rows, shift[0])
@@ -859,7 +858,7 @@ def write_atomically(path: Path, text: str) -> None:
 
 
 def read_campaign(out: Path) -> tuple[dict, dict, dict, dict]:
-    """evaluation.json, the returns by (run, step, selector) in episode order, and by the same
+    """evaluation.json, the returns by (run, step, action) in episode order, and by the same
     keys the episodes a physics blow-up ended (None where episodes.csv does not record it: an
     older file, or rows kept from one) and the count of each way an episode ended (None where
     not recorded)."""
@@ -886,7 +885,7 @@ def read_campaign(out: Path) -> tuple[dict, dict, dict, dict]:
 
 
 def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> list[dict]:
-    """Per run, step and selector: the mean return and its standard error over the episodes,
+    """Per run, step and action: the mean return and its standard error over the episodes,
     the paired difference against tanh(mu) from the same starts with its standard error and,
     where any episode of the campaign records it, unstable_ends: the episodes a physics blow-up
     ended, and end_<why>: the episodes that ended each way (eval_runner.episode_end; None where
@@ -894,22 +893,22 @@ def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> 
     recorded = any(v is not None for v in unstable.values())
     reasons = sorted({why for counts in ends.values() if counts for why in counts})
     rows, order = [], {s: i for i, s in enumerate(settings["selectors"])}
-    for (run, step, selector), values in sorted(returns.items(),
+    for (run, step, action), values in sorted(returns.items(),
                                                 key=lambda kv: (*kv[0][:2], order[kv[0][2]])):
         values = np.array(values)
         row = {"env_id": settings["runs"][run]["env_id"], "run": run,
-               "seed": settings["runs"][run]["seed"], "step": step, "selector": selector,
+               "seed": settings["runs"][run]["seed"], "step": step, "selector": action,
                "episodes": len(values), "return_mean": values.mean(),
                "return_se": stats.standard_error(values)}
         baseline = returns.get((run, step, "tanh_mu"))
-        if selector != "tanh_mu" and baseline is not None:
+        if action != "tanh_mu" and baseline is not None:
             diffs = stats.paired_difference(values, baseline)
             row |= {"tanh_mu_return_mean": float(np.mean(baseline)),
                     "difference_mean": diffs.mean(), "difference_se": stats.standard_error(diffs),
                     "share_better": float(np.mean(diffs > 0))}
         if recorded:
-            row["unstable_ends"] = unstable.get((run, step, selector))
-        counts = ends.get((run, step, selector))
+            row["unstable_ends"] = unstable.get((run, step, action))
+        counts = ends.get((run, step, action))
         row |= {f"end_{why}": None if counts is None else counts[why] for why in reasons}
         rows.append(row)
     return rows
@@ -942,8 +941,8 @@ def _num(x: float, digits: int = 1) -> str:
     return "n/a" if x is None or math.isnan(x) else f"{x:+.{digits}f}"
 
 
-def _count(ends: dict, row: dict, selector: str) -> str:
-    count = ends.get((row["run"], row["step"], selector))
+def _count(ends: dict, row: dict, action: str) -> str:
+    count = ends.get((row["run"], row["step"], action))
     return "n/r" if count is None else str(count)
 
 
@@ -1016,11 +1015,11 @@ def main(argv: list[str] | None = None) -> None:
                  "writable folder")
     seeds = eval_seeds(args.seed, args.eval_round, args.episodes)
     check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
-    selectors = list(dict.fromkeys(args.selectors))
+    actions = list(dict.fromkeys(args.selectors))
     workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
-    jobs = make_jobs(actor, critic, env_id, seeds, selectors, args)
-    results, shift = merge(run_jobs(jobs, workers, progress_bar(" ".join(selectors), len(seeds))),
-                           selectors)
+    jobs = make_jobs(actor, critic, env_id, seeds, actions, args)
+    results, shift = merge(run_jobs(jobs, workers, progress_bar(" ".join(actions), len(seeds))),
+                           actions)
     summary = summarise(results, shift, args, info, env_id,
                         distinct_starts(env_id, seeds, args.reset_noise))
     print_summary(summary)

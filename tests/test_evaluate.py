@@ -197,7 +197,7 @@ def test_our_run_agrees_with_its_own_last_evaluation(our_run, tmp_path, capsys):
 def test_results_do_not_depend_on_workers_and_stay_paired(our_run, tmp_path, capsys):
     """12 episodes (a job of 10 and one of 2) of every selector: the same files in-process and
     with 1 or 2 worker processes, the episodes in order, each starting state shared."""
-    args = [str(our_run), "--episodes", "12", "--reps", "50", "--selectors", *evaluate.SELECTORS]
+    args = [str(our_run), "--episodes", "12", "--reps", "50", "--selectors", *evaluate.ACTIONS]
     for workers in ("0", "1", "2"):
         code, _, err = run(capsys, *args, "--workers", workers, "--out", str(tmp_path / workers))
         assert code == 0, err
@@ -206,7 +206,7 @@ def test_results_do_not_depend_on_workers_and_stay_paired(our_run, tmp_path, cap
         assert (tmp_path / "2" / name).read_text() == (tmp_path / "0" / name).read_text()
     rows = read_rows(tmp_path / "0" / "episodes.csv")
     seeds = eval_seeds(0, 0, 12)
-    for selector in evaluate.SELECTORS:
+    for selector in evaluate.ACTIONS:
         mine = [r for r in rows if r["selector"] == selector]
         assert [int(r["reset_seed"]) for r in mine] == seeds
         assert [int(r["episode"]) for r in mine] == list(range(12))
@@ -219,7 +219,7 @@ def test_results_do_not_depend_on_workers_and_stay_paired(our_run, tmp_path, cap
     shares = summary["selectors"]["q_best"]["choice_shares"]
     assert sum(shares.values()) == pytest.approx(1.0)
     returns = {s: [float(r["return"]) for r in rows if r["selector"] == s]
-               for s in evaluate.SELECTORS}
+               for s in evaluate.ACTIONS}
     for a, b in (("mean", "tanh_mu"), ("tanh_mu", "mode"), ("mean", "mode")):
         assert returns[a] != returns[b], (a, b)  # three actions, three sets of episodes
 
