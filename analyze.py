@@ -969,11 +969,6 @@ def interval_estimates(
     )
 
 
-def per_task_mean(scores: np.ndarray) -> np.ndarray:
-    """Mean over runs of each task: metrics.aggregate_mean before it averages over tasks."""
-    return np.mean(scores, axis=0)
-
-
 AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
 
 
@@ -997,7 +992,8 @@ def iqm_per_step(scores: np.ndarray) -> np.ndarray:
 
 
 def seed_mean_estimates(samples: dict[tuple[str, str], np.ndarray], reps: int, seed: int) -> dict:
-    """(task, group) -> (mean, low, high) of one value per seed, with a bootstrap CI.
+    """(task, group) -> (mean, low, high) of one value per seed, with the bootstrap CI that
+    rliable's get_interval_estimates gives after seeding NumPy's global generator with `seed`.
 
     The tasks of a group with equal seed counts share one bootstrap: it resamples each task's
     seeds independently, so each task's interval is distributed as in a bootstrap of its own,
@@ -1185,9 +1181,11 @@ def profile_thresholds(final: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, colors: dict,
-                              xlabel: str, labels: Callable[[str], str]) -> plt.Figure:
+                              xlabel: str, labels: Callable[[str], str], title: str
+                              ) -> plt.Figure:
     """Figure 7: performance profiles (share of runs scoring above tau) with CIs."""
     fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.set_title(title, fontsize="medium")
     plot_utils.plot_performance_profiles(
         {labels(g): v for g, v in profiles.items()},
         taus,
@@ -1204,11 +1202,12 @@ def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, color
 
 
 def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colors: dict,
-                           ylabel: str, labels: Callable[[str], str], by_fraction: bool = False
-                           ) -> plt.Figure:
+                           ylabel: str, labels: Callable[[str], str], title: str,
+                           by_fraction: bool = False) -> plt.Figure:
     """Figure 8: aggregate IQM against environment steps (or fractions of each task's budget)
     with CIs."""
     fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.set_title(title, fontsize="medium")
     unit, xlabel = steps_axis(frames[-1])
     if by_fraction:
         unit, xlabel = 1.0, "Fraction of each task's budget (total_timesteps)"
@@ -1227,6 +1226,23 @@ def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colo
         marker=".",
     )
     return fig
+
+
+def one_episode_per_seed(curves: Sequence[Curve], steps: np.ndarray) -> bool:
+    """Whether every run logged one distinct episode (eval.csv's distinct_episodes) at each of
+    `steps`, which all of them share: its return there is one draw of the episode's noise."""
+    for curve in curves:
+        if curve.episodes is None:
+            return False
+        if not np.all(curve.episodes[np.searchsorted(curve.steps, steps)] == 1):
+            return False
+    return bool(curves)
+
+
+def aggregate_title(agg: Aggregate) -> str:
+    """Figures 7 and 8 name what they aggregate: the tasks and the runs per task."""
+    runs = sorted({scores.shape[0] for scores in agg.final.values()})
+    return f"{', '.join(agg.tasks)}: {' or '.join(map(str, runs))} runs per task and group"
 
 
 # ============================================================================== the reports
@@ -1314,17 +1330,6 @@ def report_standard_provenance(report: Report, analysis: Analysis) -> None:
 # Each seed's paired difference averaged over its last evaluation rounds, since one round of a
 # noisy task is one draw of that noise.
 LAST_ROUNDS = (20, 50)
-
-
-def one_episode_per_seed(curves: Sequence[Curve], steps: np.ndarray) -> bool:
-    """Whether every run logged one distinct episode (eval.csv's distinct_episodes) at each of
-    `steps`, which all of them share: its return there is one draw of the episode's noise."""
-    for curve in curves:
-        if curve.episodes is None:
-            return False
-        if not np.all(curve.episodes[np.searchsorted(curve.steps, steps)] == 1):
-            return False
-    return bool(curves)
 
 
 def last_rounds_averages(tasks: dict[str, Task], curves: dict[str, dict[str, np.ndarray]]
@@ -1521,10 +1526,9 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
     q_best) minus tanh(mu) of the same actors from the same start states (paired), per task and
     over tasks, with the share of seeds where that action won; at the scored step and averaged
     over the last rounds. Estimator, per task: the mean over seeds of the per-seed differences
-    with rliable's bootstrap CI (seed_mean_estimates: get_interval_estimates of
-    per_task_mean), since the pairing makes each seed one value; beside it Student's
-    t-interval, since with 5 seeds or fewer a percentile bootstrap is too narrow. Over tasks:
-    paired_over_tasks."""
+    with the bootstrap CI (seed_mean_estimates: stats.bootstrap_mean), since the pairing
+    makes each seed one value; beside it Student's t-interval, since with 5 seeds or fewer a
+    percentile bootstrap is too narrow. Over tasks: paired_over_tasks."""
     args, runs, tasks, norms = analysis.args, analysis.runs, analysis.tasks, analysis.norms
     labels = analysis.labels
     differences = paired_differences(tasks, analysis.derived)
@@ -1891,7 +1895,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     from evaluate.py's campaign, many noisy starts per seed and step. Per seed: the mean over its
     episodes of each action's return minus tanh(mu)'s from the same start; per task and step,
     the mean over seeds with Student's t-interval (t_interval) and, labelled as such, rliable's
-    bootstrap (seed_mean_estimates: get_interval_estimates of per_task_mean): with 5 seeds or
+    bootstrap (seed_mean_estimates: stats.bootstrap_mean): with 5 seeds or
     fewer the percentile bootstrap resamples only the few values seen and is too narrow, so the
     t-interval is the one to read. Over tasks, at their shared last step, divided by each
     success bar: robust_over_tasks."""
@@ -1983,9 +1987,11 @@ def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOver
     taus = profile_thresholds(over.scores)
     seed_bootstrap(args.seed)
     profiles, cis = rly.create_performance_profile(over.scores, taus, reps=args.curve_reps)
-    report.figure(plot_performance_profiles(taus, profiles, cis, colors, name,
-                                            robust_action_label),
-                  "robust_performance_profiles")
+    seeds = next(iter(over.scores.values())).shape[0]
+    report.figure(plot_performance_profiles(
+        taus, profiles, cis, colors, name, robust_action_label,
+        f"Robust evaluation at {format_step(over.step)}: {', '.join(over.tasks)}, "
+        f"{seeds} seeds per task"), "robust_performance_profiles")
 
 
 def robust_sample_efficiency(report: Report, analysis: Analysis,
@@ -2016,9 +2022,14 @@ def robust_sample_efficiency(report: Report, analysis: Analysis,
         for i, step in enumerate(shared):
             report.row("robust_sample_efficiency", "all", action, "IQM", step, seeds,
                        point[action][i], *interval[action][:, i])
-    report.figure(plot_sample_efficiency(np.array(shared, dtype=float), point, interval, colors,
-                                         f"IQM {SCORE_NAMES['success-bar'].lower()}",
-                                         robust_action_label), "robust_sample_efficiency")
+    starts = ", ".join(
+        f"{format_step(step)} {episodes_span(np.concatenate([row[i].episodes for row in at]))}"
+        for i, step in enumerate(shared))
+    report.figure(plot_sample_efficiency(
+        np.array(shared, dtype=float), point, interval, colors,
+        f"IQM {SCORE_NAMES['success-bar'].lower()}", robust_action_label,
+        f"Robust evaluation: {', '.join(tasks)}, {seeds} seeds per task\nstarts per seed: "
+        f"{starts}"), "robust_sample_efficiency")
     left_out = [t for t in barred if t not in curves]
     return ["", f"Over training (figure `robust_sample_efficiency`): each action's IQM of the "
             f"returns divided by each success bar, over {', '.join(tasks)} at "
@@ -2095,6 +2106,8 @@ def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dic
             else:
                 ax.plot(x, values.mean(0), color="k", lw=1.4)
                 ax.fill_between(x, values.min(0), values.max(0), color="0.5", alpha=0.25, lw=0)
+                if column != "bimodal_fraction" and np.all(values > 0):
+                    ax.set_yscale("log")  # the first rounds' spike would flatten the rest
             ax.set_title(title, fontsize="medium")
         row[3].set_ylim(-0.02, 1.02)  # a share
         for ax in row:
@@ -2166,7 +2179,7 @@ def report_choice_shares(report: Report, analysis: Analysis) -> None:
     """q_best's choices (no figure): how often the critic picked the mode, tanh(mu) and the
     mean, at each task's scored step, for each evaluation action that logs its choice_shares.
     Estimator: the mean over seeds with rliable's bootstrap CI (seed_mean_estimates:
-    get_interval_estimates of per_task_mean), a share per seed being one value per seed."""
+    stats.bootstrap_mean), a share per seed being one value per seed."""
     for action in EVALUATION_ACTIONS:
         if action.choice_shares:
             report_choice_shares_of(report, analysis, action)
@@ -2225,20 +2238,28 @@ def success_bar_drawn(bar: float, top: float) -> bool:
 
 
 def reward_curve_estimates(tasks: dict[str, Task], reps: int, seed: int) -> dict:
-    """task -> group -> (mean, (low, high)) over seeds at every shared step: rliable's
-    get_interval_estimates of metrics.aggregate_mean on one task, every step at once."""
+    """task -> group -> (mean, (low, high)) over seeds at every shared step: with FEW_SEEDS
+    seeds or fewer Student's t-interval (a percentile bootstrap of five values is too narrow),
+    else rliable's get_interval_estimates of metrics.aggregate_mean, every step at once."""
     estimates = {}
     for task, data in tasks.items():
-        scores = {g: r[:, None, :] for g, r in data.returns.items()}  # (seeds, 1 task, steps)
-        point, interval = interval_estimates(scores, metrics.aggregate_mean, reps, seed)
-        estimates[task] = {g: (point[g], interval[g]) for g in scores}
+        estimates[task] = {g: (r.mean(0), np.array([t_interval(r[:, i])[1:]
+                                                    for i in range(r.shape[1])]).T)
+                           for g, r in data.returns.items() if r.shape[0] <= FEW_SEEDS}
+        scores = {g: r[:, None, :] for g, r in data.returns.items()  # (seeds, 1 task, steps)
+                  if g not in estimates[task]}
+        if scores:
+            point, interval = interval_estimates(scores, metrics.aggregate_mean, reps, seed)
+            estimates[task] |= {g: (point[g], interval[g]) for g in scores}
     return estimates
 
 
 def plot_reward_curves(
-    tasks: dict[str, Task], curves: dict, colors: dict, groups: list[str], labels: GroupLabels
+    tasks: dict[str, Task], curves: dict, colors: dict, groups: list[str], labels: GroupLabels,
+    single: dict[tuple[str, str], bool]
 ) -> plt.Figure:
-    """Figure 5: mean evaluation return per task with its 95% CI over seeds."""
+    """Figure 5: mean evaluation return per task with its 95% interval over seeds; a group
+    whose runs logged one distinct episode per evaluation (`single`) is drawn dotted."""
     ncols = math.ceil(math.sqrt(len(tasks)))
     nrows = math.ceil(len(tasks) / ncols)
     # At least 9 inches wide, so that the legend below fits in a few rows beside one panel.
@@ -2252,9 +2273,10 @@ def plot_reward_curves(
         top = -math.inf
         for group in [g for g in groups if g in data.returns]:
             mean, (low, high) = curves[task][group]
-            style = "-" if is_algorithm(group) else "--"
+            style = ":" if single[task, group] else "-" if is_algorithm(group) else "--"
             ax.plot(data.steps / unit, mean, style, color=colors[group], lw=width_line,
-                    label=labels(group))
+                    label=labels(group) + (" (one episode per evaluation)"
+                                           if single[task, group] else ""))
             ax.fill_between(data.steps / unit, low, high, color=colors[group], alpha=0.2, lw=0)
             top = max(top, float(np.max(high)))
         title = task
@@ -2273,7 +2295,11 @@ def plot_reward_curves(
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=ncol,
                frameon=False)
     legend_rows = math.ceil(len(handles) / ncol)
-    fig.suptitle("Mean evaluation return over seeds, 95% bootstrap CI")
+    seeds = sorted({r.shape[0] for data in tasks.values() for r in data.returns.values()})
+    fig.suptitle(f"Mean evaluation return over {' or '.join(map(str, seeds))} seeds, 95% "
+                 + ("t-interval" if seeds[-1] <= FEW_SEEDS else "bootstrap CI"
+                    if seeds[0] > FEW_SEEDS else f"t-interval (<= {FEW_SEEDS} seeds), "
+                    "else bootstrap CI"))
     fig.tight_layout(rect=(0, (0.27 * legend_rows + 0.05) / fig.get_figheight(), 1, 1))
     return fig
 
@@ -2288,7 +2314,10 @@ def report_reward_curves(report: Report, analysis: Analysis) -> None:
     groups, colors, labels = analysis.groups, analysis.colors, analysis.labels
     print(f"per-task curves ({args.curve_reps:,} reps) and final returns ({args.reps:,}) ...")
     curves = reward_curve_estimates(tasks, args.curve_reps, args.seed)
-    report.figure(plot_reward_curves(tasks, curves, colors, groups, labels), "reward_curves")
+    single = {(t, g): one_episode_per_seed(analysis.runs[t].get(g, []), data.steps)
+              for t, data in tasks.items() for g in data.returns}
+    report.figure(plot_reward_curves(tasks, curves, colors, groups, labels, single),
+                  "reward_curves")
     finals = seed_mean_estimates({(t, g): data.scored(g) for t, data in tasks.items()
                                   for g in data.returns}, args.reps, args.seed)
     table = []
@@ -2362,8 +2391,8 @@ def report_performance_profiles(report: Report, analysis: Analysis) -> None:
     seed_bootstrap(args.seed)
     profiles, cis = rly.create_performance_profile(agg.final, taus, reps=args.curve_reps)
     report.figure(plot_performance_profiles(taus, profiles, cis, analysis.colors,
-                                            SCORE_NAMES[args.normalize], analysis.labels),
-                  "performance_profiles")
+                                            SCORE_NAMES[args.normalize], analysis.labels,
+                                            aggregate_title(agg)), "performance_profiles")
 
 
 # ------------------------------------------------------------ 9. sample efficiency (Fig. 8)
@@ -2387,7 +2416,7 @@ def report_sample_efficiency(report: Report, analysis: Analysis) -> None:
         score_name = SCORE_NAMES[args.normalize]
         report.figure(plot_sample_efficiency(agg.frames, point, interval, analysis.colors,
                                              f"IQM {score_name.lower()}", analysis.labels,
-                                             agg.by_fraction),
+                                             aggregate_title(agg), agg.by_fraction),
                       "sample_efficiency")
 
 
@@ -2633,7 +2662,7 @@ def _plot_difference(ax_dim, ax_progress, x: float, d: Dimension, estimates: dic
 def report_dimension_study(report: Report, analysis: Analysis) -> None:
     """Beyond the paper (figure `dimension_study`): what each evaluation action is worth as the
     action dimension grows, one task per dimension. Estimator: the mean over seeds with
-    rliable's bootstrap CI (seed_mean_estimates: get_interval_estimates of per_task_mean) of
+    rliable's bootstrap CI (seed_mean_estimates: stats.bootstrap_mean) of
     each task's per-seed paired difference, normalised by the range of its tanh(mu) returns so
     that tasks of different reward scales share an axis, and of the measured shift; beside it
     Student's t-interval of the raw difference (few seeds). Tasks are not pooled: each point is
