@@ -37,6 +37,7 @@ The file, top to bottom (docs/analyze.md maps each figure to its section and fun
 
 from __future__ import annotations
 
+import collections
 import csv
 import dataclasses
 import functools
@@ -56,6 +57,9 @@ import tyro
 from matplotlib.patches import Patch
 from rliable import library as rly
 from rliable import metrics, plot_utils
+
+from sac_utils import stats
+from sac_utils.stats import CONFIDENCE, t_interval, welch_interval
 
 # ============================================================================== what to edit
 # A task with a success bar: one entry here. HumanoidBench's success bars, the return at which a
@@ -150,7 +154,6 @@ NORMALIZATIONS = {
 }
 SCORE_NAMES = {"success-bar": "Success-bar normalised score",
                "min-max": "Min-max normalised score", "none": "Return"}
-CONFIDENCE = 0.95
 # Up to this many seeds a percentile bootstrap of the mean is narrower than the data allow: it
 # only resamples the few values seen, so summary.md puts a Student-t interval beside it.
 FEW_SEEDS = 5
@@ -614,7 +617,8 @@ def paired_differences(tasks: dict[str, Task], derived: Sequence[str] = ()
     for task, data in tasks.items():
         for group, baseline in paired_groups(data, task in derived):
             own, paired = paired_values(data, group, baseline, np.array([data.scored_step]))
-            differences.setdefault(task, {})[group] = own[:, 0] - paired[:, 0]
+            differences.setdefault(task, {})[group] = stats.paired_difference(own[:, 0],
+                                                                              paired[:, 0])
     return differences
 
 
@@ -626,7 +630,7 @@ def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
     for task, data in tasks.items():
         for group, baseline in paired_groups(data, task in derived):
             own, paired = paired_values(data, group, baseline, data.steps)
-            curves.setdefault(task, {})[group] = own - paired
+            curves.setdefault(task, {})[group] = stats.paired_difference(own, paired)
     return curves
 
 
@@ -640,6 +644,7 @@ ROBUST_EPISODES_FILE = "episodes.csv"
 # physics_unstable (last) read as those after, their blow-ups "not recorded".
 ROBUST_COLUMNS = ("step", "selector", "episode", "return")  # of evaluate.py's EPISODE_COLUMNS
 ROBUST_UNSTABLE_COLUMN = "physics_unstable"  # 1: a physics blow-up ended the episode
+ROBUST_END_COLUMN = "end"  # why the episode ended (eval_rounds.episode_end); "" not recorded
 
 
 @dataclasses.dataclass
@@ -653,6 +658,9 @@ class RobustEpisodes:
     # (task, seed, step) -> selector -> episodes a physics blow-up ended (None: not recorded)
     unstable: dict[tuple[str, int, int], dict[str, int | None]] = dataclasses.field(
         default_factory=dict)
+    # (task, seed, step) -> selector -> how its episodes ended (None: not recorded)
+    ends: dict[tuple[str, int, int], dict[str, collections.Counter | None]] = \
+        dataclasses.field(default_factory=dict)
 
 
 def read_robust_settings(folder: Path) -> dict:
@@ -675,10 +683,12 @@ def read_robust_settings(folder: Path) -> dict:
     return settings
 
 
-def read_episodes_csv(path: Path
-                      ) -> dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+def read_episodes_csv(path: Path) -> tuple[
+        dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]],
+        dict[tuple[int, str], collections.Counter | None]]:
     """A run's episodes.csv: step -> selector -> (episode numbers, returns, physics_unstable),
-    by episode; physics_unstable is NaN where not recorded (an empty cell, or no column)."""
+    by episode, physics_unstable NaN where not recorded (an empty cell, or no column); and
+    (step, selector) -> how its episodes ended (None where an episode does not say)."""
     if not path.is_file():
         raise AnalysisError(f"{path} is missing: {path.parent.parent} is incomplete; evaluate "
                             "the campaign again")
@@ -692,6 +702,8 @@ def read_episodes_csv(path: Path
     where = [header.index(name) for name in ROBUST_COLUMNS]
     unstable_at = header.index(ROBUST_UNSTABLE_COLUMN) if ROBUST_UNSTABLE_COLUMN in header \
         else None
+    end_at = header.index(ROBUST_END_COLUMN) if ROBUST_END_COLUMN in header else None
+    ends: dict[tuple[int, str], collections.Counter | None] = {}
     found: dict[tuple[int, str], list[tuple[float, float, float]]] = {}
     for i, row in enumerate(rows[1:], start=2):
         if len(row) != len(header):
@@ -701,13 +713,18 @@ def read_episodes_csv(path: Path
         number = functools.partial(_parse_number, path=path, row=i, optional=False)
         flag = math.nan if unstable_at is None else _parse_number(
             row[unstable_at], path, i, ROBUST_UNSTABLE_COLUMN, optional=True)
-        found.setdefault((int(number(step, column="step")), selector), []).append(
+        key = (int(number(step, column="step")), selector)
+        found.setdefault(key, []).append(
             (number(episode, column="episode"), number(value, column="return"), flag))
+        end = "" if end_at is None else row[end_at].strip()
+        counts = ends.setdefault(key, collections.Counter())
+        if counts is not None:
+            ends[key] = counts + collections.Counter([end]) if end else None
     by_step: dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
     for (step, selector), rows_found in found.items():
         episodes, returns, flags = np.array(sorted(rows_found)).T
         by_step.setdefault(step, {})[selector] = (episodes, returns, flags)
-    return by_step
+    return by_step, ends
 
 
 def load_robust(folders: Sequence[Path]) -> RobustEpisodes:
@@ -724,7 +741,7 @@ def load_robust(folders: Sequence[Path]) -> RobustEpisodes:
             if isinstance(listed, list) else []
         for run, info in settings["runs"].items():
             path = folder / run / ROBUST_EPISODES_FILE
-            by_step = read_episodes_csv(path)
+            by_step, ends = read_episodes_csv(path)
             if not by_step:
                 raise AnalysisError(f"{path} holds no episode; evaluate the campaign again")
             for step, selectors in sorted(by_step.items()):
@@ -737,6 +754,7 @@ def load_robust(folders: Sequence[Path]) -> RobustEpisodes:
                 robust.returns[key] = robust_selectors(path, step, selectors)
                 robust.unstable[key] = {s: None if np.isnan(flags).any() else int(flags.sum())
                                         for s, (_, _, flags) in selectors.items()}
+                robust.ends[key] = {s: ends[step, s] for s in selectors}
                 robust.selectors += [s for s in selectors if s not in robust.selectors]
     return robust
 
@@ -771,6 +789,11 @@ class RobustStep:
     # and the episodes it played over its seeds
     unstable: dict[str, int | None] = dataclasses.field(default_factory=dict)
     played: dict[str, int] = dataclasses.field(default_factory=dict)
+    # selector -> stats.verdict per seed, and how its episodes ended over its seeds (None: a
+    # seed did not record it)
+    verdicts: dict[str, list[str]] = dataclasses.field(default_factory=dict)
+    errors: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # per seed, its SE
+    ends: dict[str, collections.Counter | None] = dataclasses.field(default_factory=dict)
 
 
 def robust_paired_differences(robust: RobustEpisodes) -> dict[str, dict[int, RobustStep]]:
@@ -788,9 +811,16 @@ def robust_paired_differences(robust: RobustEpisodes) -> dict[str, dict[int, Rob
             at.played[selector] = at.played.get(selector, 0) + baseline.size
             at.returns[selector] = np.append(at.returns.get(selector, []),
                                              selectors[selector].mean())
+            ended = robust.ends[task, seed, step][selector]
+            so_far = at.ends.get(selector, collections.Counter())
+            at.ends[selector] = None if ended is None or so_far is None else so_far + ended
             if selector != TANH_MU.name:
+                diffs = stats.paired_difference(selectors[selector], baseline)
                 at.differences[selector] = np.append(at.differences.get(selector, []),
-                                                     (selectors[selector] - baseline).mean())
+                                                     diffs.mean())
+                se = stats.standard_error(diffs)
+                at.errors[selector] = np.append(at.errors.get(selector, []), se)
+                at.verdicts.setdefault(selector, []).append(stats.verdict(diffs.mean(), se))
     return by_task
 
 
@@ -939,11 +969,6 @@ def interval_estimates(
     )
 
 
-def per_task_mean(scores: np.ndarray) -> np.ndarray:
-    """Mean over runs of each task: metrics.aggregate_mean before it averages over tasks."""
-    return np.mean(scores, axis=0)
-
-
 AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
 
 
@@ -967,7 +992,8 @@ def iqm_per_step(scores: np.ndarray) -> np.ndarray:
 
 
 def seed_mean_estimates(samples: dict[tuple[str, str], np.ndarray], reps: int, seed: int) -> dict:
-    """(task, group) -> (mean, low, high) of one value per seed, with a bootstrap CI.
+    """(task, group) -> (mean, low, high) of one value per seed, with the bootstrap CI that
+    rliable's get_interval_estimates gives after seeding NumPy's global generator with `seed`.
 
     The tasks of a group with equal seed counts share one bootstrap: it resamples each task's
     seeds independently, so each task's interval is distributed as in a bootstrap of its own,
@@ -979,43 +1005,10 @@ def seed_mean_estimates(samples: dict[tuple[str, str], np.ndarray], reps: int, s
     estimates = {}
     for (group, _), batch in batches.items():
         scores = np.stack([samples[task, group] for task in batch], axis=1)
-        point, interval = interval_estimates({group: scores}, per_task_mean, reps, seed)
+        point, low, high = stats.bootstrap_mean(scores, reps, np.random.RandomState(seed))
         for i, task in enumerate(batch):
-            estimates[task, group] = (float(point[group][i]), *interval[group][:, i])
+            estimates[task, group] = (float(point[i]), float(low[i]), float(high[i]))
     return estimates
-
-
-def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
-    """(mean, low, high) of one value per seed: mean +- t_{n-1} * sd / sqrt(n).
-
-    Unlike a percentile bootstrap, Student's interval widens as the seeds get few, which is what
-    five seeds allow. NaN bounds with one seed, where no spread is seen.
-    """
-    values = np.asarray(values, dtype=float)
-    mean = float(values.mean())
-    if values.size < 2:
-        return mean, math.nan, math.nan
-    quantile = scipy.stats.t.ppf(0.5 + confidence / 2, values.size - 1)
-    half = float(quantile * values.std(ddof=1) / math.sqrt(values.size))
-    return mean, mean - half, mean + half
-
-
-def stratified_t_interval(per_task: Sequence[np.ndarray], confidence: float = CONFIDENCE
-                          ) -> tuple[float, float, float]:
-    """(mean, low, high) of the mean over tasks of each task's mean over seeds: Welch's interval
-    with Satterthwaite's degrees of freedom, each task's seeds independent of the others' (as
-    rliable's stratified bootstrap draws them). NaN bounds when a task has one seed."""
-    mean = float(np.mean([np.mean(v) for v in per_task]))
-    if any(np.size(v) < 2 for v in per_task):
-        return mean, math.nan, math.nan
-    terms = np.array([np.var(v, ddof=1) / np.size(v) for v in per_task])
-    total = float(terms.sum())
-    if total == 0:
-        return mean, mean, mean
-    df = total**2 / sum(term**2 / (np.size(v) - 1) for term, v in zip(terms, per_task,
-                                                                       strict=True))
-    half = scipy.stats.t.ppf(0.5 + confidence / 2, df) * math.sqrt(total) / len(per_task)
-    return mean, mean - half, mean + half
 
 
 # ------------------------------------------------------------------------- the report writer
@@ -1099,9 +1092,7 @@ def steps_axis(max_step: float) -> tuple[float, str]:
     return 1.0, "Environment steps"
 
 
-def format_ci(point: float, low: float, high: float, digits: int = 3) -> str:
-    """An estimate with its interval, as summary.md writes it: 0.123 [0.100, 0.150]."""
-    return f"{point:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+format_ci = stats.interval_text
 
 
 def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
@@ -1190,9 +1181,11 @@ def profile_thresholds(final: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, colors: dict,
-                              xlabel: str, labels: Callable[[str], str]) -> plt.Figure:
+                              xlabel: str, labels: Callable[[str], str], title: str
+                              ) -> plt.Figure:
     """Figure 7: performance profiles (share of runs scoring above tau) with CIs."""
     fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.set_title(title, fontsize="medium")
     plot_utils.plot_performance_profiles(
         {labels(g): v for g, v in profiles.items()},
         taus,
@@ -1209,11 +1202,12 @@ def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, color
 
 
 def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colors: dict,
-                           ylabel: str, labels: Callable[[str], str], by_fraction: bool = False
-                           ) -> plt.Figure:
+                           ylabel: str, labels: Callable[[str], str], title: str,
+                           by_fraction: bool = False) -> plt.Figure:
     """Figure 8: aggregate IQM against environment steps (or fractions of each task's budget)
     with CIs."""
     fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.set_title(title, fontsize="medium")
     unit, xlabel = steps_axis(frames[-1])
     if by_fraction:
         unit, xlabel = 1.0, "Fraction of each task's budget (total_timesteps)"
@@ -1232,6 +1226,23 @@ def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colo
         marker=".",
     )
     return fig
+
+
+def one_episode_per_seed(curves: Sequence[Curve], steps: np.ndarray) -> bool:
+    """Whether every run logged one distinct episode (eval.csv's distinct_episodes) at each of
+    `steps`, which all of them share: its return there is one draw of the episode's noise."""
+    for curve in curves:
+        if curve.episodes is None:
+            return False
+        if not np.all(curve.episodes[np.searchsorted(curve.steps, steps)] == 1):
+            return False
+    return bool(curves)
+
+
+def aggregate_title(agg: Aggregate) -> str:
+    """Figures 7 and 8 name what they aggregate: the tasks and the runs per task."""
+    runs = sorted({scores.shape[0] for scores in agg.final.values()})
+    return f"{', '.join(agg.tasks)}: {' or '.join(map(str, runs))} runs per task and group"
 
 
 # ============================================================================== the reports
@@ -1319,17 +1330,6 @@ def report_standard_provenance(report: Report, analysis: Analysis) -> None:
 # Each seed's paired difference averaged over its last evaluation rounds, since one round of a
 # noisy task is one draw of that noise.
 LAST_ROUNDS = (20, 50)
-
-
-def one_episode_per_seed(curves: Sequence[Curve], steps: np.ndarray) -> bool:
-    """Whether every run logged one distinct episode (eval.csv's distinct_episodes) at each of
-    `steps`, which all of them share: its return there is one draw of the episode's noise."""
-    for curve in curves:
-        if curve.episodes is None:
-            return False
-        if not np.all(curve.episodes[np.searchsorted(curve.steps, steps)] == 1):
-            return False
-    return bool(curves)
 
 
 def last_rounds_averages(tasks: dict[str, Task], curves: dict[str, dict[str, np.ndarray]]
@@ -1425,7 +1425,7 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict) -> 
     of (task, seed) pairs won; summary.md's lines. Estimator: rliable's
     get_interval_estimates of metrics.aggregate_mean over a (seeds x tasks) matrix, its
     stratified bootstrap resampling seeds within each task, since the tasks are fixed and only
-    the seeds are drawn; beside it Welch's t-interval (stratified_t_interval), for few seeds."""
+    the seeds are drawn; beside it Welch's t-interval (stats.welch_interval), for few seeds."""
     args, norms, labels = analysis.args, analysis.norms, analysis.labels
     lines = []
     found = {group for by_group in differences.values() for group in by_group}
@@ -1441,7 +1441,7 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict) -> 
         low, high = interval[algorithm].ravel()
         won = sum(int((d > 0).sum()) for d in per_task.values())
         pairs = sum(d.size for d in per_task.values())
-        t_values = stratified_t_interval(list(scores.T))
+        t_values = welch_interval(list(scores.T))
         report.row("paired_difference", "all", algorithm, "mean_score", "", seeds,
                    point[algorithm], low, high)
         report.row("paired_difference", "all", algorithm, "mean_score_t", "", seeds, *t_values)
@@ -1450,7 +1450,8 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict) -> 
         action = action_of(algorithm)
         lines += ["", f"Over {len(per_task)} tasks, {labels(algorithm_of(algorithm))}, {action} "
                   f"minus tanh(mu): mean {SCORE_NAMES[args.normalize].lower()} difference "
-                  f"{format_ci(float(point[algorithm]), low, high)} ({seeds} seeds per task, "
+                  f"{format_ci(float(point[algorithm]), low, high, runs=seeds)} ({seeds} seeds "
+                  "per task, "
                   f"stratified bootstrap CI), t-interval [{t_values[1]:.3f}, "
                   f"{t_values[2]:.3f}] (Welch, the tasks' seeds independent); the {action} won "
                   f"in {won} of {pairs} (task, seed) pairs."]
@@ -1525,10 +1526,9 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
     q_best) minus tanh(mu) of the same actors from the same start states (paired), per task and
     over tasks, with the share of seeds where that action won; at the scored step and averaged
     over the last rounds. Estimator, per task: the mean over seeds of the per-seed differences
-    with rliable's bootstrap CI (seed_mean_estimates: get_interval_estimates of
-    per_task_mean), since the pairing makes each seed one value; beside it Student's
-    t-interval, since with 5 seeds or fewer a percentile bootstrap is too narrow. Over tasks:
-    paired_over_tasks."""
+    with the bootstrap CI (seed_mean_estimates: stats.bootstrap_mean), since the pairing
+    makes each seed one value; beside it Student's t-interval, since with 5 seeds or fewer a
+    percentile bootstrap is too narrow. Over tasks: paired_over_tasks."""
     args, runs, tasks, norms = analysis.args, analysis.runs, analysis.tasks, analysis.norms
     labels = analysis.labels
     differences = paired_differences(tasks, analysis.derived)
@@ -1679,7 +1679,7 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
                     ["n/r" if ends is None else f"{ends} of {at.played[action]}"]
                 cells = [task, format_step(step), action, n, episodes, f"{mean_return[0]:.1f}"]
                 if action not in at.differences:
-                    table.append([*cells, "(the baseline)", "", "", *blowups])
+                    table.append([*cells, "(the baseline)", "", "", "", *blowups])
                     continue
                 diffs, boot = at.differences[action], estimates[key, action]
                 t_values, won = t_interval(diffs), int((diffs > 0).sum())
@@ -1692,7 +1692,10 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
                                *(v / bar for v in t_values))
                 report.row("robust_difference", task, action, "share_won", step, n, won / n,
                            math.nan, math.nan)
-                table.append([*cells, *seed_cells(diffs, boot, 1), f"{won} of {n}", *blowups])
+                verdicts = " / ".join(str(at.verdicts[action].count(v))
+                                      for v in ("ahead", "level", "behind"))
+                table.append([*cells, *seed_cells(diffs, boot, 1), f"{won} of {n}", verdicts,
+                              *blowups])
     return table, estimates
 
 
@@ -1736,7 +1739,7 @@ def robust_over_tasks(report: Report, analysis: Analysis,
         point, interval = interval_estimates({action: values}, metrics.aggregate_mean,
                                              args.reps, args.seed)
         boot = (float(point[action]), *map(float, interval[action].ravel()))
-        t_values, won = stratified_t_interval(list(values.T)), int((values > 0).sum())
+        t_values, won = welch_interval(list(values.T)), int((values > 0).sum())
         over.values[action], over.bootstrap[action], over.t[action] = values, boot, t_values
         report.row("robust_difference", "all", action, "score", step, seeds, *boot)
         report.row("robust_difference_t", "all", action, "score", step, seeds, *t_values)
@@ -1764,13 +1767,28 @@ def robust_over_tasks(report: Report, analysis: Analysis,
     return over, lines
 
 
-def draw_seed_summary(ax, x: float, width: float, values: np.ndarray, boot: Sequence[float],
-                      t_values: Sequence[float], color: tuple, rng: np.random.Generator) -> None:
-    """Within x +- width: the seeds (faint dots, left), their mean (tick) with its t-interval
-    (whisker) and, right, the bootstrap CI (bar), as plot_paired_difference draws them lying
-    down."""
-    ax.scatter(x - 0.6 * width + rng.uniform(-0.15, 0.15, values.size) * width, values, s=12,
-               color=color, alpha=0.5, lw=0, zorder=3)
+def draw_seed_summary(ax, x: float, width: float, values: np.ndarray, errors: np.ndarray | None,
+                      boot: Sequence[float], t_values: Sequence[float], color: tuple,
+                      markers: Sequence[str] | None = None) -> None:
+    """Within x +- width: the seeds (dots, left; whiskers: +-VERDICT_SE standard errors of each
+    seed's paired episodes, where given), their mean (tick) with its t-interval (whisker) and,
+    right, the bootstrap CI (bar). Dots beyond the axis's range sit on its edge as triangles,
+    the farthest one's value written beside it."""
+    xs = x - 0.6 * width + np.linspace(-0.15, 0.15, values.size) * width
+    low, high = ax.get_ylim()
+    outside = [i for i, v in enumerate(values) if not low <= v <= high]
+    farthest = max(outside, key=lambda i: abs(values[i]), default=None)
+    for i, (xi, value) in enumerate(zip(xs, values, strict=True)):
+        inside = i not in outside
+        marker = (markers[i] if markers else "o") if inside else ("v" if value < low else "^")
+        ax.scatter(xi, min(max(value, low), high), s=16, marker=marker, color=color, alpha=0.7,
+                   lw=0, zorder=3, clip_on=False)
+        if i == farthest:
+            ax.annotate(f"{value:.3g}", (xi, min(max(value, low), high)), xytext=(-3, 0),
+                        textcoords="offset points", ha="right", va="center", fontsize=6)
+        elif inside and errors is not None and np.isfinite(errors[i]):
+            ax.errorbar(xi, value, yerr=stats.VERDICT_SE * errors[i], color=color, lw=0.7,
+                        alpha=0.7, zorder=3)
     ax.bar(x + 0.6 * width, boot[2] - boot[1], bottom=boot[1], width=0.4 * width, color=color,
            alpha=0.4)
     ax.hlines(t_values[0], x - 0.35 * width, x + 0.35 * width, color="k", lw=1.5, zorder=4)
@@ -1779,54 +1797,84 @@ def draw_seed_summary(ax, x: float, width: float, values: np.ndarray, boot: Sequ
                     t_values[0]]], color=color, lw=1.5, capsize=3, zorder=4)
 
 
+def summary_range(intervals: Sequence[Sequence[float]], dots: np.ndarray
+                  ) -> tuple[float, float]:
+    """A y-range that holds the estimates' intervals, zero and the middle 90% of the seeds'
+    dots: one seed's outlier does not set it."""
+    values = np.array([v for interval in intervals for v in interval if np.isfinite(v)] + [0.0])
+    low = min(values.min(), np.percentile(dots, 5))
+    high = max(values.max(), np.percentile(dots, 95))
+    pad = 0.12 * (high - low or 1.0)
+    return low - pad, high + pad
+
+
 def plot_robust_evaluation(by_task: dict[str, dict[int, RobustStep]], estimates: dict,
                            over: RobustOverTasks | None, colors: dict) -> plt.Figure:
-    """A row per task: each action's paired difference against tanh(mu) at each evaluated step;
-    last row, over tasks at their shared last step, the difference divided by each success bar."""
+    """The headline figure from the robust evaluation. A row per task: each action's paired
+    difference against tanh(mu) at each evaluated step, in return (left axis) and in % of
+    tanh(mu)'s mean return at the task's last step (right axis); under each step, the starts
+    per seed and the seeds. Last row, over tasks at their shared last step: the difference
+    divided by each success bar, a marker per task."""
     actions = list(dict.fromkeys(a for steps in by_task.values() for at in steps.values()
                                  for a in at.differences))
     slot = 0.8 / len(actions)  # each action's share of a step's x range
     offsets = {a: (j - (len(actions) - 1) / 2) * slot for j, a in enumerate(actions)}
     rows = len(by_task) + (over is not None)
-    fig, axes = plt.subplots(rows, 1, figsize=(7.5, 2.9 * rows + 0.9), squeeze=False,
+    fig, axes = plt.subplots(rows, 1, figsize=(8, 3.1 * rows + 1.0), squeeze=False,
                              layout="constrained")
-    rng = np.random.default_rng(0)  # horizontal jitter of the dots only
     for ax, (task, steps) in zip(axes[:, 0], by_task.items(), strict=False):
-        for i, (step, at) in enumerate(steps.items()):
-            for action, diffs in at.differences.items():
-                draw_seed_summary(ax, i + offsets[action], slot / 2, diffs,
-                                  estimates[f"{task}|{step}", action], t_interval(diffs),
-                                  colors[action], rng)
-        seeds = sorted({at.differences[a].size for at in steps.values() for a in at.differences})
-        episodes = episodes_span(np.concatenate([at.episodes for at in steps.values()]))
-        ax.set_title(f"{task}: n = {' or '.join(map(str, seeds))} seeds, {episodes} episodes "
-                     "per seed", fontsize="medium")
-        ax.set_xticks(range(len(steps)), [format_step(s) for s in steps])
+        drawn = {(step, a): (at.differences[a], at.errors.get(a), estimates[f"{task}|{step}", a],
+                             t_interval(at.differences[a]))
+                 for step, at in steps.items() for a in at.differences}
+        ax.set_ylim(*summary_range([v for _, _, boot, t in drawn.values() for v in (boot, t)],
+                                   np.concatenate([d[0] for d in drawn.values()])))
+        for i, step in enumerate(steps):
+            for action in actions:
+                if (step, action) in drawn:
+                    draw_seed_summary(ax, i + offsets[action], slot / 2, *drawn[step, action][:2],
+                                      *drawn[step, action][2:], colors[action])
+        ax.set_xticks(range(len(steps)), [
+            f"{format_step(s)}\n{episodes_span(at.episodes)} starts x {at.episodes.size} seeds"
+            for s, at in steps.items()], fontsize="small")
         ax.set_xlim(-0.5, len(steps) - 0.5)
-        ax.set_xlabel("Training step of the evaluated weights")
-        ax.set_ylabel("Return minus tanh(mu)'s")
+        ax.set_title(task, fontsize="medium")
+        ax.set_ylabel("return minus tanh(mu)'s")
+        last = steps[max(steps)]
+        reference = abs(float(last.returns[stats.BASELINE].mean())) or 1.0
+        right = ax.secondary_yaxis("right", functions=(lambda y, r=reference: 100 * y / r,
+                                                       lambda p, r=reference: p * r / 100))
+        right.set_ylabel(f"% of tanh(mu)'s return ({reference:.3g} at {format_step(max(steps))})",
+                         fontsize="small")
     if over is not None:
         ax = axes[-1, 0]
+        ax.set_ylim(*summary_range([v for a in over.values for v in (over.bootstrap[a],
+                                                                     over.t[a])],
+                                   np.concatenate([v.ravel() for v in over.values.values()])))
+        shapes = dict(zip(over.tasks, "osD^vP*X", strict=False))
         for i, action in enumerate(over.values):
-            draw_seed_summary(ax, i, 0.25, over.values[action].ravel(), over.bootstrap[action],
-                              over.t[action], colors[action], rng)
+            values = over.values[action]  # (seeds, tasks)
+            draw_seed_summary(ax, i, 0.25, values.T.ravel(), None, over.bootstrap[action],
+                              over.t[action], colors[action],
+                              [shapes[t] for t in over.tasks for _ in range(values.shape[0])])
         seeds = next(iter(over.values.values())).shape[0]
         ax.set_xticks(range(len(over.values)), list(over.values))
         ax.set_xlim(-0.5, len(over.values) - 0.5)
-        ax.set_title(f"Over {counted(len(over.tasks), 'task')} (normalised), at "
-                     f"{format_step(over.step)}: n = {seeds} seeds per task; dots: (task, seed)",
-                     fontsize="medium")
-        ax.set_xlabel("Evaluation action")
-        ax.set_ylabel("Difference / success bar")
+        ax.set_title(f"Over {counted(len(over.tasks), 'task')} at {format_step(over.step)}, each "
+                     f"divided by its success bar: {seeds} seeds per task", fontsize="medium")
+        ax.set_ylabel("difference / success bar")
+        ax.legend(handles=[plt.Line2D([], [], ls="", marker=shapes[t], color="0.4", label=t)
+                           for t in over.tasks], fontsize="x-small", loc="best")
     for ax in axes[:, 0]:
         ax.axhline(0, color="0.4", ls=":", lw=1)
         ax.grid(axis="y", alpha=0.25)
     handles = [Patch(color=colors[a], label=a) for a in actions]
     fig.legend(handles=handles, loc="outside lower center", ncols=len(handles),
                fontsize="small", title="evaluation action", title_fontsize="small")
-    fig.suptitle("The robust evaluation: each action minus tanh(mu), same actor, same start "
-                 "states\ndots: seeds; tick and whisker: mean and its 95% t-interval; bar, "
-                 "right of it: rliable's 95% bootstrap CI", fontsize="medium")
+    fig.suptitle("Each action minus tanh(mu): same actor, same start states\n"
+                 f"dots: seeds, +-{stats.VERDICT_SE:g} SE of their paired episodes (triangles: "
+                 "beyond the axis)\ntick and whisker: mean over seeds and its 95% t-interval; "
+                 "bar: bootstrap CI",
+                 fontsize="medium")
     return fig
 
 
@@ -1847,10 +1895,10 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     from evaluate.py's campaign, many noisy starts per seed and step. Per seed: the mean over its
     episodes of each action's return minus tanh(mu)'s from the same start; per task and step,
     the mean over seeds with Student's t-interval (t_interval) and, labelled as such, rliable's
-    bootstrap (seed_mean_estimates: get_interval_estimates of per_task_mean): with 5 seeds or
+    bootstrap (seed_mean_estimates: stats.bootstrap_mean): with 5 seeds or
     fewer the percentile bootstrap resamples only the few values seen and is too narrow, so the
     t-interval is the one to read. Over tasks, at their shared last step, divided by each
-    success bar: robust_over_tasks. The same definitions as evaluate.py's across_seeds.csv."""
+    success bar: robust_over_tasks."""
     robust, args = analysis.robust, analysis.args
     if robust is None:
         return
@@ -1864,7 +1912,9 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
              "episode); then the mean over seeds with Student's 95% t-interval and, beside it, "
              f"rliable's 95% percentile bootstrap over seeds ({args.reps:,} replications). "
              "'return': the mean over seeds of each seed's mean return. 'won': seeds whose "
-             "difference is positive. The definitions of evaluate.py's across_seeds.csv."]
+             "difference is positive; 'ahead / level / behind': seeds whose difference is more "
+             f"than {stats.VERDICT_SE:g} standard errors of its paired episodes above zero, "
+             "within, or below."]
     seeds = [d.size for steps in by_task.values() for at in steps.values()
              for d in at.differences.values()]
     if seeds and min(seeds) <= FEW_SEEDS:
@@ -1878,7 +1928,9 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
                   "then). n/r: not recorded (evaluated before episodes.csv had physics_unstable)."]
     lines += ["", markdown_table(["task", "step", "action", "seeds", "episodes per seed",
                                   "return", "minus tanh(mu) (bootstrap CI)", "t-interval",
-                                  "won", *(["blow-ups"] if recorded else [])], table)]
+                                  "won", "ahead / level / behind",
+                                  *(["blow-ups"] if recorded else [])], table)]
+    lines += ends_table(by_task)
     over = None
     unbarred = [t for t in by_task if t not in SUCCESS_BARS]
     if unbarred:
@@ -1900,6 +1952,25 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
                    "(evaluate.py)", *lines)
 
 
+def ends_table(by_task: dict[str, dict[int, RobustStep]]) -> list[str]:
+    """summary.md's count of how each action's episodes ended, over seeds, where every seed's
+    episodes.csv records it (evaluate.py's `end` column)."""
+    rows, reasons = [], set()
+    for task, steps in by_task.items():
+        for step, at in steps.items():
+            for action, ends in at.ends.items():
+                if ends is not None:
+                    rows.append((task, step, action, ends))
+                    reasons |= set(ends)
+    if not rows:
+        return []
+    reasons = sorted(reasons)
+    return ["", "How the episodes ended (evaluate.py's `end`, episodes over seeds):", "",
+            markdown_table(["task", "step", "action", *reasons],
+                           [[task, format_step(step), action, *(ends[r] for r in reasons)]
+                            for task, step, action, ends in rows])]
+
+
 def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOverTasks,
                             colors: dict) -> None:
     """Figures `robust_aggregate_metrics` and `robust_performance_profiles`: Figures 6 and 7 of
@@ -1916,9 +1987,11 @@ def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOver
     taus = profile_thresholds(over.scores)
     seed_bootstrap(args.seed)
     profiles, cis = rly.create_performance_profile(over.scores, taus, reps=args.curve_reps)
-    report.figure(plot_performance_profiles(taus, profiles, cis, colors, name,
-                                            robust_action_label),
-                  "robust_performance_profiles")
+    seeds = next(iter(over.scores.values())).shape[0]
+    report.figure(plot_performance_profiles(
+        taus, profiles, cis, colors, name, robust_action_label,
+        f"Robust evaluation at {format_step(over.step)}: {', '.join(over.tasks)}, "
+        f"{seeds} seeds per task"), "robust_performance_profiles")
 
 
 def robust_sample_efficiency(report: Report, analysis: Analysis,
@@ -1949,9 +2022,14 @@ def robust_sample_efficiency(report: Report, analysis: Analysis,
         for i, step in enumerate(shared):
             report.row("robust_sample_efficiency", "all", action, "IQM", step, seeds,
                        point[action][i], *interval[action][:, i])
-    report.figure(plot_sample_efficiency(np.array(shared, dtype=float), point, interval, colors,
-                                         f"IQM {SCORE_NAMES['success-bar'].lower()}",
-                                         robust_action_label), "robust_sample_efficiency")
+    starts = ", ".join(
+        f"{format_step(step)} {episodes_span(np.concatenate([row[i].episodes for row in at]))}"
+        for i, step in enumerate(shared))
+    report.figure(plot_sample_efficiency(
+        np.array(shared, dtype=float), point, interval, colors,
+        f"IQM {SCORE_NAMES['success-bar'].lower()}", robust_action_label,
+        f"Robust evaluation: {', '.join(tasks)}, {seeds} seeds per task\nstarts per seed: "
+        f"{starts}"), "robust_sample_efficiency")
     left_out = [t for t in barred if t not in curves]
     return ["", f"Over training (figure `robust_sample_efficiency`): each action's IQM of the "
             f"returns divided by each success bar, over {', '.join(tasks)} at "
@@ -2028,6 +2106,8 @@ def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dic
             else:
                 ax.plot(x, values.mean(0), color="k", lw=1.4)
                 ax.fill_between(x, values.min(0), values.max(0), color="0.5", alpha=0.25, lw=0)
+                if column != "bimodal_fraction" and np.all(values > 0):
+                    ax.set_yscale("log")  # the first rounds' spike would flatten the rest
             ax.set_title(title, fontsize="medium")
         row[3].set_ylim(-0.02, 1.02)  # a share
         for ax in row:
@@ -2099,7 +2179,7 @@ def report_choice_shares(report: Report, analysis: Analysis) -> None:
     """q_best's choices (no figure): how often the critic picked the mode, tanh(mu) and the
     mean, at each task's scored step, for each evaluation action that logs its choice_shares.
     Estimator: the mean over seeds with rliable's bootstrap CI (seed_mean_estimates:
-    get_interval_estimates of per_task_mean), a share per seed being one value per seed."""
+    stats.bootstrap_mean), a share per seed being one value per seed."""
     for action in EVALUATION_ACTIONS:
         if action.choice_shares:
             report_choice_shares_of(report, analysis, action)
@@ -2158,20 +2238,28 @@ def success_bar_drawn(bar: float, top: float) -> bool:
 
 
 def reward_curve_estimates(tasks: dict[str, Task], reps: int, seed: int) -> dict:
-    """task -> group -> (mean, (low, high)) over seeds at every shared step: rliable's
-    get_interval_estimates of metrics.aggregate_mean on one task, every step at once."""
+    """task -> group -> (mean, (low, high)) over seeds at every shared step: with FEW_SEEDS
+    seeds or fewer Student's t-interval (a percentile bootstrap of five values is too narrow),
+    else rliable's get_interval_estimates of metrics.aggregate_mean, every step at once."""
     estimates = {}
     for task, data in tasks.items():
-        scores = {g: r[:, None, :] for g, r in data.returns.items()}  # (seeds, 1 task, steps)
-        point, interval = interval_estimates(scores, metrics.aggregate_mean, reps, seed)
-        estimates[task] = {g: (point[g], interval[g]) for g in scores}
+        estimates[task] = {g: (r.mean(0), np.array([t_interval(r[:, i])[1:]
+                                                    for i in range(r.shape[1])]).T)
+                           for g, r in data.returns.items() if r.shape[0] <= FEW_SEEDS}
+        scores = {g: r[:, None, :] for g, r in data.returns.items()  # (seeds, 1 task, steps)
+                  if g not in estimates[task]}
+        if scores:
+            point, interval = interval_estimates(scores, metrics.aggregate_mean, reps, seed)
+            estimates[task] |= {g: (point[g], interval[g]) for g in scores}
     return estimates
 
 
 def plot_reward_curves(
-    tasks: dict[str, Task], curves: dict, colors: dict, groups: list[str], labels: GroupLabels
+    tasks: dict[str, Task], curves: dict, colors: dict, groups: list[str], labels: GroupLabels,
+    single: dict[tuple[str, str], bool]
 ) -> plt.Figure:
-    """Figure 5: mean evaluation return per task with its 95% CI over seeds."""
+    """Figure 5: mean evaluation return per task with its 95% interval over seeds; a group
+    whose runs logged one distinct episode per evaluation (`single`) is drawn dotted."""
     ncols = math.ceil(math.sqrt(len(tasks)))
     nrows = math.ceil(len(tasks) / ncols)
     # At least 9 inches wide, so that the legend below fits in a few rows beside one panel.
@@ -2185,9 +2273,10 @@ def plot_reward_curves(
         top = -math.inf
         for group in [g for g in groups if g in data.returns]:
             mean, (low, high) = curves[task][group]
-            style = "-" if is_algorithm(group) else "--"
+            style = ":" if single[task, group] else "-" if is_algorithm(group) else "--"
             ax.plot(data.steps / unit, mean, style, color=colors[group], lw=width_line,
-                    label=labels(group))
+                    label=labels(group) + (" (one episode per evaluation)"
+                                           if single[task, group] else ""))
             ax.fill_between(data.steps / unit, low, high, color=colors[group], alpha=0.2, lw=0)
             top = max(top, float(np.max(high)))
         title = task
@@ -2206,7 +2295,11 @@ def plot_reward_curves(
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=ncol,
                frameon=False)
     legend_rows = math.ceil(len(handles) / ncol)
-    fig.suptitle("Mean evaluation return over seeds, 95% bootstrap CI")
+    seeds = sorted({r.shape[0] for data in tasks.values() for r in data.returns.values()})
+    fig.suptitle(f"Mean evaluation return over {' or '.join(map(str, seeds))} seeds, 95% "
+                 + ("t-interval" if seeds[-1] <= FEW_SEEDS else "bootstrap CI"
+                    if seeds[0] > FEW_SEEDS else f"t-interval (<= {FEW_SEEDS} seeds), "
+                    "else bootstrap CI"))
     fig.tight_layout(rect=(0, (0.27 * legend_rows + 0.05) / fig.get_figheight(), 1, 1))
     return fig
 
@@ -2221,7 +2314,10 @@ def report_reward_curves(report: Report, analysis: Analysis) -> None:
     groups, colors, labels = analysis.groups, analysis.colors, analysis.labels
     print(f"per-task curves ({args.curve_reps:,} reps) and final returns ({args.reps:,}) ...")
     curves = reward_curve_estimates(tasks, args.curve_reps, args.seed)
-    report.figure(plot_reward_curves(tasks, curves, colors, groups, labels), "reward_curves")
+    single = {(t, g): one_episode_per_seed(analysis.runs[t].get(g, []), data.steps)
+              for t, data in tasks.items() for g in data.returns}
+    report.figure(plot_reward_curves(tasks, curves, colors, groups, labels, single),
+                  "reward_curves")
     finals = seed_mean_estimates({(t, g): data.scored(g) for t, data in tasks.items()
                                   for g in data.returns}, args.reps, args.seed)
     table = []
@@ -2233,7 +2329,7 @@ def report_reward_curves(report: Report, analysis: Analysis) -> None:
             report.row("task_final", task, group, "return", step, runs, point, low, high)
             report.row("task_final", task, group, "score", step, runs, *scores)
             table.append([task, format_step(step), labels(group), runs,
-                          format_ci(point, low, high, 1), format_ci(*scores)])
+                          format_ci(point, low, high, 1, runs), format_ci(*scores, runs=runs)])
     report.section("Final evaluation return per task (mean over seeds, 95% CI)",
                    markdown_table(["task", "step", "group", "seeds", "return", "score"], table))
 
@@ -2273,8 +2369,8 @@ def report_aggregate_metrics(report: Report, analysis: Analysis) -> None:
         runs = agg.final[g].shape[0]
         for i, name in enumerate(names):
             report.row("aggregate", "all", g, name, "", runs, point[g][i], *interval[g][:, i])
-        table.append([analysis.labels(g), runs, *[format_ci(point[g][i], *interval[g][:, i])
-                                                  for i in range(len(names))]])
+        table.append([analysis.labels(g), runs, *[format_ci(
+            point[g][i], *interval[g][:, i], runs=runs) for i in range(len(names))]])
     report.section(f"Aggregate metrics over {len(agg.tasks)} task(s)",
                    f"{score_name}s at each task's scored step; tasks: {', '.join(agg.tasks)}."
                    + (f" {note}." if note else ""),
@@ -2295,8 +2391,8 @@ def report_performance_profiles(report: Report, analysis: Analysis) -> None:
     seed_bootstrap(args.seed)
     profiles, cis = rly.create_performance_profile(agg.final, taus, reps=args.curve_reps)
     report.figure(plot_performance_profiles(taus, profiles, cis, analysis.colors,
-                                            SCORE_NAMES[args.normalize], analysis.labels),
-                  "performance_profiles")
+                                            SCORE_NAMES[args.normalize], analysis.labels,
+                                            aggregate_title(agg)), "performance_profiles")
 
 
 # ------------------------------------------------------------ 9. sample efficiency (Fig. 8)
@@ -2320,7 +2416,7 @@ def report_sample_efficiency(report: Report, analysis: Analysis) -> None:
         score_name = SCORE_NAMES[args.normalize]
         report.figure(plot_sample_efficiency(agg.frames, point, interval, analysis.colors,
                                              f"IQM {score_name.lower()}", analysis.labels,
-                                             agg.by_fraction),
+                                             aggregate_title(agg), agg.by_fraction),
                       "sample_efficiency")
 
 
@@ -2332,14 +2428,13 @@ def plot_probability_of_improvement(probability: float, ci: np.ndarray, x: str, 
     pair = f"{labels(x)};{labels(y)}"
     plot_utils.plot_probability_of_improvement(
         {pair: probability}, {pair: ci}, pair_separator=";", ax=ax, colors=[color],
-        xticks=[0, 0.25, 0.5, 0.75, 1.0], xlabel="P(X > Y)", ticklabelsize="large",
-        labelsize="large",
+        xticks=[0, 0.25, 0.5, 0.75, 1.0], xlabel=f"P({labels(x)} > {labels(y)})",
+        ticklabelsize="large", labelsize="large", left_ylabel="", right_ylabel="",
     )
     ax.set_xlim(0, 1)
     ax.axvline(0.5, color="0.5", ls=":", lw=1)
-    ax.text(0.5, -0.72, "Mann-Whitney: every run of X against every run of Y. It ignores the "
-            "pairing\n(the same seed's actors, the same start states); the paired comparison is "
-            "paired_difference.", transform=ax.transAxes, ha="center", va="top",
+    ax.text(0.5, -0.72, "every run of one against every run of the other: it ignores the pairing "
+            "(paired_difference.png has it)", transform=ax.transAxes, ha="center", va="top",
             fontsize="medium", color="0.3")
     return fig
 
@@ -2364,13 +2459,15 @@ def report_probability_of_improvement(report: Report, analysis: Analysis) -> Non
                                          args.curve_reps, args.seed)
     low, high = interval[pair].ravel()
     runs = f"{agg.final[x].shape[0]} vs {agg.final[y].shape[0]}"
+    fewest = min(agg.final[g].shape[0] for g in (x, y))
     report.row("probability_of_improvement", "all", pair, "P(X > Y)", "", runs, point[pair],
                low, high)
     report.figure(plot_probability_of_improvement(point[pair], (low, high), x, y,
                                                   analysis.colors[x], labels),
                   "probability_of_improvement")
     report.section("Probability of improvement",
-                   f"P({labels(x)} > {labels(y)}) = {format_ci(point[pair], low, high)}: the "
+                   f"P({labels(x)} > {labels(y)}) = "
+                   f"{format_ci(point[pair], low, high, runs=fewest)}: the "
                    f"chance that a run of {labels(x)} scores higher than a run of {labels(y)} on "
                    "a task drawn at random (Mann-Whitney per task, averaged over tasks). It "
                    "compares every run of one with every run of the other and so ignores the "
@@ -2565,7 +2662,7 @@ def _plot_difference(ax_dim, ax_progress, x: float, d: Dimension, estimates: dic
 def report_dimension_study(report: Report, analysis: Analysis) -> None:
     """Beyond the paper (figure `dimension_study`): what each evaluation action is worth as the
     action dimension grows, one task per dimension. Estimator: the mean over seeds with
-    rliable's bootstrap CI (seed_mean_estimates: get_interval_estimates of per_task_mean) of
+    rliable's bootstrap CI (seed_mean_estimates: stats.bootstrap_mean) of
     each task's per-seed paired difference, normalised by the range of its tanh(mu) returns so
     that tasks of different reward scales share an axis, and of the measured shift; beside it
     Student's t-interval of the raw difference (few seeds). Tasks are not pooled: each point is

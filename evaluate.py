@@ -1,5 +1,5 @@
 """Does the correction help my policy? A trained SAC policy evaluated with several evaluation
-actions (selectors), paired: every selector starts its episode k from the same state.
+actions, paired: every action starts its episode k from the same state.
 
     python evaluate.py runs/h1hand-cube-v0__corrected__seed0__20261122-120000
     python evaluate.py final_model.pt --env-id Hopper-v5 --episodes 100 --selectors mode mean
@@ -15,14 +15,14 @@ critic: our files' "qf", or the critic inside the SB3 .zip.
 
 SOURCE may also be a folder of run folders (a campaign): then every run's final_model.pt and
 snapshots/step<N>.pt (or those at --steps) are evaluated, each from the same --episodes starts
-of its run's seed, and --out receives one episodes.csv per run and the campaign's summary
-(summary.md, per_seed.csv, across_seeds.csv, paired_difference.png; see
-`summarize_campaign`). Given that --out folder as SOURCE, the summary is rewritten from its
-CSVs without running an episode. Each policy's rows are written to --out as soon as it is
-evaluated: the same command again, after a kill, evaluates only the policies not there yet.
+of its run's seed, and --out receives one episodes.csv per run and, per seed, per_seed.csv and
+summary.md (`summarize_campaign`); across seeds is analyze.py's (`--robust OUT`). Given that
+--out folder as SOURCE, the summary is rewritten from its CSVs without running an episode. Each
+policy's rows are written to --out as soon as it is evaluated: the same command again, after a
+kill, evaluates only the policies not there yet.
 
 The episodes run through sac_utils/eval_rounds.py, the training runs' own evaluation: split into
-jobs of JOB_EPISODES episodes, each job stepping all its episodes of every selector in lockstep, the
+jobs of JOB_EPISODES episodes, each job stepping all its episodes of every action in lockstep, the
 jobs spread over --workers processes. A job is the same whatever runs it, so the numbers do not
 depend on --workers; with a run's seed and --eval-round N they are those of the run's N-th
 evaluation.
@@ -52,6 +52,7 @@ import torch.nn as nn
 import tyro
 
 import sac_corrected as sac
+from sac_utils import stats
 from sac_utils.cli import check_reset_noise, fail, read_config_json
 from sac_utils.eval_rounds import (
     ACTIONS,
@@ -64,8 +65,6 @@ from sac_utils.eval_rounds import (
 )
 from sac_utils.files import write_text_atomically
 
-SELECTORS = ACTIONS
-CONFIDENCE = 0.95
 # Episodes per job. Fixed, not derived from --workers: a job's episodes share one batch per
 # actor call, and the numbers must not depend on how many processes ran the jobs.
 JOB_EPISODES = 10
@@ -78,9 +77,9 @@ class Args:
     env_id: str | None = None
     """the env to evaluate in (default: the run's; required for an SB3 .zip)"""
     episodes: int = 50
-    """episodes per selector"""
+    """episodes per evaluation action"""
     seed: int = 0
-    """episode k of every selector resets with a seed derived from (--seed, --eval-round, k)"""
+    """episode k of every action resets with a seed derived from (--seed, --eval-round, k)"""
     eval_round: int = 0
     """with a run's seed, its evaluation round N gives the same start states as the run's
     N-th evaluation (0, the default, is a round no training run evaluates)"""
@@ -98,9 +97,9 @@ class Args:
     """evaluation actions: the mode, tanh(mu), the mean E[tanh(u)], the critic's pick of those
     three at each state (q_best), a sampled action (stochastic, seeded)"""
     video: Path | None = None
-    """write the first episode of each selector as an MP4 into this folder"""
+    """write the first episode of each action as an MP4 into this folder"""
     out: Path | None = None
-    """write episodes.csv (one row per episode and selector) and summary.json here"""
+    """write episodes.csv (one row per episode and action) and summary.json here"""
     reps: int = 10_000
     """bootstrap replications of the confidence intervals"""
     workers: int | None = None
@@ -137,7 +136,7 @@ def check_args(args: Args) -> None:
         ("episodes", args.episodes >= 1, "at least 1"),
         ("seed", args.seed >= 0, "a non-negative integer"),
         ("eval_round", args.eval_round >= 0, "0 or more"),
-        ("selectors", len(args.selectors) >= 1, f"one or more of {', '.join(SELECTORS)}"),
+        ("selectors", len(args.selectors) >= 1, f"one or more of {', '.join(ACTIONS)}"),
         ("reps", args.reps >= 1, "at least 1"),
         ("reset_noise", args.reset_noise is None
          or (np.isfinite(args.reset_noise) and args.reset_noise >= 0),
@@ -197,7 +196,7 @@ class SB3Critic(nn.Module):
 
 
 def load_policy(args: Args) -> tuple[nn.Module, nn.Module | None, str, dict]:
-    """The actor, the critic (only when a selector needs it, else None), the env id and a
+    """The actor, the critic (only when an action needs it, else None), the env id and a
     description of where they came from."""
     source, need_critic = args.source, "q_best" in args.selectors
     if source.suffix == ".zip":
@@ -248,34 +247,25 @@ def load_weights(path: Path) -> dict:
     if broken:
         fail(f"{path}: the actor's {broken[0]} holds NaN/inf (training diverged); evaluate "
              "an earlier model")
-    return in_scripts_layout(state)
+    return without_seed_axis(state)
 
 
-def in_scripts_layout(state: dict) -> dict:
+def without_seed_axis(state: dict) -> dict:
     """The file's actor and critic in the scripts' layout: (in, out) weights, (out,) biases.
-    Older files hold them otherwise: with a leading seed axis of 1 ((1, in, out) and (1, 1, out),
-    written with --num-seeds, which issue 37 removed), or as nn.Linear's (out, in) weights
-    (before --num-seeds), told apart from today's by the critic's one-output layer: (1, width),
-    not (width, 1). Every file of ours holds the critic."""
-    critic = state.get("qf")
-    if not isinstance(critic, dict) or not all(torch.is_tensor(v) for v in critic.values()):
-        critic = {}
-    layers = sorted((k for k in critic if k.startswith("qf1.") and k.endswith(".weight")),
-                    key=lambda k: int(k.split(".")[1]))
-    head = critic[layers[-1]] if layers else None
-    transposed = head is not None and head.dim() == 2 and head.shape[0] == 1 < head.shape[1]
-
+    Files written with --num-seeds (results/*-1M's) hold them with a leading seed axis of 1:
+    (1, in, out) and (1, 1, out)."""
     def fit(key: str, value: torch.Tensor) -> torch.Tensor:
-        if value.dim() == 3:  # the seed axis
+        if value.dim() == 3:
             return value[0] if key.endswith(".weight") else value[0, 0]
-        return value.t() if transposed and key.endswith(".weight") and value.dim() == 2 else value
+        return value
 
-    parts = ("actor", "qf") if critic else ("actor",)
+    parts = [p for p in ("actor", "qf") if isinstance(state.get(p), dict)
+             and all(torch.is_tensor(v) for v in state[p].values())]
     return state | {part: {k: fit(k, v) for k, v in state[part].items()} for part in parts}
 
 
 def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Actor:
-    """Our Actor with the layer widths read off its weights (in_scripts_layout), checked against
+    """Our Actor with the layer widths read off its weights (without_seed_axis), checked against
     the env."""
     env = sac.make_env(env_id)
     obs_dim, action_dim = env.observation_space.shape[0], int(np.prod(env.action_space.shape))
@@ -365,16 +355,16 @@ def load_sb3(path: Path, env_id: str | None) -> tuple[nn.Module, str, dict]:
 
 # ----------------------------------------------------------------------------- evaluate
 def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: list[int],
-              selectors: list[str], args: Args, label: str = "") -> list[Round]:
-    """The episodes as rounds of JOB_EPISODES, each with every selector (eval.csv prefix =
-    selector name); the first one films each selector's first episode."""
-    shift_of = "mode" if "mode" in selectors else selectors[0]
+              actions: list[str], args: Args, label: str = "") -> list[Round]:
+    """The episodes as rounds of JOB_EPISODES, each with every action (eval.csv prefix =
+    action name); the first one films each action's first episode."""
+    shift_of = "mode" if "mode" in actions else actions[0]
     jobs = []
     for start in range(0, len(seeds), JOB_EPISODES):
         part = seeds[start:start + JOB_EPISODES]
-        videos = {s: args.video / f"{s}.mp4" for s in selectors} if args.video and start == 0 \
+        videos = {s: args.video / f"{s}.mp4" for s in actions} if args.video and start == 0 \
             else {}
-        jobs.append(Round(env_id, part, {s: s for s in selectors}, actor, critic,
+        jobs.append(Round(env_id, part, {s: s for s in actions}, actor, critic,
                           mode_solver=args.solver, reset_noise=args.reset_noise,
                           shift_of=shift_of, videos=videos,
                           label=f"{label}episodes {start}-{start + len(part) - 1}"))
@@ -410,14 +400,14 @@ def run_jobs(jobs: list[Round], workers: int, progress: Callable[[int], None],
     return results
 
 
-def merge(results: list[dict], selectors: list[str]) -> tuple[dict, dict]:
-    """The jobs' episodes concatenated per selector, q_best's choice shares pooled over its
+def merge(results: list[dict], actions: list[str]) -> tuple[dict, dict]:
+    """The jobs' episodes concatenated per action, q_best's choice shares pooled over its
     states; and the shift statistics pooled over the jobs' visited states (each is a mean over
     states, so a job weighs as many states as it visited)."""
     merged = {s: {k: [x for r in results for x in r[s][k]]
                   for k in ("returns", "lengths", "successes", "unstable", "ends")}
-              for s in selectors}
-    for s in selectors:
+              for s in actions}
+    for s in actions:
         if "shares" in results[0][s]:
             # q_best chose once per step of each of its episodes: a job's steps are its states.
             weights = np.array([sum(r[s]["lengths"]) for r in results], float)
@@ -452,17 +442,10 @@ def progress_bar(label: str, total: int) -> Callable[[int], None]:
 
 
 def mean_with_ci(values: np.ndarray, reps: int, seed: int) -> tuple[float, float, float]:
-    """The mean over episodes with rliable's bootstrap CI (episodes as runs of one task)."""
-    # Imported here, not at the top: a worker process re-imports this module, and rliable (arch,
-    # scipy) is 3 s of a worker's start-up that it never uses.
-    from rliable import library as rly
-
-    # rliable draws from NumPy's legacy global generator, which takes seeds below 2**32 only.
-    np.random.seed(seed % 2**32)  # noqa: NPY002
-    point, interval = rly.get_interval_estimates(
-        {"x": np.asarray(values, float)[:, None]}, lambda s: np.array([s.mean()]), reps=reps,
-        confidence_interval_size=CONFIDENCE)
-    return float(point["x"][0]), float(interval["x"][0, 0]), float(interval["x"][1, 0])
+    """The mean over episodes with its percentile bootstrap CI (seeds below 2**32, as NumPy's
+    legacy generator takes them)."""
+    point, low, high = stats.bootstrap_mean(values, reps, np.random.RandomState(seed % 2**32))
+    return float(point), float(low), float(high)
 
 
 def distinct_starts(env_id: str, seeds: list[int], reset_noise: float | None) -> int | None:
@@ -485,31 +468,27 @@ def summarise(results: dict, shift: dict, args: Args, info: dict, env_id: str,
                "eval_round": args.eval_round, "reset_noise": args.reset_noise,
                "distinct_starts": starts, "solver": args.solver,
                "episodes_per_job": JOB_EPISODES, "selectors": {}}
-    for selector, episodes in results.items():
+    for action, episodes in results.items():
         mean, low, high = mean_with_ci(np.array(episodes["returns"]), args.reps, args.seed)
-        summary["selectors"][selector] = {
+        summary["selectors"][action] = {
             "return_mean": mean, "ci_low": low, "ci_high": high,
             "return_std": float(np.std(episodes["returns"])),
             "length_mean": float(np.mean(episodes["lengths"])),
             "unstable_ends": int(np.sum(episodes["unstable"])),
             "ends": dict(collections.Counter(episodes["ends"]))}
         if "shares" in episodes:
-            summary["selectors"][selector]["choice_shares"] = episodes["shares"]
+            summary["selectors"][action]["choice_shares"] = episodes["shares"]
     if "tanh_mu" in results:
         summary["paired_difference_minus_tanh_mu"] = {
             s: paired_difference(results[s]["returns"], results["tanh_mu"]["returns"], args)
             for s in results if s != "tanh_mu"}
-    if "mode" in results and "tanh_mu" in results:  # the key before there were more selectors
-        mode = dict(summary["paired_difference_minus_tanh_mu"]["mode"])
-        mode["share_mode_better"] = mode.pop("share_better")
-        summary["paired_difference_mode_minus_tanh_mu"] = mode
     summary["shift_at_visited_states"] = shift
     return summary
 
 
 def paired_difference(returns: list[float], baseline: list[float], args: Args) -> dict:
     """Episode by episode (the same start state), returns minus the baseline's, with its CI."""
-    diffs = np.array(returns) - np.array(baseline)
+    diffs = stats.paired_difference(returns, baseline)
     mean, low, high = mean_with_ci(diffs, args.reps, args.seed)
     return {"mean": mean, "ci_low": low, "ci_high": high,
             "share_better": float(np.mean(diffs > 0)), "share_equal": float(np.mean(diffs == 0))}
@@ -517,17 +496,17 @@ def paired_difference(returns: list[float], baseline: list[float], args: Args) -
 
 def print_summary(summary: dict) -> None:
     print(f"\n{summary['source']} on {summary['env_id']}: {summary['episodes']} episodes per "
-          f"selector, the same start states for each (seed {summary['seed']}, round "
+          f"action, the same start states for each (seed {summary['seed']}, round "
           f"{summary['eval_round']})\n")
     # A task that resets without noise gives every episode one start: the "episodes" of a
-    # deterministic selector are one episode repeated, and a CI over them means nothing.
+    # deterministic action are one episode repeated, and a CI over them means nothing.
     one = summary["distinct_starts"] == 1 and summary["episodes"] > 1
     if one:
         print(f"All {summary['episodes']} episodes start from the same state ({summary['env_id']} "
-              "resets without noise): each deterministic selector ran one episode, so there is "
+              "resets without noise): each deterministic action ran one episode, so there is "
               "no CI. For distinct starts, evaluate with --reset-noise 0.01 (HumanoidBench's "
               "reset noise on its other tasks).\n")
-    print(f"{'selector':<10} {'mean return':>12}  {'95% CI':>23}  {'std':>9}  {'length':>7}")
+    print(f"{'action':<10} {'mean return':>12}  {'95% CI':>23}  {'std':>9}  {'length':>7}")
     for name, s in summary["selectors"].items():
         ci = f"[{s['ci_low']:10.2f}, {s['ci_high']:10.2f}]" if not one or name == "sample" \
             else f"{'(one episode)':>24}"
@@ -576,10 +555,10 @@ EPISODE_COLUMNS = ["selector", "episode", "reset_seed", "return", "length", "suc
 
 def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
     """episodes.csv's rows (EPISODE_COLUMNS) of merged results, episode k from reset seed k."""
-    for selector, episodes in results.items():
+    for action, episodes in results.items():
         for k, seed in enumerate(seeds):
             success = episodes["successes"][k]
-            yield [selector, k, seed, repr(episodes["returns"][k]), episodes["lengths"][k],
+            yield [action, k, seed, repr(episodes["returns"][k]), episodes["lengths"][k],
                    "" if success is None else success, int(episodes["unstable"][k]),
                    episodes["ends"][k]]
 
@@ -657,13 +636,13 @@ def evaluate_campaign(args: Args) -> None:
     policies = campaign_policies(args.source, args.steps)
     for env_id in sorted({p.env_id for p in policies}):
         check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
-    selectors = list(dict.fromkeys(args.selectors))
-    settings = campaign_settings(args, selectors)
+    actions = list(dict.fromkeys(args.selectors))
+    settings = campaign_settings(args, actions)
     recorded = recorded_settings(args.out)
     if recorded is not None:
         check_same_settings(args.out, recorded, settings)
     # Rows in --out count only under a record of the settings they were evaluated with.
-    finished = {} if recorded is None else finished_policies(args.out, policies, selectors, args)
+    finished = {} if recorded is None else finished_policies(args.out, policies, actions, args)
     left = [p for p in policies if (p.run, p.step) not in finished]
     if (args.out / CAMPAIGN_FILE).is_file():
         # evaluation.json marks --out complete: nothing is evaluated again, nor added to it.
@@ -671,32 +650,32 @@ def evaluate_campaign(args: Args) -> None:
               + (f"; {len(left)} policies under {args.source} are not in it: evaluate them "
                  "into another --out" if left else ""), file=sys.stderr)
         (args.out / PARTIAL_FILE).unlink(missing_ok=True)  # a kill just after the end leaves it
-        summarize_campaign(args.out, args.reps, args.seed)
+        summarize_campaign(args.out)
         return
     print(f"{args.out}: {len(finished)} of {len(policies)} policies already evaluated, "
           f"{len(left)} left", file=sys.stderr)
-    planned = [plan_policy(policy, selectors, args) for policy in left]  # fails before writing
+    planned = [plan_policy(policy, actions, args) for policy in left]  # fails before writing
     try:
         args.out.mkdir(parents=True, exist_ok=True)
         seconds = evaluate_policies(args, settings, planned, finished,
                                     recorded.get("seconds", 0.0) if recorded else 0.0)
         for run in dict.fromkeys(p.run for p in policies):  # as one attempt would leave them:
             write_run_files(args.out, run, finished)  # rows of policies now gone, dropped
-        write_campaign(args, selectors, policies, seconds)
+        write_campaign(args, actions, policies, seconds)
     except OSError as error:
         fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable folder")
-    summarize_campaign(args.out, args.reps, args.seed)
+    summarize_campaign(args.out)
 
 
-def plan_policy(policy: Policy, selectors: list[str], args: Args) -> tuple[Policy, list[int],
+def plan_policy(policy: Policy, actions: list[str], args: Args) -> tuple[Policy, list[int],
                                                                            list[Round]]:
     """A policy, its reset seeds (its run's seed: a run's steps start from the same states)
     and its jobs."""
     state = load_weights(policy.path)
     actor = build_actor(state["actor"], policy.env_id, policy.config, policy.path).eval()
-    critic = build_critic(state, actor, policy.path) if "q_best" in selectors else None
+    critic = build_critic(state, actor, policy.path) if "q_best" in actions else None
     seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
-    return policy, seeds, make_jobs(actor, critic, policy.env_id, seeds, selectors, args,
+    return policy, seeds, make_jobs(actor, critic, policy.env_id, seeds, actions, args,
                                     label=f"{policy.run} step {policy.step}: ")
 
 
@@ -710,7 +689,7 @@ def evaluate_policies(args: Args, settings: dict,
                                                          indent=2) + "\n")
     if not planned:  # all finished by an attempt killed before it wrote evaluation.json
         return seconds
-    selectors = settings["selectors"]
+    actions = settings["selectors"]
     start, waiting, results = time.perf_counter(), list(planned), []
 
     def keep(result: dict) -> None:
@@ -720,7 +699,7 @@ def evaluate_policies(args: Args, settings: dict,
         if len(results) < len(jobs):
             return
         finished[policy.run, policy.step] = policy_rows(policy, seeds,
-                                                        *merge(results, selectors))
+                                                        *merge(results, actions))
         waiting.pop(0)
         results.clear()
         write_run_files(args.out, policy.run, finished)
@@ -729,17 +708,17 @@ def evaluate_policies(args: Args, settings: dict,
 
     workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
     run_jobs([job for *_, jobs in planned for job in jobs], workers, progress_bar(
-        f"{len(planned)} policies x {' '.join(selectors)}", len(planned) * args.episodes), keep)
+        f"{len(planned)} policies x {' '.join(actions)}", len(planned) * args.episodes), keep)
     return seconds + time.perf_counter() - start
 
 
-def write_campaign(args: Args, selectors: list[str], policies: list[Policy],
+def write_campaign(args: Args, actions: list[str], policies: list[Policy],
                    seconds: float) -> None:
     """evaluation.json, which marks --out complete (written last, in one step); then the marker
     of an evaluation under way goes."""
     settings = {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
                 "episodes": args.episodes, "eval_round": args.eval_round,
-                "reset_noise": args.reset_noise, "selectors": selectors, "solver": args.solver,
+                "reset_noise": args.reset_noise, "selectors": actions, "solver": args.solver,
                 "seconds": round(seconds, 1), "workers": args.workers,
                 "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
     write_text_atomically(args.out / CAMPAIGN_FILE, json.dumps(settings, indent=2) + "\n")
@@ -763,11 +742,11 @@ SHIFT_HEADER = ["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}" for c in Q_BEST_CA
 PolicyRows = tuple[list[list], list]
 
 
-def campaign_settings(args: Args, selectors: list[str]) -> dict:
+def campaign_settings(args: Args, actions: list[str]) -> dict:
     """What the marker records: the command, and the settings a resume must repeat."""
     return {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
             "episodes": args.episodes, "eval_round": args.eval_round,
-            "reset_noise": args.reset_noise, "selectors": selectors, "solver": args.solver,
+            "reset_noise": args.reset_noise, "selectors": actions, "solver": args.solver,
             "steps": list(args.steps)}
 
 
@@ -805,9 +784,9 @@ def check_same_settings(out: Path, recorded: dict, settings: dict) -> None:
              + "): give the same source and flags to resume it, or another --out")
 
 
-def finished_policies(out: Path, policies: list[Policy], selectors: list[str],
+def finished_policies(out: Path, policies: list[Policy], actions: list[str],
                       args: Args) -> dict[tuple[str, int], PolicyRows]:
-    """The policies whose rows in out are complete (every selector's every episode, from the
+    """The policies whose rows in out are complete (every action's every episode, from the
     reset seeds this command gives it, and its shift row), by (run, step)."""
     finished = {}
     for run, group in itertools.groupby(policies, key=lambda p: p.run):
@@ -816,7 +795,7 @@ def finished_policies(out: Path, policies: list[Policy], selectors: list[str],
         shifts = rows_by_step(out / run / "shift.csv", SHIFT_HEADER)
         for policy in group:
             seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
-            expected = [[s, str(k), str(seed)] for s in selectors for k, seed in enumerate(seeds)]
+            expected = [[s, str(k), str(seed)] for s in actions for k, seed in enumerate(seeds)]
             rows, shift = episodes.get(policy.step, []), shifts.get(policy.step, [])
             if [row[1:4] for row in rows] == expected and len(shift) == 1:
                 finished[run, policy.step] = (rows, shift[0])
@@ -867,7 +846,7 @@ def csv_text(rows: list[list]) -> str:
 
 
 def read_campaign(out: Path) -> tuple[dict, dict, dict, dict]:
-    """evaluation.json, the returns by (run, step, selector) in episode order, and by the same
+    """evaluation.json, the returns by (run, step, action) in episode order, and by the same
     keys the episodes a physics blow-up ended (None where episodes.csv does not record it: an
     older file, or rows kept from one) and the count of each way an episode ended (None where
     not recorded)."""
@@ -893,12 +872,8 @@ def read_campaign(out: Path) -> tuple[dict, dict, dict, dict]:
     return settings, returns, unstable, ends
 
 
-def standard_error(values: np.ndarray) -> float:
-    return float(values.std(ddof=1) / math.sqrt(len(values))) if len(values) > 1 else math.nan
-
-
 def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> list[dict]:
-    """Per run, step and selector: the mean return and its standard error over the episodes,
+    """Per run, step and action: the mean return and its standard error over the episodes,
     the paired difference against tanh(mu) from the same starts with its standard error and,
     where any episode of the campaign records it, unstable_ends: the episodes a physics blow-up
     ended, and end_<why>: the episodes that ended each way (eval_rounds.episode_end; None where
@@ -906,47 +881,23 @@ def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> 
     recorded = any(v is not None for v in unstable.values())
     reasons = sorted({why for counts in ends.values() if counts for why in counts})
     rows, order = [], {s: i for i, s in enumerate(settings["selectors"])}
-    for (run, step, selector), values in sorted(returns.items(),
+    for (run, step, action), values in sorted(returns.items(),
                                                 key=lambda kv: (*kv[0][:2], order[kv[0][2]])):
         values = np.array(values)
         row = {"env_id": settings["runs"][run]["env_id"], "run": run,
-               "seed": settings["runs"][run]["seed"], "step": step, "selector": selector,
+               "seed": settings["runs"][run]["seed"], "step": step, "selector": action,
                "episodes": len(values), "return_mean": values.mean(),
-               "return_se": standard_error(values)}
+               "return_se": stats.standard_error(values)}
         baseline = returns.get((run, step, "tanh_mu"))
-        if selector != "tanh_mu" and baseline is not None:
-            diffs = values - np.array(baseline)
+        if action != "tanh_mu" and baseline is not None:
+            diffs = stats.paired_difference(values, baseline)
             row |= {"tanh_mu_return_mean": float(np.mean(baseline)),
-                    "difference_mean": diffs.mean(), "difference_se": standard_error(diffs),
+                    "difference_mean": diffs.mean(), "difference_se": stats.standard_error(diffs),
                     "share_better": float(np.mean(diffs > 0))}
         if recorded:
-            row["unstable_ends"] = unstable.get((run, step, selector))
-        counts = ends.get((run, step, selector))
+            row["unstable_ends"] = unstable.get((run, step, action))
+        counts = ends.get((run, step, action))
         row |= {f"end_{why}": None if counts is None else counts[why] for why in reasons}
-        rows.append(row)
-    return rows
-
-
-def across_seed_rows(per_seed: list[dict], reps: int, seed: int) -> list[dict]:
-    """Per task, step and selector, over seeds: the mean return, and the mean paired difference
-    with a t-interval and, labelled apart, rliable's percentile bootstrap over seeds (with five
-    seeds or fewer the bootstrap is narrower than the data allows: read the t-interval)."""
-    from analyze import t_interval  # here: a worker re-imports this module, and never uses it
-
-    groups: dict[tuple[str, int, str], list[dict]] = {}
-    for row in per_seed:
-        groups.setdefault((row["env_id"], row["step"], row["selector"]), []).append(row)
-    rows = []
-    for (env_id, step, selector), group in groups.items():  # per_seed's order
-        row = {"env_id": env_id, "step": step, "selector": selector, "seeds": len(group),
-               "return_mean": float(np.mean([r["return_mean"] for r in group]))}
-        if "difference_mean" in group[0]:
-            diffs = np.array([r["difference_mean"] for r in group])
-            _, boot_low, boot_high = mean_with_ci(diffs, reps, seed)
-            row |= {"difference_mean": float(diffs.mean()),
-                    **dict(zip(("t_low", "t_high"), t_interval(diffs)[1:], strict=True)),
-                    "bootstrap_low": boot_low, "bootstrap_high": boot_high,
-                    "seeds_won": int((diffs > 0).sum())}
         rows.append(row)
     return rows
 
@@ -960,33 +911,30 @@ def write_rows(path: Path, rows: list[dict]) -> None:
                          for row in rows)
 
 
-def summarize_campaign(out: Path, reps: int, seed: int) -> None:
-    """From the CSVs under out: per_seed.csv, across_seeds.csv, summary.md (printed) and
-    paired_difference.png. The precision check: each seed's paired difference should have a
-    standard error below PRECISION of tanh(mu)'s mean return."""
+def summarize_campaign(out: Path) -> None:
+    """From the CSVs under out: per_seed.csv and summary.md (printed). Everything across seeds
+    is analyze.py's (`analyze.py RUNS --robust OUT`). The precision check: each seed's paired
+    difference should have a standard error below PRECISION of tanh(mu)'s mean return."""
     settings, returns, unstable, ends = read_campaign(out)
     per_seed = per_seed_rows(settings, returns, unstable, ends)
-    across = across_seed_rows(per_seed, reps, seed)
     write_rows(out / "per_seed.csv", per_seed)
-    write_rows(out / "across_seeds.csv", across)
-    text = campaign_markdown(settings, per_seed, across, reps)
+    text = campaign_markdown(settings, per_seed)
     (out / "summary.md").write_text(text)
-    plot_campaign(settings, per_seed, across).savefig(out / "paired_difference.png", dpi=120)
     print(text, end="")
-    print(f"wrote {out / 'summary.md'}, per_seed.csv, across_seeds.csv, paired_difference.png")
+    print(f"wrote {out / 'summary.md'} and per_seed.csv; across seeds: analyze.py RUNS "
+          f"--robust {out}")
 
 
 def _num(x: float, digits: int = 1) -> str:
     return "n/a" if x is None or math.isnan(x) else f"{x:+.{digits}f}"
 
 
-def _count(ends: dict, row: dict, selector: str) -> str:
-    count = ends.get((row["run"], row["step"], selector))
+def _count(ends: dict, row: dict, action: str) -> str:
+    count = ends.get((row["run"], row["step"], action))
     return "n/r" if count is None else str(count)
 
 
-def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
-                      reps: int) -> str:
+def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
     noise = settings["reset_noise"]
     lines = [f"# Evaluation of {len(settings['runs'])} runs from `{settings['source']}`", "",
              f"`{' '.join(settings['command'])}`", "",
@@ -995,38 +943,21 @@ def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
              f"of every action and every step of a run starts from the same state (reset seeds "
              f"from the run's seed, round {settings['eval_round']}; reset noise on qpos: "
              f"{'the task' + chr(39) + 's own' if noise is None else f'+-{noise}'}). "
-             f"{settings['seconds']:.0f} s of evaluation.", "",
-             "## Across seeds", "",
-             "Mean over seeds of each seed's paired difference against tanh(mu) (its mean over "
-             "the episodes), a Student-t 95% interval over seeds, and rliable's percentile "
-             f"bootstrap over seeds ({reps} replications), which with five seeds or fewer is "
-             "narrower than the data allows; won: seeds whose difference is above zero.", "",
-             "| task | step | action | seeds | return | minus tanh(mu) | t-interval | bootstrap "
-             "| won |", "|---|---|---|---|---|---|---|---|---|"]
-    for r in across:
-        if "difference_mean" not in r:
-            lines.append(f"| {r['env_id']} | {r['step']} | {r['selector']} | {r['seeds']} | "
-                         f"{r['return_mean']:.1f} | | | | |")
-            continue
-        lines.append(f"| {r['env_id']} | {r['step']} | {r['selector']} | {r['seeds']} | "
-                     f"{r['return_mean']:.1f} | {_num(r['difference_mean'])} | "
-                     f"[{_num(r['t_low'])}, {_num(r['t_high'])}] | "
-                     f"[{_num(r['bootstrap_low'])}, {_num(r['bootstrap_high'])}] | "
-                     f"{r['seeds_won']} of {r['seeds']} |")
+             f"{settings['seconds']:.0f} s of evaluation. Across seeds: analyze.py --robust.", ""]
     # Blow-up counts only where some episodes.csv records them: an older folder's summary
     # stays as it was.
     ends = {(r["run"], r["step"], r["selector"]): r["unstable_ends"] for r in per_seed
             if "unstable_ends" in r}
-    lines += ["", "## Per seed", "",
+    lines += ["## Per seed", "",
               "Paired difference against tanh(mu) with its standard error over the episodes; "
-              f"precision: that standard error as a share of tanh(mu)'s mean return (asked: below "
-              f"{PRECISION:.0%})"
+              f"verdict: ahead / behind where more than {stats.VERDICT_SE:g} standard errors "
+              f"from zero, else level; precision: that standard error as a share of tanh(mu)'s "
+              f"mean return (asked: below {PRECISION:.0%})"
               + ("; unstable ends: the episodes a physics blow-up ended, the action's / tanh(mu)'s "
-                 "(n/r: not recorded, evaluated before episodes.csv had physics_unstable)."
-                 if ends else "."), "",
-              "| task | seed | step | action | return | tanh(mu) | minus tanh(mu) | SE | "
+                 "(n/r: not recorded)." if ends else "."), "",
+              "| task | seed | step | action | return | tanh(mu) | minus tanh(mu) | SE | verdict | "
               "precision | better in |" + (" unstable ends |" if ends else ""),
-              "|---|---|---|---|---|---|---|---|---|---|" + ("---|" if ends else "")]
+              "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if ends else "")]
     failed = []
     for r in per_seed:
         if "difference_mean" not in r:
@@ -1038,6 +969,7 @@ def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
         lines.append(f"| {r['env_id']} | {r['seed']} | {r['step']} | {r['selector']} | "
                      f"{r['return_mean']:.1f} | {r['tanh_mu_return_mean']:.1f} | "
                      f"{_num(r['difference_mean'])} | {r['difference_se']:.1f} | "
+                     f"{stats.verdict(r['difference_mean'], r['difference_se'])} | "
                      f"{share:.1%} | {r['share_better']:.0%} |"
                      + (f" {_count(ends, r, r['selector'])} / {_count(ends, r, 'tanh_mu')} |"
                         if ends else ""))
@@ -1048,63 +980,11 @@ def campaign_markdown(settings: dict, per_seed: list[dict], across: list[dict],
     return "\n".join(lines)
 
 
-def plot_campaign(settings: dict, per_seed: list[dict], across: list[dict]):
-    """Per task and action, the paired difference: each seed (with its standard error) and the
-    mean over seeds with its t-interval; against the training step when several were
-    evaluated, else side by side at the one step."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    tasks = sorted({r["env_id"] for r in across})
-    actions = [s for s in settings["selectors"] if s != "tanh_mu"]
-    fig, axes = plt.subplots(len(tasks), len(actions), squeeze=False,
-                             figsize=(4.2 * len(actions), 3.2 * len(tasks)), layout="constrained")
-    for i, task in enumerate(tasks):
-        for j, action in enumerate(actions):
-            ax = axes[i, j]
-            mine = [r for r in per_seed if r["env_id"] == task and r["selector"] == action]
-            mean = [r for r in across if r["env_id"] == task and r["selector"] == action]
-            seeds = sorted({r["seed"] for r in mine})
-            one_step = len(mean) == 1
-            for k, seed in enumerate(seeds):
-                rows = [r for r in mine if r["seed"] == seed]
-                x = [k] if one_step else [r["step"] / 1e6 for r in rows]
-                ax.errorbar(x, [r["difference_mean"] for r in rows],
-                            [r["difference_se"] for r in rows], marker="o", ms=4, lw=0.8,
-                            alpha=0.7, capsize=3, label=f"seed {seed}")
-            x = [len(seeds) + 0.5] if one_step else [r["step"] / 1e6 for r in mean]
-            y = np.array([r["difference_mean"] for r in mean])
-            low, high = (np.array([r[k] for r in mean]) for k in ("t_low", "t_high"))
-            if one_step:
-                ax.errorbar(x, y, [y - low, high - y] if not np.isnan(low).any() else None,
-                            fmt="ks", ms=7, capsize=5, lw=2, label="mean, 95% t-interval")
-                ax.set_xticks([*range(len(seeds)), x[0]],
-                              [*(f"seed {s}" for s in seeds), "mean"], fontsize=8)
-                ax.set_xlabel(f"at step {mean[0]['step']:,}")
-            else:
-                ax.plot(x, y, "k-", lw=2, label="mean")
-                if not np.isnan(low).any():
-                    ax.fill_between(x, low, high, color="k", alpha=0.12, label="95% t-interval")
-                ax.set_xlabel("training step (millions)")
-            ax.axhline(0, color="grey", lw=0.8, ls=":")
-            n = max((r["seeds"] for r in mean), default=0)
-            ax.set_title(f"{task}\n{action} minus tanh(mu), n = {n} seeds", fontsize=9)
-            ax.set_ylabel("return difference")
-            if i == j == 0 and not one_step:
-                ax.legend(fontsize=7)
-    fig.suptitle(f"Paired difference, {settings['episodes']} starts per seed and step "
-                 f"(reset noise {settings['reset_noise']}); bars: standard error over the "
-                 "episodes, mean: 95% t-interval over seeds", fontsize=10)
-    return fig
-
-
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     check_args(args)
     if (args.source / CAMPAIGN_FILE).is_file():
-        summarize_campaign(args.source, args.reps, args.seed)
+        summarize_campaign(args.source)
         return
     if (args.source / PARTIAL_FILE).is_file():
         command = " ".join((recorded_settings(args.source) or {}).get("command", []))
@@ -1123,11 +1003,11 @@ def main(argv: list[str] | None = None) -> None:
                  "writable folder")
     seeds = eval_seeds(args.seed, args.eval_round, args.episodes)
     check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
-    selectors = list(dict.fromkeys(args.selectors))
+    actions = list(dict.fromkeys(args.selectors))
     workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
-    jobs = make_jobs(actor, critic, env_id, seeds, selectors, args)
-    results, shift = merge(run_jobs(jobs, workers, progress_bar(" ".join(selectors), len(seeds))),
-                           selectors)
+    jobs = make_jobs(actor, critic, env_id, seeds, actions, args)
+    results, shift = merge(run_jobs(jobs, workers, progress_bar(" ".join(actions), len(seeds))),
+                           actions)
     summary = summarise(results, shift, args, info, env_id,
                         distinct_starts(env_id, seeds, args.reset_noise))
     print_summary(summary)

@@ -18,15 +18,13 @@ batch shape (mu and log_std broadcast), float32 or float64, CPU or CUDA.
 - `mean_action(mu, log_std)`: E[tanh(u)] by quadrature, to 1e-10 or better.
 - NaN in mu or log_std gives NaN out (the mode or mean of an undefined distribution is undefined).
 
-`python mode_search.py --figures DIR` writes the paper's theory figures as PNGs.
+`python docs/make_figures.py theory --out DIR` draws the paper's theory figures from it.
 """
 
 from __future__ import annotations
 
-import argparse
 import functools
 import math
-from pathlib import Path
 
 import torch
 
@@ -198,7 +196,7 @@ def _grid_mode(mu: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
     return torch.where(torch.isnan(mu + log_std), math.nan, best)
 
 
-# --- figures (python mode_search.py --figures DIR) -----------------------------------------
+# --- the summed shift over dimensions: docs/make_figures.py's fig5, analyze.py's dimension study
 # A spread of per-dimension (mu, sigma) like a trained SAC policy's: SAC's entropy target of
 # -|A|/2 nats puts a dimension's sigma near 0.15 (|mu| ~ 0) to 0.35 (|mu| ~ 1), so log sigma is
 # drawn from U(-3, -0.5) (sigma 0.05 to 0.61) and mu from N(0, 1). An early-training spread
@@ -207,158 +205,6 @@ SPREADS = {
     "trained policy: log sigma ~ U(-3, -0.5)": (-3.0, -0.5),
     "early training: log sigma ~ U(-1, 0.5)": (-1.0, 0.5),
 }
-
-
-def write_figures(out_dir: Path) -> list[Path]:
-    """Write the paper's theory figures (Figs. 1-4), the shift-vs-dimension figure and the
-    mode / median / mean against sigma as PNGs."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out_dir.mkdir(parents=True, exist_ok=True)
-    plots = [
-        _plot_motivation,
-        _plot_distribution_shift,
-        _plot_action_bias,
-        _plot_2d_example,
-        _plot_shift_vs_dimensions,
-        _plot_mode_median_mean,
-    ]
-    paths = []
-    for plot in plots:
-        fig, name = plot(plt)
-        paths.append(out_dir / f"{name}.png")
-        fig.savefig(paths[-1], dpi=150, bbox_inches="tight")
-        plt.close(fig)
-    return paths
-
-
-def _gaussian_pdf(u: torch.Tensor, mu: float, sigma: float) -> torch.Tensor:
-    return torch.exp(-0.5 * ((u - mu) / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
-
-
-def _tanh_normal_pdf(y: torch.Tensor, mu: float, sigma: float) -> torch.Tensor:
-    return tanh_normal_log_prob(y, torch.tensor(mu), torch.tensor(math.log(sigma))).exp()
-
-
-def _plot_gaussian_and_squashed(ax, mu: float, sigma: float, label: bool) -> None:
-    """Gaussian density of u (blue dashed) and of y = tanh(u) on its domain (red solid)."""
-    u = torch.linspace(-2.5, 2.5, 2001, dtype=torch.float64)
-    y = torch.linspace(-1, 1, 4001, dtype=torch.float64)[1:-1]
-    gaussian_label = f"Gaussian density of u ~ N($\\mu$, {sigma:g}$^2$)" if label else None
-    ax.plot(u, _gaussian_pdf(u, mu, sigma), "b--", label=gaussian_label)
-    ax.plot(
-        y, _tanh_normal_pdf(y, mu, sigma), "r-", label="density of y = tanh(u)" if label else None
-    )
-
-
-def _style_density_axes(ax, title: str) -> None:
-    ax.axvspan(-2.5, -1, color="0.93", zorder=0)
-    ax.axvspan(1, 2.5, color="0.93", zorder=0, label="outside the action range")
-    ax.set(xlabel="u (Gaussian) / y (transformed)", ylabel="density", xlim=(-2.5, 2.5))
-    ax.set(ylim=(0, None), title=title)
-
-
-def _plot_motivation(plt):
-    fig, ax = plt.subplots(figsize=(7, 4))
-    _plot_gaussian_and_squashed(ax, mu=0.5, sigma=0.6, label=True)
-    _style_density_axes(ax, "A Gaussian and its tanh transform: $\\mu$ = 0.5, $\\sigma$ = 0.6")
-    ax.legend(loc="upper left", fontsize=8)
-    return fig, "fig1_gaussian_vs_tanh"
-
-
-def _plot_distribution_shift(plt):
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for mu in (1.0, 0.0, -1.0):
-        _plot_gaussian_and_squashed(ax, mu, sigma=0.5, label=mu == 1.0)
-        peak = mode_action(torch.tensor(mu), torch.tensor(math.log(0.5)))
-        height = _tanh_normal_pdf(peak, mu, 0.5)
-        ax.annotate(
-            f"$\\mu$ = {mu:g}",
-            (peak, height),
-            xytext=(0, 5),
-            textcoords="offset points",
-            ha="center",
-        )
-    _style_density_axes(ax, "The tanh transform of N($\\mu$, 0.5$^2$) for $\\mu$ = 1, 0, -1")
-    ax.set_ylim(0, 3.3)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=3, fontsize=8)
-    return fig, "fig2_distribution_shift"
-
-
-def _plot_action_bias(plt):
-    sigma = 0.5
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for mu in (1.0, -1.0):
-        first = mu == 1.0
-        _plot_gaussian_and_squashed(ax, mu, sigma, label=first)
-        mode = mode_action(torch.tensor(mu), torch.tensor(math.log(sigma))).item()
-        tanh_mu = math.tanh(mu)
-        points = [
-            (mu, _gaussian_pdf(torch.tensor(mu), mu, sigma), "tab:blue", "Gaussian mode $\\mu$"),
-            (
-                mode,
-                _tanh_normal_pdf(torch.tensor(mode), mu, sigma),
-                "red",
-                "mode of y (Corrected SAC)",
-            ),
-            (
-                tanh_mu,
-                _tanh_normal_pdf(torch.tensor(tanh_mu), mu, sigma),
-                "orange",
-                "tanh($\\mu$) (Standard SAC)",
-            ),
-        ]
-        for x, p, color, label in points:
-            ax.plot(x, p, "o", color=color, ms=8, mec="k", zorder=3, label=label if first else None)
-            outward = 1 if x > 0 else -1
-            ax.annotate(
-                f"{x:.3f}",
-                (x, p),
-                xytext=(9 * outward, -3),
-                textcoords="offset points",
-                ha="left" if x > 0 else "right",
-                fontsize=8,
-                color=color,
-            )
-    _style_density_axes(ax, "Action bias at $\\mu$ = $\\pm$1, $\\sigma$ = 0.5")
-    ax.set_ylim(0, 3.3)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=3, fontsize=8)
-    return fig, "fig3_action_bias"
-
-
-def _plot_2d_example(plt):
-    mu = torch.tensor([0.6, -0.9], dtype=torch.float64)
-    log_std = torch.log(torch.tensor([0.6, 0.5], dtype=torch.float64))
-    axis = torch.linspace(-1, 1, 401, dtype=torch.float64)[1:-1]
-    log_p = [tanh_normal_log_prob(axis, mu[i], log_std[i]) for i in range(2)]
-    density = (log_p[1][:, None] + log_p[0][None, :]).exp()  # rows: y2, columns: y1
-    mode, tanh_mu = mode_action(mu, log_std), torch.tanh(mu)
-    fig, ax = plt.subplots(figsize=(5.6, 4.8))
-    image = ax.pcolormesh(axis, axis, density, shading="auto", cmap="viridis")
-    fig.colorbar(image, ax=ax, label="density p(y$_1$) p(y$_2$)")
-    ax.plot(
-        *tanh_mu,
-        "o",
-        color="orange",
-        ms=9,
-        mec="k",
-        label=f"tanh($\\mu$) = ({tanh_mu[0]:.2f}, {tanh_mu[1]:.2f})",
-    )
-    ax.plot(*mode, "*", color="red", ms=14, mec="k", label=f"mode = ({mode[0]:.2f}, {mode[1]:.2f})")
-    ax.set_xticks([-1, -0.5, 0, 0.5, 1])
-    ax.set(
-        xlabel="y$_1$",
-        ylabel="y$_2$",
-        xlim=(-1, 1),
-        ylim=(-1, 1),
-        aspect="equal",
-        title="2-D action: $\\mu$ = (0.6, -0.9), $\\sigma$ = (0.6, 0.5)",
-    )
-    ax.legend(loc="upper right", fontsize=8)
-    return fig, "fig4_2d_example"
 
 
 def summed_shift_by_dimension(
@@ -375,74 +221,3 @@ def summed_shift_by_dimension(
     shift = (mode_action(mu, log_std) - torch.tanh(mu)).abs().cumsum(dim=1)
     low, high = torch.quantile(shift, torch.tensor([0.05, 0.95], dtype=torch.float64), dim=0)
     return shift.mean(dim=0), low, high
-
-
-def _plot_shift_vs_dimensions(plt):
-    dims, draws = 61, 1000
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for i, ((label, spread), color) in enumerate(
-        zip(SPREADS.items(), ("tab:red", "tab:purple"), strict=True)
-    ):
-        mean, low, high = summed_shift_by_dimension(dims, spread, draws, seed=i)
-        n = torch.arange(1, dims + 1)
-        ax.plot(n, mean, color=color, label=f"{label}: mean")
-        ax.fill_between(n, low, high, color=color, alpha=0.2, label="  5-95% of draws")
-        ax.annotate(
-            f"{mean[-1]:.1f}",
-            (dims, mean[-1]),
-            xytext=(4, 0),
-            textcoords="offset points",
-            va="center",
-            color=color,
-        )
-    ax.set(
-        xlabel="number of action dimensions",
-        ylabel="$\\sum_i$ |mode$_i$ - tanh($\\mu_i$)|",
-        xlim=(1, dims),
-        ylim=(0, None),
-        title=f"Distance of the mode from tanh($\\mu$), $\\mu$ ~ N(0, 1), {draws} draws",
-    )
-    ax.legend(fontsize=8)
-    return fig, "fig5_shift_vs_dimensions"
-
-
-def _plot_mode_median_mean(plt):
-    sigma = torch.logspace(-2, 1, 400, dtype=torch.float64)
-    fig, ax = plt.subplots(figsize=(8.5, 4.5))
-    # One legend entry per statistic, in grey; the colours then name mu.
-    ax.plot([], [], "-", color="0.4", label="mode (Corrected SAC)")
-    ax.plot([], [], ":", color="0.4", label="median = tanh($\\mu$) (Standard SAC)")
-    ax.plot([], [], "--", color="0.4", label="mean E[tanh(u)]")
-    colors = ("tab:blue", "tab:green", "tab:orange", "tab:red")
-    for mu, color in zip((0.25, 0.5, 1.0, 2.0), colors, strict=True):
-        mu_t = torch.full_like(sigma, mu)
-        ax.plot(sigma, mode_action(mu_t, sigma.log()), "-", color=color, label=f"$\\mu$ = {mu:g}")
-        ax.plot(sigma, torch.tanh(mu_t), ":", color=color)
-        ax.plot(sigma, mean_action(mu_t, sigma.log()), "--", color=color)
-    ax.set_xscale("log")
-    ax.set(
-        xlabel="$\\sigma$",
-        ylabel="action y",
-        xlim=(1e-2, 10),
-        ylim=(0, 1.02),
-        title="Mode, median and mean of y = tanh(u), u ~ N($\\mu$, $\\sigma^2$)",
-    )
-    ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
-    return fig, "fig6_mode_median_mean"
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(description="The tanh-Gaussian mode; writes its figures.")
-    parser.add_argument(
-        "--figures",
-        type=Path,
-        required=True,
-        metavar="DIR",
-        help="folder to write the PNG figures into (created if missing)",
-    )
-    for path in write_figures(parser.parse_args().figures):
-        print(path)
-
-
-if __name__ == "__main__":
-    main()

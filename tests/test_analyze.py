@@ -765,26 +765,6 @@ def test_found_counts_run_folders_not_groups(tmp_path):
                                                           "summary.md").read_text()
 
 
-def test_t_interval_is_students_and_welchs():
-    values = np.array([-414.3, -169.0, -0.8, 125.9, -559.3])
-    mean, low, high = analyze.t_interval(values)
-    expected = scipy.stats.t.interval(0.95, values.size - 1, loc=values.mean(),
-                                      scale=scipy.stats.sem(values))
-    assert np.isclose(mean, values.mean()) and np.allclose((low, high), expected)
-    assert np.allclose((low, high), (-555.7, 148.7), atol=0.05)  # bookshelf_simple at 1M
-    assert np.isnan(analyze.t_interval(np.array([3.0]))[1:]).all()
-    assert analyze.t_interval(np.full(4, 2.0)) == (2.0, 2.0, 2.0)
-    # Over tasks: one task is Student's interval; two are Welch's, Satterthwaite's df.
-    assert np.allclose(analyze.stratified_t_interval([values]), (mean, low, high))
-    other = np.array([0.1, 0.4, 0.2])
-    v1, v2 = values.var(ddof=1) / 5, other.var(ddof=1) / 3
-    df = (v1 + v2) ** 2 / (v1**2 / 4 + v2**2 / 2)
-    half = scipy.stats.t.ppf(0.975, df) * np.sqrt(v1 + v2) / 2
-    centre = (values.mean() + other.mean()) / 2
-    assert np.allclose(analyze.stratified_t_interval([values, other]),
-                       (centre, centre - half, centre + half))
-
-
 def write_alternating_folder(root: Path, offsets: list[float], rounds: int = 60,
                              episodes: int | None = 1) -> np.ndarray:
     """Corrected runs whose mode minus tanh(mu) at round k is offset + 100 (-1)^k: an even
@@ -1099,18 +1079,19 @@ def test_robust_evaluation_matches_a_hand_computation(tmp_path):
 
 
 def test_robust_folders_read_alike_with_and_without_physics_unstable(tmp_path):
-    """evaluate.py's episodes.csv gained physics_unstable (last; empty where not recorded):
-    folders written before it and after read to the same returns."""
+    """evaluate.py's episodes.csv gained physics_unstable (empty where not recorded), then end:
+    folders written before them and after read to the same returns."""
     from evaluate import EPISODES_HEADER
 
     written = write_robust_folder(tmp_path / "old", ROBUST_TASKS, seeds=2)
     new = tmp_path / "new"
     write_robust_folder(new, ROBUST_TASKS, seeds=2)
-    assert ROBUST_HEADER.split(",") == EPISODES_HEADER[:-1]
+    assert ROBUST_HEADER.split(",") == EPISODES_HEADER[:-2]
     for path in new.glob("*/episodes.csv"):
         header, *rows = path.read_text().splitlines()
         path.write_text("\n".join([",".join(EPISODES_HEADER), *(
-            f"{row},{('', '0', '1')[k % 3]}" for k, row in enumerate(rows))]) + "\n")
+            f"{row},{('', '0', '1')[k % 3]},{('', 'fell', 'blow_up')[k % 3]}"
+            for k, row in enumerate(rows))]) + "\n")
     old, fresh = (analyze.load_robust([tmp_path / name]) for name in ("old", "new"))
     assert old.returns.keys() == fresh.returns.keys() == written.keys()
     for key, selectors in written.items():
@@ -1120,15 +1101,15 @@ def test_robust_folders_read_alike_with_and_without_physics_unstable(tmp_path):
 
 
 def mark_blowups(folder: Path, unstable: Callable[[int, str, int], str]) -> None:
-    """Give every episodes.csv under folder evaluate.py's physics_unstable column, the cell of
-    (step, selector, episode) from unstable."""
+    """Give every episodes.csv under folder evaluate.py's physics_unstable column (last, as
+    before `end` followed it), the cell of (step, selector, episode) from unstable."""
     from evaluate import EPISODES_HEADER
 
     for path in folder.glob("*/episodes.csv"):
         _, *rows = path.read_text().splitlines()
         marked = [f"{row},{unstable(int(step), selector, int(k))}"
                   for row in rows for step, selector, k, *_ in [row.split(",")]]
-        path.write_text("\n".join([",".join(EPISODES_HEADER), *marked]) + "\n")
+        path.write_text("\n".join([",".join(EPISODES_HEADER[:-1]), *marked]) + "\n")
 
 
 def test_robust_counts_physics_blowups_per_action_and_step(tmp_path):
@@ -1223,3 +1204,32 @@ def test_bad_robust_folders_give_one_clear_line(tmp_path, capsys):
         assert run_analysis(runs, tmp_path / "out", "--robust", *map(str, folders)) == 2, name
         error = capsys.readouterr().err.strip()
         assert message in error and len(error.splitlines()) == 1, (name, error)
+
+
+def test_robust_tells_seeds_ahead_level_behind_and_how_episodes_ended(tmp_path):
+    """Per task, step and action, the seeds more than three standard errors of their paired
+    episodes above zero, within, or below (stats.verdict); and, where evaluate.py's `end` column
+    records it, how each action's episodes ended over the seeds."""
+    from evaluate import EPISODES_HEADER
+
+    runs = write_small_runs(tmp_path / "runs")
+    folder = tmp_path / "robust"
+    written = write_robust_folder(folder, ROBUST_TASKS[:1], seeds=3, steps=(1_000_000,))
+    for path in folder.glob("*/episodes.csv"):
+        _, *rows = path.read_text().splitlines()
+        ends = ["fell" if row.split(",")[1:3] == ["mode", "0"] else "time_limit" for row in rows]
+        path.write_text("\n".join([",".join(EPISODES_HEADER), *(
+            f"{row},0,{end}" for row, end in zip(rows, ends, strict=True))]) + "\n")
+    assert run_analysis(runs, tmp_path / "out", "--robust", str(folder)) == 0
+    text = (tmp_path / "out" / "summary.md").read_text()
+    counts = {"ahead": 0, "level": 0, "behind": 0}
+    for seed in range(3):
+        diffs = written[ROBUST_TASKS[0], seed, 1_000_000]["mode"] - \
+            written[ROBUST_TASKS[0], seed, 1_000_000]["tanh_mu"]
+        se = diffs.std(ddof=1) / np.sqrt(diffs.size)
+        counts["level" if abs(diffs.mean()) <= 3 * se else
+               "ahead" if diffs.mean() > 0 else "behind"] += 1
+    assert f"| {counts['ahead']} / {counts['level']} / {counts['behind']} |" in text
+    assert "How the episodes ended" in text
+    assert f"| {ROBUST_TASKS[0]} | 1M | mode | 3 | 9 |" in text  # fell, time_limit
+    assert f"| {ROBUST_TASKS[0]} | 1M | tanh_mu | 0 | 12 |" in text

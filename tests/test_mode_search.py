@@ -384,7 +384,8 @@ def test_mean_of_integer_mu_is_a_clear_error() -> None:
 def test_figures_command_writes_the_six_pngs(tmp_path) -> None:
     root = Path(__file__).resolve().parent.parent
     out = subprocess.run(
-        [sys.executable, str(root / "mode_search.py"), "--figures", str(tmp_path / "figs")],
+        [sys.executable, str(root / "docs" / "make_figures.py"), "theory", "--out",
+         str(tmp_path / "figs")],
         capture_output=True,
         text=True,
         check=True,
