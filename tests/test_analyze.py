@@ -9,6 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import pytest
 import scipy.stats
 
 import analyze
@@ -114,6 +115,7 @@ def write_offset_folder(root: Path, offset: float, paired_gap: float = 0.05, see
     return {task: np.array(r) for task, r in standard_returns.items()}
 
 
+@pytest.mark.slow
 def test_offset_gives_certain_improvement_and_iqm_gap(tmp_path):
     standard = write_offset_folder(tmp_path / "runs", offset=0.3)
     assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
@@ -153,6 +155,7 @@ def test_offset_gives_certain_improvement_and_iqm_gap(tmp_path):
     assert "| h1hand-cube-v0 | 5 seeds, to step 120k | 5 seeds, to step 120k |" in text
 
 
+@pytest.mark.slow
 def test_identical_algorithms_give_even_odds(tmp_path):
     write_offset_folder(tmp_path / "runs", offset=0.0)
     assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
@@ -188,6 +191,7 @@ def test_iqm_per_step_is_rliables_iqm_at_every_step():
     assert np.allclose(analyze.iqm_per_step(scores), expected)
 
 
+@pytest.mark.slow
 def test_same_seed_same_report_other_seed_other_intervals(tmp_path):
     write_paper_like_folder(tmp_path / "runs", seeds=3, evaluations=10)
     for name, seed in [("a", "0"), ("b", "0"), ("c", "1")]:
@@ -235,6 +239,7 @@ def test_disjoint_eval_steps_are_a_clear_error(tmp_path, capsys):
     assert "share no evaluation step" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_incomplete_last_line_is_dropped(tmp_path):
     write_offset_folder(tmp_path / "runs", offset=0.1, seeds=2, evaluations=5)
     eval_csv = next((tmp_path / "runs").glob("h1hand-cube-v0__standard__seed0*/eval.csv"))
@@ -251,6 +256,7 @@ def test_incomplete_last_line_is_dropped(tmp_path):
     assert columns["return_mean"][-1] == last_value
 
 
+@pytest.mark.slow
 def test_run_without_rows_or_eval_csv_is_skipped_with_a_note(tmp_path):
     write_offset_folder(tmp_path / "runs", offset=0.1, seeds=2, evaluations=4)
     started = tmp_path / "runs" / "just_started"
@@ -264,6 +270,7 @@ def test_run_without_rows_or_eval_csv_is_skipped_with_a_note(tmp_path):
     assert "no complete evaluation row yet" in (tmp_path / "out" / "summary.md").read_text()
 
 
+@pytest.mark.slow
 def test_corrected_runs_alone_are_both_algorithms(tmp_path):
     """With no sac_standard.py runs, the corrected runs' paired tanh(mu) evaluation is Standard
     SAC: every comparison works as with two sets of runs, labelled as paired."""
@@ -306,6 +313,7 @@ def test_corrected_runs_alone_are_both_algorithms(tmp_path):
                     "return")[0] == 6.0
 
 
+@pytest.mark.slow
 def test_min_max_and_none_normalisation(tmp_path):
     runs = tmp_path / "runs"
     steps = 10_000 * np.arange(1, 4)
@@ -323,6 +331,7 @@ def test_min_max_and_none_normalisation(tmp_path):
     assert ("aggregate", "all", "standard", "Optimality Gap") not in summary
 
 
+@pytest.mark.slow
 def test_at_step_and_pdf_output(tmp_path):
     standard = write_offset_folder(tmp_path / "runs", offset=0.2, seeds=2, evaluations=6)
     out = tmp_path / "out"
@@ -383,6 +392,7 @@ def test_bad_inputs_give_one_clear_message(tmp_path, capsys):
     assert "config.json is not valid JSON" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_several_folders_make_one_report(tmp_path, capsys):
     """One campaign folder per task (results/<task>-1M/runs): named together they give the report
     of one folder holding them all; a folder named twice, or inside another named one, counts
@@ -409,6 +419,7 @@ def test_several_folders_make_one_report(tmp_path, capsys):
     assert not (tmp_path / "none").exists()
 
 
+@pytest.mark.slow
 def test_command_line_error_exits_nonzero_without_traceback(tmp_path):
     import subprocess
     import sys
@@ -419,6 +430,7 @@ def test_command_line_error_exits_nonzero_without_traceback(tmp_path):
     assert "is not a folder" in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_reads_what_the_sac_scripts_write(tmp_path):
     """Tiny real runs of both scripts: analyze.py reads them, and since the two scripts train
     identically for a seed and evaluate from the same start states, corrected's paired tanh(mu)
@@ -444,6 +456,7 @@ def test_reads_what_the_sac_scripts_write(tmp_path):
     assert np.isclose(difference, mode - float(tanh_mu["estimate"]))
 
 
+@pytest.mark.slow
 def test_standard_runs_are_checked_against_the_paired_evaluation(tmp_path):
     steps = 10_000 * np.arange(1, 4)
     for seed in range(3):
@@ -493,6 +506,7 @@ def set_columns(run_dir: Path, **columns: float) -> None:
         writer.writerows({**row, **columns} for row in rows)
 
 
+@pytest.mark.slow
 def test_dimension_study_recovers_known_offsets_per_dimension(tmp_path):
     """Known paired offsets per action dimension and training fraction come back as the study's
     points, normalised by the range of each task's tanh(mu) returns, with the 95% percentile
@@ -558,6 +572,7 @@ def test_dimension_positions_spread_tasks_that_share_a_dimension():
     assert np.isclose(xs["b"] * xs["d"], 61**2)  # symmetric on the log axis
 
 
+@pytest.mark.slow
 def test_dimension_study_needs_two_dimensions(tmp_path):
     steps = 10_000 * np.arange(1, 4)
     for task in TASKS[:2]:
@@ -627,6 +642,7 @@ def test_tasks_with_no_step_in_common_and_other_budgets_share_a_fraction_axis(tm
         assert np.allclose(aggregate.curves["corrected"][:, :, frame], expected)
 
 
+@pytest.mark.slow
 def test_auto_normalisation_falls_back_to_min_max_and_says_so(tmp_path):
     runs = tmp_path / "runs"
     steps = 10_000 * np.arange(1, 4)
@@ -650,6 +666,7 @@ def test_auto_normalisation_falls_back_to_min_max_and_says_so(tmp_path):
     assert "`auto` chose `success-bar`" in (tmp_path / "bars_out" / "summary.md").read_text()
 
 
+@pytest.mark.slow
 def test_every_selector_is_compared_with_tanh_mu(tmp_path):
     """Corrected runs with the mean and q_best blocks, standard runs with mode, mean and q_best
     (one standard seed without them), on tasks of 3 and 61 action dimensions: each selector
@@ -704,6 +721,7 @@ def test_every_selector_is_compared_with_tanh_mu(tmp_path):
     assert {"paired_difference.png", "dimension_study.png"} <= names
 
 
+@pytest.mark.slow
 def test_over_training_recovers_known_paired_offsets_and_shift_at_every_step(tmp_path):
     """A paired offset that grows over training, and a shift that shrinks, come back at every
     shared step (summary.csv), not only the last; the figure is written."""
@@ -865,6 +883,7 @@ def write_toy_folder(root: Path) -> dict[tuple[str, int], dict[str, float]]:
     return final
 
 
+@pytest.mark.slow
 def test_a_new_task_and_a_new_evaluation_action_are_one_entry_each(tmp_path, monkeypatch):
     """docs/analyze.md: a task with a success bar is one entry in SUCCESS_BARS, an evaluation
     action one entry in EVALUATION_ACTIONS; with them, both go through every report."""
@@ -1154,6 +1173,7 @@ def test_robust_task_without_a_bar_is_left_out_of_the_aggregate(tmp_path):
     assert "No success bar for Hopper-v5" in (out / "summary.md").read_text()
 
 
+@pytest.mark.slow
 def test_robust_curve_leaves_out_a_task_evaluated_at_one_step(tmp_path):
     """A task whose final weights alone were evaluated (no snapshots) cannot join the robust
     sample-efficiency curve: the curve is over the others, and summary.md names it; with no task

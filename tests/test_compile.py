@@ -86,6 +86,7 @@ def run_updates(compiled: bool, steps: int) -> tuple[list, dict]:
     return logs, actor.state_dict()
 
 
+@pytest.mark.slow
 def test_the_compiled_update_is_the_eager_update_in_one_graph():
     eager, eager_actor = updates(compiled=False)
     compiled, compiled_actor = updates(compiled=True)
@@ -152,11 +153,13 @@ def compiled_runs(tmp_path_factory):
     return out, first.stdout
 
 
+@pytest.mark.slow
 def test_a_compiled_run_says_what_compiling_cost(compiled_runs):
     out, stdout = compiled_runs
     assert stdout.count("compiled the update in ") == 1
 
 
+@pytest.mark.slow
 def test_compiled_scripts_make_the_same_training_decisions(compiled_runs):
     out, _ = compiled_runs
     assert read_csv(out / "std" / "train.csv") == read_csv(out / "cor" / "train.csv")
@@ -166,6 +169,7 @@ def test_compiled_scripts_make_the_same_training_decisions(compiled_runs):
         assert row_c["tanh_mu_return_mean"] == row_s["return_mean"]
 
 
+@pytest.mark.slow
 def test_compiled_sigkill_and_resume_equals_the_uninterrupted_run(compiled_runs):
     out, _ = compiled_runs
     # No flag: a resume keeps the run's path (sweep.py resumes runs so).
@@ -189,6 +193,7 @@ def close_rows(run_dir, reference) -> None:
     assert len(read_csv(run_dir / "eval.csv")) == 3 and (run_dir / "done.json").exists()
 
 
+@pytest.mark.slow
 def test_a_compiled_checkpoint_resumes_eager(compiled_runs):
     out, _ = compiled_runs
     result = run("sac_standard.py", "--resume", str(out / "killed-copy"), "--no-compile")
@@ -199,6 +204,7 @@ def test_a_compiled_checkpoint_resumes_eager(compiled_runs):
     close_rows(out / "killed-copy", out / "std")
 
 
+@pytest.mark.slow
 def test_an_eager_checkpoint_resumes_compiled(compiled_runs, tmp_path):
     out, _ = compiled_runs
     kill_after_checkpoint(tmp_path, "eager", "--no-compile")
@@ -207,6 +213,7 @@ def test_an_eager_checkpoint_resumes_compiled(compiled_runs, tmp_path):
     close_rows(tmp_path / "eager", out / "std")
 
 
+@pytest.mark.slow
 def test_without_a_cpp_compiler_the_run_names_the_fix_in_one_line(tmp_path):
     # A fresh inductor cache: a cached kernel would need no compiler.
     env = {**os.environ, "CXX": str(tmp_path / "no-such-compiler"),

@@ -263,6 +263,7 @@ def flags_of(command: str) -> list[tuple[str | None, str]]:
 
 
 @pytest.mark.parametrize("page", PAGES, ids=page_name)
+@pytest.mark.slow
 def test_every_flag_a_page_shows_is_accepted(page: Path) -> None:
     accepted = accepted_flags()
     anywhere = set().union(*accepted.values()) | set(OTHER_FLAGS)

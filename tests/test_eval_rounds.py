@@ -77,6 +77,7 @@ def test_an_episode_a_physics_blow_up_ended_is_marked_unstable_and_only_it():
     assert set(round_row(result, {"": "mode"})) == set(eval_columns({"": "mode"}, False))
 
 
+@pytest.mark.slow
 def test_a_round_is_the_same_in_process_and_in_any_number_of_workers():
     from sac_standard import Actor, TwinQ
 
@@ -100,6 +101,7 @@ def test_a_round_is_the_same_in_process_and_in_any_number_of_workers():
     assert first["shift"]["mode_shift_abs_mean"] > 0
 
 
+@pytest.mark.slow
 def test_rounds_are_handed_back_in_submission_order_when_a_later_one_finishes_first(
         tmp_path, monkeypatch):
     gate = tmp_path / "gate"
@@ -167,6 +169,7 @@ def test_q_best_acts_with_the_chosen_candidate_and_logs_shares():
     assert not torch.equal(mode_action(mu, log_std), mean_action(mu, log_std))
 
 
+@pytest.mark.slow
 def test_video_of_the_first_episode(tmp_path):
     from sac_standard import Actor
 
@@ -187,6 +190,7 @@ TOY = ["--total-timesteps", "1200", "--learning-starts", "100", "--eval-interval
        "100", "--checkpoint-interval", "200"]
 
 
+@pytest.mark.slow
 def test_sigkill_with_a_round_in_flight_then_resume_gives_the_uninterrupted_eval_csv(tmp_path):
     from tests.test_sac import command, read_csv, run, wait_for
 
@@ -210,6 +214,7 @@ def test_sigkill_with_a_round_in_flight_then_resume_gives_the_uninterrupted_eval
                                                                             "1200"]
 
 
+@pytest.mark.slow
 def test_a_nan_in_one_evaluation_episode_stops_the_run_in_one_line(tmp_path):
     from tests.test_sac import run
 

@@ -93,6 +93,7 @@ def our_run(tmp_path_factory) -> Path:
     return out / "ours"
 
 
+@pytest.mark.slow
 def test_sb3_sac_paired_and_deterministic(sb3_models, tmp_path, capsys):
     args = [str(sb3_models["sac"]), "--env-id", "Pendulum-v1", "--episodes", "3", "--selectors",
             "mode", "tanh_mu", "sample", "--reps", "200"]
@@ -125,6 +126,7 @@ def test_sb3_sac_paired_and_deterministic(sb3_models, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("name", ["sac", "sac_gsde"])
+@pytest.mark.slow
 def test_sb3_actor_is_sb3s_own_distribution(sb3_models, name):
     """mu and sigma as evaluate.py reads them are the distribution SB3 samples from: SB3's own
     sampled actions have the log-density SB3 reports, and tanh(mu), rescaled, is SB3's
@@ -145,6 +147,7 @@ def test_sb3_actor_is_sb3s_own_distribution(sb3_models, name):
     assert policy.actor.use_sde == (name == "sac_gsde")
 
 
+@pytest.mark.slow
 def test_sb3_gsde_policy_evaluates(sb3_models, capsys, tmp_path):
     code, out, err = run(capsys, str(sb3_models["sac_gsde"]), "--env-id", "Pendulum-v1",
                          "--episodes", "2", "--reps", "50", "--out", str(tmp_path))
@@ -160,6 +163,7 @@ def test_sb3_gsde_policy_evaluates(sb3_models, capsys, tmp_path):
     assert len(returns["mode"]) == 2 and returns["mode"] != returns["tanh_mu"]
 
 
+@pytest.mark.slow
 def test_our_run_agrees_with_its_own_last_evaluation(our_run, tmp_path, capsys):
     """Every selector, q_best (with the critic read back from final_model.pt) and its choice
     shares included, gives the numbers the run logged in its last evaluation."""
@@ -194,6 +198,7 @@ def test_our_run_agrees_with_its_own_last_evaluation(our_run, tmp_path, capsys):
             selectors[selector]["return_mean"] - selectors["tanh_mu"]["return_mean"])
 
 
+@pytest.mark.slow
 def test_results_do_not_depend_on_workers_and_stay_paired(our_run, tmp_path, capsys):
     """12 episodes (a job of 10 and one of 2) of every selector: the same files in-process and
     with 1 or 2 worker processes, the episodes in order, each starting state shared."""
@@ -224,6 +229,7 @@ def test_results_do_not_depend_on_workers_and_stay_paired(our_run, tmp_path, cap
         assert returns[a] != returns[b], (a, b)  # three actions, three sets of episodes
 
 
+@pytest.mark.slow
 def test_sb3_critic_is_sb3s_own(sb3_models, tmp_path, capsys):
     """q_best on an SB3 SAC scores with SB3's critic, fed actions as SB3 scales them; the
     evaluation runs and reports its choice shares."""
@@ -249,6 +255,7 @@ def test_sb3_critic_is_sb3s_own(sb3_models, tmp_path, capsys):
     assert "q_best - tanh_mu, paired:" in out and "mean - tanh_mu, paired:" in out
 
 
+@pytest.mark.slow
 def test_q_best_needs_a_critic(our_run, tmp_path, capsys):
     state = torch.load(our_run / "final_model.pt", weights_only=True)
     del state["qf"]
@@ -270,6 +277,7 @@ def test_q_best_needs_a_critic(our_run, tmp_path, capsys):
             "--selectors", "q_best")
 
 
+@pytest.mark.slow
 def test_a_nan_action_stops_with_one_line(our_run, capsys, monkeypatch):
     build = evaluate.build_actor
 
@@ -286,6 +294,7 @@ def test_a_nan_action_stops_with_one_line(our_run, capsys, monkeypatch):
     assert err.strip().endswith("the model is damaged or does not belong to this env"), err
 
 
+@pytest.mark.slow
 def test_weights_files_alone(our_run, tmp_path, capsys):
     """final_model.pt names its env; checkpoint.pt (loaded with weights_only=True) too, and a
     run folder without final_model.pt falls back to it: here both hold the same actor."""
@@ -303,6 +312,7 @@ def test_weights_files_alone(our_run, tmp_path, capsys):
     assert code == 0 and "checkpoint.pt on Pendulum-v1" in out, err
 
 
+@pytest.mark.slow
 def test_files_in_older_layouts_give_the_same_numbers(our_run, tmp_path, capsys):
     """final_model.pt with a leading seed axis of 1 (written with --num-seeds, as every committed
     results/*-1M weight file is) evaluates exactly as the same networks in today's layout ((in,
@@ -326,6 +336,7 @@ def test_files_in_older_layouts_give_the_same_numbers(our_run, tmp_path, capsys)
     assert outputs[0] == outputs[1]
 
 
+@pytest.mark.slow
 def test_bad_sources_fail_clearly(sb3_models, our_run, tmp_path, capsys):
     refused(capsys, "is not a run folder (no config.json)", str(ROOT / "tests"))
     refused(capsys, "was trained on 3-dim observations and 1-dim actions; InvertedPendulum-v5 "
@@ -366,6 +377,7 @@ def test_bad_sources_fail_clearly(sb3_models, our_run, tmp_path, capsys):
             "Pendulum-v1")
 
 
+@pytest.mark.slow
 def test_bad_flags_fail_clearly_before_running(our_run, tmp_path, capsys):
     run_dir = str(our_run)
     refused(capsys, "--episodes 0: must be at least 1", run_dir, "--episodes", "0")
@@ -408,6 +420,7 @@ def test_bad_flags_fail_clearly_before_running(our_run, tmp_path, capsys):
         assert summary["selectors"][selector]["return_mean"] == float(row["return"])
 
 
+@pytest.mark.slow
 def test_command_line_refusals_are_one_line(sb3_models):
     """The real command line: exit code 2, one line, no traceback; and without
     stable-baselines3 installed, a .zip asks for it."""
@@ -442,6 +455,7 @@ def campaign(our_run, tmp_path_factory) -> Path:
     return root
 
 
+@pytest.mark.slow
 def test_a_campaign_is_evaluated_per_seed_and_step_and_summarised(campaign, tmp_path, capsys):
     from scipy import stats
 
@@ -492,6 +506,7 @@ def test_a_campaign_is_evaluated_per_seed_and_step_and_summarised(campaign, tmp_
         assert (out / name).read_bytes() == content, name
 
 
+@pytest.mark.slow
 def test_a_campaigns_episodes_do_not_depend_on_workers(campaign, tmp_path, capsys):
     for workers in ("0", "2"):
         code, _, err = run(capsys, str(campaign), "--out", str(tmp_path / workers), "--episodes",
@@ -503,6 +518,7 @@ def test_a_campaigns_episodes_do_not_depend_on_workers(campaign, tmp_path, capsy
         assert {r["step"] for r in read_rows(tmp_path / "0" / name)} == {"1600"}
 
 
+@pytest.mark.slow
 def test_a_campaign_refuses_what_it_cannot_evaluate(campaign, tmp_path, capsys):
     refused(capsys, "is a folder of runs: give --out", str(campaign))
     refused(capsys, "no run under it holds final_model.pt or snapshots at --steps 5",
@@ -580,6 +596,7 @@ def files(out: Path) -> dict[str, bytes]:
     return found
 
 
+@pytest.mark.slow
 def test_an_interrupted_campaign_resumes_to_the_same_files(campaign, tmp_path, monkeypatch,
                                                             capsys):
     code, _, err = run(capsys, str(campaign), "--out", str(tmp_path / "whole"), *CAMPAIGN_ARGS)
@@ -615,6 +632,7 @@ def test_an_interrupted_campaign_resumes_to_the_same_files(campaign, tmp_path, m
     assert files(out) == files(tmp_path / "whole")
 
 
+@pytest.mark.slow
 def test_a_resume_rewrites_a_policy_whose_rows_are_incomplete(campaign, tmp_path, capsys):
     out = tmp_path / "out"
     code, _, err = run(capsys, str(campaign), "--out", str(out), *CAMPAIGN_ARGS, "--steps",
@@ -633,6 +651,7 @@ def test_a_resume_rewrites_a_policy_whose_rows_are_incomplete(campaign, tmp_path
     assert files(out) == whole and not (out / evaluate.PARTIAL_FILE).exists()
 
 
+@pytest.mark.slow
 def test_a_resume_with_other_settings_is_refused(campaign, tmp_path, monkeypatch, capsys):
     out = tmp_path / "out"
     interrupted(campaign, out, monkeypatch, capsys)
@@ -654,15 +673,19 @@ def test_a_resume_with_other_settings_is_refused(campaign, tmp_path, monkeypatch
 
 
 def test_a_write_killed_midway_leaves_the_old_file(tmp_path, monkeypatch):
+    """evaluate.py writes its files through sac_utils.files: a kill before the rename leaves
+    the old file whole."""
+    from sac_utils import files
+
     path = tmp_path / "episodes.csv"
-    evaluate.write_atomically(path, "old\r\n")
+    files.write_text_atomically(path, "old\r\n")
 
     def killed(*args) -> None:
         raise Killed
 
-    monkeypatch.setattr(evaluate.os, "replace", killed)
+    monkeypatch.setattr(files.os, "replace", killed)
     with pytest.raises(Killed):
-        evaluate.write_atomically(path, "new\r\n")
+        files.write_text_atomically(path, "new\r\n")
     assert path.read_bytes() == b"old\r\n"
 
 

@@ -140,6 +140,7 @@ def source(tmp_path: Path) -> Path:
     return src
 
 
+@pytest.mark.slow
 def test_pip_install_makes_tasks_and_mode_importable_anywhere(tmp_path: Path, source: Path) -> None:
     env_dir = tmp_path / "venv"
     python = make_venv(env_dir)
@@ -152,6 +153,7 @@ def test_pip_install_makes_tasks_and_mode_importable_anywhere(tmp_path: Path, so
     assert found["registered"] == sorted(TASK_IDS)
 
 
+@pytest.mark.slow
 def test_editable_install_points_at_the_source(tmp_path: Path, source: Path) -> None:
     python = make_venv(tmp_path / "venv")
     pip_install(python, "-e", str(source))

@@ -381,6 +381,7 @@ def test_mean_of_integer_mu_is_a_clear_error() -> None:
         mean_action(torch.zeros(3, dtype=torch.int64), torch.zeros(3))
 
 
+@pytest.mark.slow
 def test_figures_command_writes_the_six_pngs(tmp_path) -> None:
     root = Path(__file__).resolve().parent.parent
     out = subprocess.run(

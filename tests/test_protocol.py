@@ -59,6 +59,7 @@ def test_the_scripts_log_the_statistics_compared_here():
     assert tuple(logged) == EVAL_STATS
 
 
+@pytest.mark.slow
 def test_corrected_tanh_mu_columns_are_the_standard_run(runs):
     standard, corrected = read_csv(runs / "std" / "eval.csv"), read_csv(runs / "cor" / "eval.csv")
     assert [row["global_step"] for row in standard] == ["400", "800", "1200"]
@@ -76,6 +77,7 @@ def test_corrected_tanh_mu_columns_are_the_standard_run(runs):
                                                                     strict=True))
 
 
+@pytest.mark.slow
 def test_both_scripts_train_identically(runs):
     standard, corrected = read_csv(runs / "std" / "train.csv"), read_csv(runs / "cor" / "train.csv")
     assert len(standard) == 12 and standard == corrected
@@ -87,6 +89,7 @@ def test_both_scripts_train_identically(runs):
     assert differ <= OWN_KEYS and {"algorithm", "script"} <= differ
 
 
+@pytest.mark.slow
 def test_analyze_builds_standard_from_corrected_alone_and_checks_both(runs, tmp_path):
     fast = ["--normalize", "none", "--reps", "200", "--curve-reps", "20", "--curve-points", "3"]
     # Corrected alone: Standard SAC is its paired evaluation, number for number.

@@ -94,6 +94,7 @@ def test_there_is_a_campaign_and_each_is_complete() -> None:
 
 
 @pytest.mark.parametrize(("campaign", "report"), report_cases())
+@pytest.mark.slow
 def test_report_reproduces_from_the_committed_runs(campaign: Path, report: str,
                                                    tmp_path: Path) -> None:
     spec = reports_of(campaign)[report]
@@ -139,6 +140,7 @@ def robust_cases() -> list:
 
 
 @pytest.mark.parametrize("folder", robust_cases())
+@pytest.mark.slow
 def test_robust_summary_reproduces_from_the_committed_episodes(folder: Path,
                                                                tmp_path: Path) -> None:
     """evaluate.py, given the folder of a campaign's evaluation, rewrites its per-seed summary

@@ -63,6 +63,7 @@ def corrected_run(tmp_path_factory) -> Path:
     return out / "cor"
 
 
+@pytest.mark.slow
 def test_learning_on_pendulum(tmp_path):
     run("sac_standard.py", "--env-id", "Pendulum-v1", "--total-timesteps", "6000",
         "--learning-starts", "1000", "--eval-interval", "6000", "--eval-episodes", "5",
@@ -74,6 +75,7 @@ def test_learning_on_pendulum(tmp_path):
     assert final_return > -600 and final_return > random_return + 500
 
 
+@pytest.mark.slow
 def test_scripts_train_identically_and_pair_evaluations(standard_run, corrected_run):
     standard, corrected = (read_csv(r / "train.csv") for r in (standard_run, corrected_run))
     assert len(standard) == 15 and standard == corrected
@@ -91,6 +93,7 @@ def test_scripts_train_identically_and_pair_evaluations(standard_run, corrected_
     # the sum over 61.)
 
 
+@pytest.mark.slow
 def test_run_folder_outputs(standard_run):
     config = json.loads((standard_run / "config.json").read_text())
     assert config["algorithm"] == "standard" and config["script"] == "sac_standard.py"
@@ -125,6 +128,7 @@ def test_run_folder_outputs(standard_run):
     assert len(events.Scalars("train/qf1_loss")) == 11
 
 
+@pytest.mark.slow
 def test_sigkill_then_resume_equals_uninterrupted(standard_run, tmp_path):
     args = [*SHORT[:-1], "400", "--output-dir", str(tmp_path), "--run-name", "killed"]
     run_dir = tmp_path / "killed"
@@ -153,6 +157,7 @@ def test_sigkill_then_resume_equals_uninterrupted(standard_run, tmp_path):
             assert torch.equal(resumed[part][key], value), key
 
 
+@pytest.mark.slow
 def test_sigterm_checkpoints_exits_3_and_resumes(corrected_run, tmp_path):
     args = [*SHORT, "--output-dir", str(tmp_path), "--run-name", "term"]
     run_dir = tmp_path / "term"
@@ -226,6 +231,7 @@ def test_bad_input_fails_with_one_clear_line(args, message, tmp_path):
     assert message in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_snapshots_keep_the_policy_at_each_interval_and_survive_a_resume(tmp_path):
     args = [*SHORT, "--snapshot-interval", "500", "--checkpoint-interval", "600",
             "--output-dir", str(tmp_path), "--run-name", "snap"]
@@ -254,6 +260,7 @@ def test_snapshots_keep_the_policy_at_each_interval_and_survive_a_resume(tmp_pat
     assert uninterrupted.returncode == 0
 
 
+@pytest.mark.slow
 def test_a_run_whose_checkpoint_is_lost_restarts_from_its_last_snapshot(tmp_path):
     """The fallback when a machine is lost with a run's checkpoint: checkpoint.pt rebuilt from the
     last snapshot, the buffer refilled by acting before updates resume, the logs going on from
@@ -295,6 +302,7 @@ def test_a_run_whose_checkpoint_is_lost_restarts_from_its_last_snapshot(tmp_path
     assert len(again.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_bad_resumes_fail_clearly(standard_run, tmp_path):
     result = run("sac_standard.py", *SHORT, "--output-dir", str(standard_run.parent),
                  "--run-name", "std", check=False)
@@ -322,6 +330,7 @@ def test_nan_is_a_clear_error():
     check_finite(torch.zeros(3).numpy(), "action")
 
 
+@pytest.mark.slow
 def test_capture_video_writes_a_readable_mp4(tmp_path):
     run("sac_standard.py", "--env-id", "InvertedPendulum-v5", "--total-timesteps", "300",
         "--learning-starts", "200", "--eval-interval", "300", "--eval-episodes", "1",
@@ -335,6 +344,7 @@ def test_capture_video_writes_a_readable_mp4(tmp_path):
     assert len(frames) == length and frames[0].ndim == 3
 
 
+@pytest.mark.slow
 def test_smoke_on_humanoid_stand(tmp_path):
     run("sac_corrected.py", "--env-id", "h1hand-stand-v0", "--total-timesteps", "300",
         "--learning-starts", "200", "--eval-interval", "300", "--eval-episodes", "1",
@@ -434,6 +444,7 @@ def test_terminated_and_truncated_transitions_are_bootstrapped():
     assert ends_without_bootstrap(terminated, truncated).tolist() == [True, False, False, False]
 
 
+@pytest.mark.slow
 def test_a_folder_in_use_refuses_a_second_process_until_its_holder_dies(tmp_path):
     run_dir = tmp_path / "busy"
     args = [*SHORT[:-1], "400", "--total-timesteps", "3000", "--eval-workers", "0",

@@ -67,6 +67,7 @@ def reference(tmp_path_factory) -> Path:
 
 
 # ----------------------------------------------------------------------------- local launcher
+@pytest.mark.slow
 def test_local_grid_runs_every_cell_to_the_end(reference):
     runs = run_dirs(reference)
     # --workers 2: the cores the two training processes leave, shared (at least one each).
@@ -85,6 +86,7 @@ def test_local_grid_runs_every_cell_to_the_end(reference):
         assert log.count("--eval-workers") == 1 and f"--eval-workers {eval_workers}" in log
 
 
+@pytest.mark.slow
 def test_rerun_skips_finished_runs_and_chains_analysis(reference, tmp_path):
     logs_before = {d: (d / "sweep.log").read_text() for d in run_dirs(reference).values()}
     report = tmp_path / "report"
@@ -119,6 +121,7 @@ def test_rerun_skips_finished_runs_and_chains_analysis(reference, tmp_path):
     assert (report / "aggregate_metrics.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_local_sweep_stopped_by_sigterm_resumes_to_the_same_result(reference, tmp_path):
     command = [*SWEEP, *CELLS, "--seeds", "0", "--scripts", "sac_standard.py",
                "--output-dir", str(tmp_path), "--", *RUN_ARGS]
@@ -138,6 +141,7 @@ def test_local_sweep_stopped_by_sigterm_resumes_to_the_same_result(reference, tm
     assert eval_rows(run_dir) == eval_rows(run_dirs(reference)["standard", 0])
 
 
+@pytest.mark.slow
 def test_eval_workers_is_no_part_of_a_runs_identity(reference):
     """The runs got --eval-workers from the sweep; the same grid with another --workers, or with
     the user's own --eval-workers, finds them done."""
@@ -147,6 +151,7 @@ def test_eval_workers_is_no_part_of_a_runs_identity(reference):
         assert "4 done or under way, 0 to launch" in out
 
 
+@pytest.mark.slow
 def test_a_folder_in_use_is_skipped_and_started_once_free(reference, tmp_path):
     """A run folder whose flock another process holds (a sweep started twice, a requeued job
     racing one not dead yet) is running: not started, shown as running; the others run. Once
@@ -180,6 +185,7 @@ def test_a_folder_in_use_is_skipped_and_started_once_free(reference, tmp_path):
     assert eval_rows(busy.run_dir) == eval_rows(run_dirs(reference)["standard", 0])
 
 
+@pytest.mark.slow
 def test_status_shows_state_progress_and_the_log_of_a_failed_run(reference, tmp_path):
     table = sweep("status", str(reference)).stdout
     assert table.count("done") >= 4 and "800/800" in table
@@ -190,6 +196,7 @@ def test_status_shows_state_progress_and_the_log_of_a_failed_run(reference, tmp_
     assert "failed" in table and "--no-such-flag" in table  # tyro's complaint, from the log
 
 
+@pytest.mark.slow
 def test_free_deletes_only_finished_runs_checkpoints(reference, tmp_path):
     import shutil
 
@@ -208,6 +215,7 @@ def test_free_deletes_only_finished_runs_checkpoints(reference, tmp_path):
     assert "does not exist" in sweep("free", str(tmp_path / "nowhere"), check=False).stderr
 
 
+@pytest.mark.slow
 def test_dimensions_preset_runs_and_analyzes_with_the_default_normalisation(tmp_path):
     """--preset dimensions mixes tasks with and without a HumanoidBench success bar: --analyze
     with analyze.py's defaults (no --normalize) gives a report once every run is done. Two of
@@ -226,6 +234,7 @@ def test_dimensions_preset_runs_and_analyzes_with_the_default_normalisation(tmp_
     assert (report / "dimension_study.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_dry_run_prints_the_plan_and_starts_nothing(reference, tmp_path):
     out = sweep(*GRID, "--scripts", "sac_standard.py", "--output-dir", str(reference),
                 "--dry-run", "--steps-per-second", "100", "--", *RUN_ARGS).stdout
@@ -329,6 +338,7 @@ def test_bad_input_is_a_clear_error_and_starts_nothing(tmp_path, args, message):
     assert not (tmp_path / "runs").exists()
 
 
+@pytest.mark.slow
 def test_folder_with_runs_of_other_arguments_is_refused(reference):
     before = sorted(p.name for p in reference.iterdir())
     result = sweep(*GRID, "--output-dir", str(reference), "--",
@@ -352,6 +362,7 @@ def slurm() -> None:
 SLURM = ["--launcher", "slurm", "--cpus-per-task", "1", "--mem-gb", "1", "--wait"]
 
 
+@pytest.mark.slow
 def test_slurm_sweep_survives_preemption_and_cancellation(slurm, reference, tmp_path):
     """A job array of two runs: one is preempted (USR2: checkpoint, requeue, resume), the other
     cancelled; rerunning the sweep resumes the cancelled one. Both equal the local runs."""
@@ -401,6 +412,7 @@ def test_unreachable_slurm_is_a_clear_error_and_starts_nothing(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+@pytest.mark.slow
 def test_unknown_partition_is_a_clear_error(slurm, tmp_path):
     result = sweep(*GRID, *SLURM, "--partition", "nosuch", "--output-dir", str(tmp_path),
                    "--", *RUN_ARGS, check=False)

@@ -57,6 +57,7 @@ def csv_rows(path: Path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_track_logs_our_scalars_offline_and_a_resume_continues_the_run(tmp_path):
     run_dir = tmp_path / "tracked"
     command = [sys.executable, str(ROOT / "sac_corrected.py"), *SHORT, *EAGER, "--output-dir",

@@ -42,6 +42,7 @@ def stopped_run(out: Path, *args: str) -> None:
     assert process.wait() == 3
 
 
+@pytest.mark.slow
 def test_a_copied_folder_resumes_the_copy_and_never_touches_the_original(tmp_path):
     stopped_run(tmp_path, "--run-name", "orig")
     original = tmp_path / "orig"
@@ -82,6 +83,7 @@ def test_a_copied_folder_resumes_the_copy_and_never_touches_the_original(tmp_pat
     assert episodes[0] == episodes[1] and episodes[0].count("\n") == 5  # header, 2 x 2 rows
 
 
+@pytest.mark.slow
 def test_analyze_reads_an_interrupted_run_to_its_last_evaluation(tmp_path):
     """Two seeds, one stopped early: each counts to the last step of its eval.csv, and the final
     return is the mean of the two at the last step they share."""
@@ -159,6 +161,7 @@ def test_an_env_error_in_evaluation_ends_the_run_in_one_line_with_the_pool_shut_
         assert pool.executor._shutdown_thread
 
 
+@pytest.mark.slow
 def test_a_physics_blow_up_never_becomes_a_training_transition(tmp_path):
     run("sac_standard.py", "--env-id", "tests.toy_envs:BlowUp-v0", "--total-timesteps", "400",
         "--learning-starts", "100", "--eval-interval", "1000", "--eval-episodes", "1",
@@ -187,6 +190,7 @@ def test_a_blow_up_at_an_episodes_first_step_leaves_nothing_in_the_buffer():
     assert rb.valid.tolist()[:2] == [True, False] and rb.obs[:2, 0].tolist() == [7, 8]
 
 
+@pytest.mark.slow
 def test_sigterm_checkpoints_at_once_with_rounds_in_flight_and_resumes_them_exactly(
         tmp_path, monkeypatch):
     gate = tmp_path / "gate"

@@ -136,6 +136,7 @@ def bad_step(path: Path) -> None:
     ("eval.csv", bad_header, ["eval.csv does not have the header this run writes"]),
     ("train.csv", bad_step, ["train.csv, line 2: global_step 'x100' is not a step number"]),
 ])
+@pytest.mark.slow
 def test_damaged_files_are_named_and_nothing_changes(interrupted_run, tmp_path, file, damage,
                                                       fragments):
     run_dir = tmp_path / "r"
@@ -146,6 +147,7 @@ def test_damaged_files_are_named_and_nothing_changes(interrupted_run, tmp_path, 
     assert snapshot(run_dir) == before
 
 
+@pytest.mark.slow
 def test_an_intact_copy_resumes(interrupted_run, tmp_path):
     """The fixture's folder is resumable as it is: the refusals above come from the damage."""
     run_dir = tmp_path / "r"
@@ -162,6 +164,7 @@ def test_an_intact_copy_resumes(interrupted_run, tmp_path):
     (["--at-step", "0"], "--at-step 0: must be a step of at least 1"),
     (["--seed", "-1"], "--seed -1: must be in [0, 2**32)"),
 ])
+@pytest.mark.slow
 def test_analyze_flag_ranges(flags, message, tmp_path):
     result = run("analyze.py", str(tmp_path), *flags, "--out", str(tmp_path / "out"))
     refused(result, message)
