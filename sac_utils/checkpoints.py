@@ -9,7 +9,6 @@ import copy
 import csv
 import dataclasses
 import json
-import os
 import random
 import time
 from pathlib import Path
@@ -265,12 +264,12 @@ def restart_from_snapshot(run_dir: Path, refill: int) -> dict:
         if (run_dir / name).exists():
             atomic_write(kept / name, lambda tmp, name=name: tmp.write_bytes(
                 (run_dir / name).read_bytes()))
-    from sac_utils.run_folder import cpu_model, git_commit
+    from sac_utils.run_folder import git_commit, machine
 
     record = {"step": step, "snapshot": str(path.relative_to(run_dir)), "refill": refill,
               "updates_from": progress["updates_from"], "seed": seed,
               "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-              "machine": {"cpu": cpu_model(), "cores": os.cpu_count()},
+              "machine": machine(),
               "git_commit": git_commit()}
     save_tensors(run_dir / "checkpoint.pt", state)
     config["restarts"] = [*config.get("restarts", []), record]

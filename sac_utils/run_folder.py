@@ -304,7 +304,7 @@ def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: st
                          "numpy": np.__version__, "gymnasium": gym.__version__,
                          "mujoco": mujoco.__version__},
             "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            "machine": {"cpu": cpu_model(), "cores": os.cpu_count()},
+            "machine": machine(),
             "used": {"device": device.type, "compile": args.compile,
                      "cudagraphs": device.type == "cuda" and args.cudagraphs,
                      "gpu_buffer": device.type == "cuda" and args.gpu_buffer,
@@ -318,6 +318,11 @@ def git_commit() -> str | None:
                               capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return None
+
+
+def machine() -> dict:
+    """The machine a run (or its restart) trains on, as config.json records it."""
+    return {"cpu": cpu_model(), "cores": os.cpu_count()}
 
 
 def cpu_model() -> str:
