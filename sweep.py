@@ -42,6 +42,7 @@ import submitit
 import tyro
 
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
+from sac_utils.cli import broken_rule
 from sac_utils.sweep_run import (
     EXIT_INTERRUPTED,
     IDENTITY_FILE,
@@ -285,11 +286,8 @@ def check_ranges(args: Args) -> None:
          f"at least 1 and below --time-min ({args.time_min} min) in seconds"),
         ("max_requeues", args.max_requeues >= 0, "0 or more"),
     )
-    for name, ok, allowed in rules:
-        if not ok:
-            value = getattr(args, name)
-            shown = " ".join(map(str, value)) if isinstance(value, list) else value
-            raise SweepError(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
+    if message := broken_rule(args, rules):
+        raise SweepError(message)
 
 
 def preset_args(preset: Preset | None, env_id: str, extra_args: tuple[str, ...]) -> tuple:
