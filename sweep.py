@@ -207,17 +207,14 @@ def check_env_ids(env_ids: list[str]) -> None:
             raise SweepError(f"unknown env id {env_id!r}: {hint}")
 
 
-def check_extra_args(extra_args: tuple[str, ...]) -> None:
-    for arg in extra_args:
-        flag = arg.split("=", 1)[0]
+def split_eval_workers(extra_args: tuple[str, ...]) -> tuple[tuple[str, ...], int | None]:
+    """The arguments after `--` without --eval-workers, and its last value (None: not given);
+    a flag that sweep.py sets itself is refused."""
+    for flag in (arg.split("=", 1)[0] for arg in extra_args):
         if flag in SWEEP_FLAGS:
             raise SweepError(f"{flag} after `--` is set by sweep.py for every run: use sweep.py's "
                              "own --env-ids, --seeds, --output-dir, --checkpoint-interval or "
                              "--track instead")
-
-
-def split_eval_workers(extra_args: tuple[str, ...]) -> tuple[tuple[str, ...], int | None]:
-    """The arguments after `--` without --eval-workers, and its last value (None: not given)."""
     kept: list[str] = []
     value: int | None = None
     args = iter(extra_args)
@@ -250,7 +247,6 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     names = args.scripts or (list(preset.scripts) if preset else list(DEFAULT_SCRIPTS))
     scripts = [resolve_script(script) for script in dict.fromkeys(names)]
     check_env_ids(env_ids)
-    check_extra_args(extra_args)
     run_args, eval_workers = split_eval_workers(extra_args)
     output_dir = Path(args.output_dir).resolve()
     entity = ("--wandb-entity", args.wandb_entity) if args.wandb_entity else ()
@@ -293,8 +289,18 @@ def check_ranges(args: Args) -> None:
 def preset_args(preset: Preset | None, env_id: str, extra_args: tuple[str, ...]) -> tuple:
     """The preset's step budget for this env id, unless the arguments after `--` give one."""
     steps = preset.total_timesteps.get(env_id) if preset else None
-    given = any(a == "--total-timesteps" or a.startswith("--total-timesteps=") for a in extra_args)
-    return () if steps is None or given else ("--total-timesteps", str(steps))
+    if steps is None or given_total_timesteps(extra_args) is not None:
+        return ()
+    return ("--total-timesteps", str(steps))
+
+
+def given_total_timesteps(extra_args: tuple[str, ...]) -> str | None:
+    """The first --total-timesteps' value after `--` ("" with none after it); None: not given."""
+    for i, arg in enumerate(extra_args):
+        flag, sep, value = arg.partition("=")
+        if flag == "--total-timesteps":
+            return value if sep else "".join(extra_args[i + 1 : i + 2])
+    return None
 
 
 def check_output_dir(runs: list[Run]) -> None:
@@ -366,9 +372,6 @@ def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, s
         count = eval_workers_per_run(cores, at_once)
         why = f"{plural(cores, 'core')}, {plural(at_once, 'run')} at a time"
     return count, f"evaluation: {plural(count, 'worker')} per run ({why})"
-
-
-# The local launcher.
 
 
 @contextlib.contextmanager
@@ -445,9 +448,6 @@ def launch_local(runs: list[Run], workers: int) -> None:
             signal.signal(signum, handler)
 
 
-# The Slurm launcher (the job's side: sweep_run.SlurmRun).
-
-
 def check_slurm(partition: str | None) -> None:
     """Fail before anything is written when Slurm is not there or not answering."""
     for tool in ("sbatch", "squeue", "srun", "sinfo"):
@@ -469,31 +469,23 @@ def check_slurm(partition: str | None) -> None:
 
 
 def sbatch_options(options: list[str]) -> dict[str, str | bool]:
-    parsed: dict[str, str | bool] = {}
-    for option in options:
-        key, sep, value = option.removeprefix("--").partition("=")
-        parsed[key.replace("-", "_")] = value if sep else True
-    return parsed
+    split = (option.removeprefix("--").partition("=") for option in options)
+    return {key.replace("-", "_"): value if sep else True for key, sep, value in split}
 
 
 def launch_slurm(runs: list[Run], args: Args) -> str:
-    """Submit the runs as one job array; returns the array's job id."""
-    executor = submitit.SlurmExecutor(
-        folder=runs[0].output_dir / ".submitit" / "%j", max_num_timeout=args.max_requeues
-    )
-    optional = {"partition": args.partition, "account": args.account}
+    """Submit the runs as one job array (each task a sweep_run.SlurmRun); returns its job id."""
+    executor = submitit.SlurmExecutor(folder=runs[0].output_dir / ".submitit" / "%j",
+                                      max_num_timeout=args.max_requeues)
+    optional = {"partition": args.partition, "account": args.account,
+                "gpus_per_task": args.gpus_per_task or None}
     executor.update_parameters(
-        job_name="sweep",
-        time=args.time_min,
-        cpus_per_task=args.cpus_per_task,
-        mem=f"{args.mem_gb}GB",
-        signal_delay_s=args.signal_delay_s,
-        array_parallelism=args.max_parallel,
-        stderr_to_stdout=True,
+        job_name="sweep", time=args.time_min, cpus_per_task=args.cpus_per_task,
+        mem=f"{args.mem_gb}GB", signal_delay_s=args.signal_delay_s,
+        array_parallelism=args.max_parallel, stderr_to_stdout=True,
         # The job unpickles SlurmRun from sac_utils/sweep_run.py, wherever the sweep started.
         setup=[f"export PYTHONPATH={shlex.quote(str(ROOT))}${{PYTHONPATH:+:$PYTHONPATH}}"],
         additional_parameters=sbatch_options(args.sbatch),
-        **({"gpus_per_task": args.gpus_per_task} if args.gpus_per_task else {}),
         **{key: value for key, value in optional.items() if value is not None},
     )
     for run in runs:
@@ -517,19 +509,6 @@ def wait_for_slurm(job_id: str) -> None:
         time.sleep(2.0)
 
 
-# Reports.
-
-
-def total_timesteps(run: Run) -> int:
-    """The run's step budget: from the arguments after `--`, else the script's default."""
-    for i, arg in enumerate(run.extra_args):
-        if arg == "--total-timesteps" and i + 1 < len(run.extra_args):
-            return int(run.extra_args[i + 1])
-        if arg.startswith("--total-timesteps="):
-            return int(arg.split("=", 1)[1])
-    return script_default_total_timesteps(run.script)
-
-
 @functools.cache
 def script_default_total_timesteps(script: Path) -> int:
     spec = importlib.util.spec_from_file_location(f"_sweep_{script.stem}", script)
@@ -551,7 +530,8 @@ def print_plan(runs: list[Run], states: dict[Run, str], args: Args,
         print(f"preset {args.preset}: {PRESETS[args.preset].why}")
     total = steps_left = longest = 0
     for run in runs:
-        budget = total_timesteps(run)
+        given = given_total_timesteps(run.extra_args)
+        budget = int(given) if given else script_default_total_timesteps(run.script)
         left = 0 if states[run] == "done" else budget - (last_eval_step(run.run_dir) or 0)
         total, steps_left, longest = total + budget, steps_left + left, max(longest, left)
         print(f"  {run.name:<60} {states[run]:<12} {action_for(states[run])}")
@@ -609,9 +589,6 @@ def free_checkpoints(output_dir: Path) -> None:
         freed += size
         print(f"{run_dir.name}: deleted checkpoint.pt ({size / 2**30:.2f} GiB)")
     print(f"freed {freed / 2**30:.2f} GiB")
-
-
-# Entry points.
 
 
 def sweep(args: Args, extra_args: tuple[str, ...]) -> int:
