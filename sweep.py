@@ -252,9 +252,13 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     entity = ("--wandb-entity", args.wandb_entity) if args.wandb_entity else ()
     tracking = ("--track", "--wandb-project-name", args.wandb_project_name, *entity) \
         if args.track else ()
+    # The preset's step budget for an env id, unless the arguments after `--` give one.
+    steps = preset.total_timesteps if preset and given_total_timesteps(run_args) is None else {}
+    budget = {env_id: ("--total-timesteps", str(steps[env_id])) if env_id in steps else ()
+              for env_id in env_ids}
     return [
-        Run(script, env_id, seed, preset_args(preset, env_id, run_args) + run_args,
-            output_dir, args.checkpoint_interval, tracking, eval_workers)
+        Run(script, env_id, seed, budget[env_id] + run_args, output_dir,
+            args.checkpoint_interval, tracking, eval_workers)
         for seed in dict.fromkeys(seeds)
         for env_id in dict.fromkeys(env_ids)
         for script in scripts
@@ -284,14 +288,6 @@ def check_ranges(args: Args) -> None:
     )
     if message := broken_rule(args, rules):
         raise SweepError(message)
-
-
-def preset_args(preset: Preset | None, env_id: str, extra_args: tuple[str, ...]) -> tuple:
-    """The preset's step budget for this env id, unless the arguments after `--` give one."""
-    steps = preset.total_timesteps.get(env_id) if preset else None
-    if steps is None or given_total_timesteps(extra_args) is not None:
-        return ()
-    return ("--total-timesteps", str(steps))
 
 
 def given_total_timesteps(extra_args: tuple[str, ...]) -> str | None:
