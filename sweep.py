@@ -331,10 +331,6 @@ def check_output_dir(runs: list[Run]) -> None:
         )
 
 
-# Cores for evaluation: each run trains on one core and evaluates in --eval-workers processes.
-# Why sweep.py passes the count, even on Slurm: docs/sweep.md, "Cores for evaluation".
-
-
 def eval_workers_per_run(cores: int, runs_at_once: int) -> int:
     # At least one: in-process evaluation stops training for every round, which costs more than
     # one worker on an oversubscribed core.
@@ -354,7 +350,8 @@ def plural(count: int, noun: str) -> str:
 
 
 def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, str]:
-    """Each run's --eval-workers (the user's, after `--`, stands), and the division in words."""
+    """Each run's --eval-workers (the user's, after `--`, stands), and the division in words. Why
+    sweep.py passes a count, even on Slurm: docs/sweep.md, "Cores for evaluation"."""
     if given is not None:
         return given, f"evaluation: {plural(given, 'worker')} per run (--eval-workers after `--`)"
     if args.launcher == "slurm":

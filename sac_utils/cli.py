@@ -1,7 +1,7 @@
-"""Bad input, for the SAC scripts and evaluate.py: the one-line error (`fail`), each flag's range,
---resume's rules (the run's stored arguments are the defaults; a flag may change where and how
-fast, never what is computed), --env-id, a run's config.json, a non-finite action or loss. The
-flags themselves are the scripts' Args.
+"""Bad input, for the SAC scripts and evaluate.py: the one-line error (`fail`), each flag's range
+(broken_rule words it, for sweep.py too), --resume's rules (the run's stored arguments are the
+defaults; a flag may change where and how fast, never what is computed), --env-id, a run's
+config.json, a non-finite action or loss. The flags themselves are the scripts' Args.
 """
 
 import dataclasses
