@@ -42,6 +42,7 @@ import submitit
 import tyro
 
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
+from sac_utils.cli import broken_rule
 from sac_utils.sweep_run import (
     EXIT_INTERRUPTED,
     IDENTITY_FILE,
@@ -206,17 +207,14 @@ def check_env_ids(env_ids: list[str]) -> None:
             raise SweepError(f"unknown env id {env_id!r}: {hint}")
 
 
-def check_extra_args(extra_args: tuple[str, ...]) -> None:
-    for arg in extra_args:
-        flag = arg.split("=", 1)[0]
+def split_eval_workers(extra_args: tuple[str, ...]) -> tuple[tuple[str, ...], int | None]:
+    """The arguments after `--` without --eval-workers, and its last value (None: not given);
+    a flag that sweep.py sets itself is refused."""
+    for flag in (arg.split("=", 1)[0] for arg in extra_args):
         if flag in SWEEP_FLAGS:
             raise SweepError(f"{flag} after `--` is set by sweep.py for every run: use sweep.py's "
                              "own --env-ids, --seeds, --output-dir, --checkpoint-interval or "
                              "--track instead")
-
-
-def split_eval_workers(extra_args: tuple[str, ...]) -> tuple[tuple[str, ...], int | None]:
-    """The arguments after `--` without --eval-workers, and its last value (None: not given)."""
     kept: list[str] = []
     value: int | None = None
     args = iter(extra_args)
@@ -249,15 +247,18 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     names = args.scripts or (list(preset.scripts) if preset else list(DEFAULT_SCRIPTS))
     scripts = [resolve_script(script) for script in dict.fromkeys(names)]
     check_env_ids(env_ids)
-    check_extra_args(extra_args)
     run_args, eval_workers = split_eval_workers(extra_args)
     output_dir = Path(args.output_dir).resolve()
     entity = ("--wandb-entity", args.wandb_entity) if args.wandb_entity else ()
     tracking = ("--track", "--wandb-project-name", args.wandb_project_name, *entity) \
         if args.track else ()
+    # The preset's step budget for an env id, unless the arguments after `--` give one.
+    steps = preset.total_timesteps if preset and given_total_timesteps(run_args) is None else {}
+    budget = {env_id: ("--total-timesteps", str(steps[env_id])) if env_id in steps else ()
+              for env_id in env_ids}
     return [
-        Run(script, env_id, seed, preset_args(preset, env_id, run_args) + run_args,
-            output_dir, args.checkpoint_interval, tracking, eval_workers)
+        Run(script, env_id, seed, budget[env_id] + run_args, output_dir,
+            args.checkpoint_interval, tracking, eval_workers)
         for seed in dict.fromkeys(seeds)
         for env_id in dict.fromkeys(env_ids)
         for script in scripts
@@ -285,18 +286,17 @@ def check_ranges(args: Args) -> None:
          f"at least 1 and below --time-min ({args.time_min} min) in seconds"),
         ("max_requeues", args.max_requeues >= 0, "0 or more"),
     )
-    for name, ok, allowed in rules:
-        if not ok:
-            value = getattr(args, name)
-            shown = " ".join(map(str, value)) if isinstance(value, list) else value
-            raise SweepError(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
+    if message := broken_rule(args, rules):
+        raise SweepError(message)
 
 
-def preset_args(preset: Preset | None, env_id: str, extra_args: tuple[str, ...]) -> tuple:
-    """The preset's step budget for this env id, unless the arguments after `--` give one."""
-    steps = preset.total_timesteps.get(env_id) if preset else None
-    given = any(a == "--total-timesteps" or a.startswith("--total-timesteps=") for a in extra_args)
-    return () if steps is None or given else ("--total-timesteps", str(steps))
+def given_total_timesteps(extra_args: tuple[str, ...]) -> str | None:
+    """The first --total-timesteps' value after `--` ("" with none after it); None: not given."""
+    for i, arg in enumerate(extra_args):
+        flag, sep, value = arg.partition("=")
+        if flag == "--total-timesteps":
+            return value if sep else "".join(extra_args[i + 1 : i + 2])
+    return None
 
 
 def check_output_dir(runs: list[Run]) -> None:
@@ -331,10 +331,6 @@ def check_output_dir(runs: list[Run]) -> None:
         )
 
 
-# Cores for evaluation: each run trains on one core and evaluates in --eval-workers processes.
-# Why sweep.py passes the count, even on Slurm: docs/sweep.md, "Cores for evaluation".
-
-
 def eval_workers_per_run(cores: int, runs_at_once: int) -> int:
     # At least one: in-process evaluation stops training for every round, which costs more than
     # one worker on an oversubscribed core.
@@ -354,7 +350,8 @@ def plural(count: int, noun: str) -> str:
 
 
 def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, str]:
-    """Each run's --eval-workers (the user's, after `--`, stands), and the division in words."""
+    """Each run's --eval-workers (the user's, after `--`, stands), and the division in words. Why
+    sweep.py passes a count, even on Slurm: docs/sweep.md, "Cores for evaluation"."""
     if given is not None:
         return given, f"evaluation: {plural(given, 'worker')} per run (--eval-workers after `--`)"
     if args.launcher == "slurm":
@@ -368,9 +365,6 @@ def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, s
         count = eval_workers_per_run(cores, at_once)
         why = f"{plural(cores, 'core')}, {plural(at_once, 'run')} at a time"
     return count, f"evaluation: {plural(count, 'worker')} per run ({why})"
-
-
-# The local launcher.
 
 
 @contextlib.contextmanager
@@ -447,9 +441,6 @@ def launch_local(runs: list[Run], workers: int) -> None:
             signal.signal(signum, handler)
 
 
-# The Slurm launcher (the job's side: sweep_run.SlurmRun).
-
-
 def check_slurm(partition: str | None) -> None:
     """Fail before anything is written when Slurm is not there or not answering."""
     for tool in ("sbatch", "squeue", "srun", "sinfo"):
@@ -471,31 +462,23 @@ def check_slurm(partition: str | None) -> None:
 
 
 def sbatch_options(options: list[str]) -> dict[str, str | bool]:
-    parsed: dict[str, str | bool] = {}
-    for option in options:
-        key, sep, value = option.removeprefix("--").partition("=")
-        parsed[key.replace("-", "_")] = value if sep else True
-    return parsed
+    split = (option.removeprefix("--").partition("=") for option in options)
+    return {key.replace("-", "_"): value if sep else True for key, sep, value in split}
 
 
 def launch_slurm(runs: list[Run], args: Args) -> str:
-    """Submit the runs as one job array; returns the array's job id."""
-    executor = submitit.SlurmExecutor(
-        folder=runs[0].output_dir / ".submitit" / "%j", max_num_timeout=args.max_requeues
-    )
-    optional = {"partition": args.partition, "account": args.account}
+    """Submit the runs as one job array (each task a sweep_run.SlurmRun); returns its job id."""
+    executor = submitit.SlurmExecutor(folder=runs[0].output_dir / ".submitit" / "%j",
+                                      max_num_timeout=args.max_requeues)
+    optional = {"partition": args.partition, "account": args.account,
+                "gpus_per_task": args.gpus_per_task or None}
     executor.update_parameters(
-        job_name="sweep",
-        time=args.time_min,
-        cpus_per_task=args.cpus_per_task,
-        mem=f"{args.mem_gb}GB",
-        signal_delay_s=args.signal_delay_s,
-        array_parallelism=args.max_parallel,
-        stderr_to_stdout=True,
+        job_name="sweep", time=args.time_min, cpus_per_task=args.cpus_per_task,
+        mem=f"{args.mem_gb}GB", signal_delay_s=args.signal_delay_s,
+        array_parallelism=args.max_parallel, stderr_to_stdout=True,
         # The job unpickles SlurmRun from sac_utils/sweep_run.py, wherever the sweep started.
         setup=[f"export PYTHONPATH={shlex.quote(str(ROOT))}${{PYTHONPATH:+:$PYTHONPATH}}"],
         additional_parameters=sbatch_options(args.sbatch),
-        **({"gpus_per_task": args.gpus_per_task} if args.gpus_per_task else {}),
         **{key: value for key, value in optional.items() if value is not None},
     )
     for run in runs:
@@ -519,19 +502,6 @@ def wait_for_slurm(job_id: str) -> None:
         time.sleep(2.0)
 
 
-# Reports.
-
-
-def total_timesteps(run: Run) -> int:
-    """The run's step budget: from the arguments after `--`, else the script's default."""
-    for i, arg in enumerate(run.extra_args):
-        if arg == "--total-timesteps" and i + 1 < len(run.extra_args):
-            return int(run.extra_args[i + 1])
-        if arg.startswith("--total-timesteps="):
-            return int(arg.split("=", 1)[1])
-    return script_default_total_timesteps(run.script)
-
-
 @functools.cache
 def script_default_total_timesteps(script: Path) -> int:
     spec = importlib.util.spec_from_file_location(f"_sweep_{script.stem}", script)
@@ -553,7 +523,8 @@ def print_plan(runs: list[Run], states: dict[Run, str], args: Args,
         print(f"preset {args.preset}: {PRESETS[args.preset].why}")
     total = steps_left = longest = 0
     for run in runs:
-        budget = total_timesteps(run)
+        given = given_total_timesteps(run.extra_args)
+        budget = int(given) if given else script_default_total_timesteps(run.script)
         left = 0 if states[run] == "done" else budget - (last_eval_step(run.run_dir) or 0)
         total, steps_left, longest = total + budget, steps_left + left, max(longest, left)
         print(f"  {run.name:<60} {states[run]:<12} {action_for(states[run])}")
@@ -611,9 +582,6 @@ def free_checkpoints(output_dir: Path) -> None:
         freed += size
         print(f"{run_dir.name}: deleted checkpoint.pt ({size / 2**30:.2f} GiB)")
     print(f"freed {freed / 2**30:.2f} GiB")
-
-
-# Entry points.
 
 
 def sweep(args: Args, extra_args: tuple[str, ...]) -> int:

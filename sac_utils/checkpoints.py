@@ -203,7 +203,7 @@ def restart_from_snapshot(run_dir: Path, refill: int) -> dict:
     restarts/step<N>/ (the resume cuts them back to the step). Returns the restart's record."""
     import importlib
 
-    from sac_utils.cli import read_config_json
+    from sac_utils.cli import read_config_json, stored_args
 
     if (run_dir / "done.json").exists():
         fail(f"{run_dir} is finished (done.json); there is nothing to restart")
@@ -225,9 +225,7 @@ def restart_from_snapshot(run_dir: Path, refill: int) -> dict:
         fail(f"--refill {refill}: must be at least 1 (steps of acting before updates resume)")
 
     script = importlib.import_module(Path(config["script"]).stem)
-    fields = {f.name for f in dataclasses.fields(script.Args)}
-    stored = {k: tuple(v) if isinstance(v, list) else v for k, v in config.items() if k in fields}
-    args = dataclasses.replace(script.Args(), **stored)
+    args = dataclasses.replace(script.Args(), **stored_args(script.Args, config))
     action_space = script.make_env(args.env_id).action_space
     obs_dim, action_dim = config["obs_dim"], action_space.shape[0]
     agent = script.make_agent(args, obs_dim, action_space, torch.device("cpu"))

@@ -1,7 +1,7 @@
-"""Bad input, for the SAC scripts and evaluate.py: the one-line error (`fail`), each flag's range,
---resume's rules (the run's stored arguments are the defaults; a flag may change where and how
-fast, never what is computed), --env-id, a run's config.json, a non-finite action or loss. The
-flags themselves are the scripts' Args.
+"""Bad input, for the SAC scripts and evaluate.py: the one-line error (`fail`), each flag's range
+(broken_rule words it, for sweep.py too), --resume's rules (the run's stored arguments are the
+defaults; a flag may change where and how fast, never what is computed), --env-id, a run's
+config.json, a non-finite action or loss. The flags themselves are the scripts' Args.
 """
 
 import dataclasses
@@ -77,10 +77,7 @@ def parse_args(args_class: type, algorithm: str, eval_actions: Callable) -> obje
         return args
     path = Path(args.resume) / "config.json"
     config = read_run_config(Path(args.resume), algorithm)
-    stored = {f.name: config[f.name] for f in dataclasses.fields(args_class)
-              if f.name in config and f.name not in RUNTIME_FIELDS}
-    for key in ("hidden_sizes", "eval_selectors"):  # JSON lists back to the flags' tuples
-        stored[key] = tuple(stored.get(key, getattr(args, key)))
+    stored = stored_args(args_class, config, skip=RUNTIME_FIELDS)
     kept = {k: config[k] for k in KEPT_FIELDS if k in config}
     wrong = [k for k, v in (stored | kept).items() if not same_type(v, getattr(args, k))]
     if wrong:
@@ -93,6 +90,15 @@ def parse_args(args_class: type, algorithm: str, eval_actions: Callable) -> obje
              "drop them or start a new run")
     check_args(resumed, eval_actions)
     return resumed
+
+
+def stored_args(args_class: type, config: dict, skip: tuple[str, ...] = ()) -> dict:
+    """The arguments of a run's config.json that args_class has (but those in `skip`), its JSON
+    lists back to the flags' tuples (--hidden-sizes, --eval-selectors): for --resume, and for
+    checkpoints.restart_from_snapshot."""
+    names = [f.name for f in dataclasses.fields(args_class) if f.name not in skip]
+    return {k: tuple(config[k]) if isinstance(config[k], list) else config[k]
+            for k in names if k in config}
 
 
 def same_type(value: object, default: object) -> bool:
@@ -157,11 +163,20 @@ def check_args(args, eval_actions: Callable) -> None:
          "a folder name without '/'"),
         ("wandb_project_name", bool(args.wandb_project_name), "a non-empty name"),
     )
+    if message := broken_rule(args, rules):
+        fail(message)
+
+
+def broken_rule(args, rules: tuple[tuple[str, bool, str], ...]) -> str | None:
+    """The first rule (a field of args, whether its value is allowed, what is allowed) that args
+    break, as one line for the user (`--flag VALUE: must be ...`); None if they keep them all.
+    Shared with sweep.py, whose own errors are its SweepError."""
     for name, ok, allowed in rules:
         if not ok:
             value = getattr(args, name)
-            shown = " ".join(map(str, value)) if isinstance(value, tuple) else repr(value)
-            fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
+            shown = " ".join(map(str, value)) if isinstance(value, list | tuple) else repr(value)
+            return f"--{name.replace('_', '-')} {shown}: must be {allowed}"
+    return None
 
 
 def check_checkpoint_args(run_dir: Path, ckpt: dict, args) -> None:
