@@ -18,7 +18,7 @@ action minus tanh(mu) of the same actor, per task and over tasks.
 
 The file, top to bottom (docs/analyze.md maps each figure to its section and function):
 
-- What to edit: SUCCESS_BARS (a task's success bar) and EVALUATION_ACTIONS (an action the same
+- What to edit: SUCCESS_BARS (a task's success bar) and ACTIONS (an action the same
   actor is also evaluated with). Adding either is one entry there; every report follows.
 - The data layer: load -> pair -> align -> paired differences -> normalise, run folders in,
   arrays out; and --robust's evaluate.py folders, read into episodes and per-seed paired
@@ -74,46 +74,42 @@ SUCCESS_BARS = {
 }
 
 STANDARD, CORRECTED = "standard", "corrected"
-# The action each script evaluates with on its own (eval.csv's return_mean).
+# The action each script evaluates with on its own (eval.csv's unprefixed columns).
 OWN_ACTIONS = {CORRECTED: "mode", STANDARD: "tanh_mu"}
-# Optional (q_best_): how often the critic picked each candidate action (shares summing to 1).
-Q_BEST_SHARE_COLUMNS = ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_share_mean")
-
-
-@dataclasses.dataclass(frozen=True)
-class EvaluationAction:
-    """An action the same actor is also evaluated with, from the same start states: eval.csv's
-    block of columns `NAME_return_mean`, ... forms the group "ALGORITHM (TITLE eval)" (e.g.
-    `corrected (mean eval)`), which every report compares with tanh(mu) of the same actors."""
-
-    name: str  # eval.csv's column prefix without its "_"; the tables' "action" column
-    title: str = ""  # in the group's name, when other than `name`: "tanh(mu)"
-    # algorithm -> index of the group's colour in seaborn's colorblind palette, fixed so that
-    # colours stay put between reports (the actions of one algorithm get distant hues); a group
-    # without one gets a free colour.
-    colors: dict[str, int] = dataclasses.field(default_factory=dict)
-    choice_shares: tuple[str, ...] = ()  # eval.csv columns: how often each candidate was chosen
-
-    @property
-    def prefix(self) -> str:
-        return self.name + "_"
-
-    @property
-    def suffix(self) -> str:
-        return f" ({self.title or self.name} eval)"
-
-
+# An evaluation action: a block of eval.csv columns NAME_return_mean, ... of the same actor
+# from the same start states (sac_corrected.py always logs tanh_mu_; --eval-selectors adds
+# mean_, q_best_ and, for sac_standard.py, mode_) -> its name in figures and tables. A new one
+# is one entry here; every report follows.
+ACTIONS = {"tanh_mu": "tanh(mu)", "mode": "mode", "mean": "mean", "q_best": "q_best"}
 # The baseline every other action is compared with: sac_corrected.py always logs it.
-TANH_MU = EvaluationAction("tanh_mu", "tanh(mu)", colors={CORRECTED: 9})  # sky blue
-# A new evaluation action: one entry here (its eval.csv columns NAME_return_mean, ...). With
-# --eval-selectors both scripts log mean_ and q_best_, and sac_standard.py mode_.
-EVALUATION_ACTIONS = (
-    TANH_MU,
-    EvaluationAction("mode", colors={STANDARD: 3}),  # vermillion; corrected's own action
-    EvaluationAction("mean", colors={CORRECTED: 2, STANDARD: 5}),  # green, brown
-    EvaluationAction("q_best", colors={CORRECTED: 4, STANDARD: 6},  # pink, light pink
-                     choice_shares=Q_BEST_SHARE_COLUMNS),
-)
+BASELINE = stats.BASELINE
+# Optional: how often an action's critic picked each candidate (shares summing to 1).
+CHOICE_SHARES = {"q_best": ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_share_mean")}
+# Each (algorithm, action)'s colour, an index in seaborn's colorblind palette, fixed so that
+# colours stay put between reports (an algorithm's actions get distant hues); any other gets a
+# free colour.
+COLORS = {(STANDARD, "tanh_mu"): 0, (CORRECTED, "mode"): 1, (CORRECTED, "tanh_mu"): 9,
+          (STANDARD, "mode"): 3, (CORRECTED, "mean"): 2, (STANDARD, "mean"): 5,
+          (CORRECTED, "q_best"): 4, (STANDARD, "q_best"): 6}
+# A group of evaluations: the runs of an algorithm, evaluated with an action.
+Key = tuple[str, str]
+
+
+def own_action(algorithm: str) -> str:
+    """The action an algorithm's runs evaluate with on their own; another algorithm's name."""
+    return OWN_ACTIONS.get(algorithm, algorithm)
+
+
+def is_own(key: Key) -> bool:
+    """The runs' own evaluation, not a paired evaluation with another action."""
+    return key[1] == own_action(key[0])
+
+
+def group_name(key: Key) -> str:
+    """summary.csv's group: "corrected", "corrected (mean eval)"."""
+    algorithm, action = key
+    return algorithm if is_own(key) else f"{algorithm} ({ACTIONS.get(action, action)} eval)"
+
 
 # ------------------------------------------------------------------------- the run-folder format
 # The run-folder format read here (docs/scripts.md, "The run folder", documents it, also for users
@@ -124,8 +120,7 @@ REQUIRED_CONFIG_KEYS = ("env_id", "seed", "algorithm")
 STEP_COLUMN = "global_step"
 RETURN_COLUMN = "return_mean"  # mean return of the script's own evaluation action
 REQUIRED_EVAL_COLUMNS = (STEP_COLUMN, RETURN_COLUMN)
-PAIRED_SUFFIX = TANH_MU.suffix
-PAIRED_RETURN_COLUMN = TANH_MU.prefix + RETURN_COLUMN
+PAIRED_RETURN_COLUMN = f"{BASELINE}_{RETURN_COLUMN}"
 # Optional (sac_corrected.py): the distribution shift at the states the mode policy visited.
 SHIFT_COLUMNS = ("mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
 # Over training: the shift per action dimension, which tasks of any dimension share an axis on.
@@ -135,9 +130,8 @@ OVER_TRAINING_SHIFT_COLUMNS = ("mode_shift_abs_mean", "sigma_mean", "bimodal_fra
 EPISODES_COLUMN = "distinct_episodes"
 
 # ----------------------------------------------------------------------------- groups and settings
-PAIRED_CORRECTED = CORRECTED + PAIRED_SUFFIX
 # Probability of improvement of the first over the second.
-COMPARISON = (CORRECTED, STANDARD)
+COMPARISON = ((CORRECTED, "mode"), (STANDARD, BASELINE))
 STANDARD_LABEL = "Standard SAC"
 ALGORITHM_LABELS = {STANDARD: STANDARD_LABEL, CORRECTED: "Corrected SAC"}
 STANDARD_FROM_PAIRED_LABEL = "Standard SAC (tanh(mu), paired)"
@@ -219,20 +213,20 @@ class Curve:
     returns: np.ndarray
     action_dim: int | None = None  # config.json's, where it has one
     shift: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # SHIFT_COLUMNS
-    shares: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # choice_shares
+    shares: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # CHOICE_SHARES
     budget: int | None = None  # config.json's total_timesteps, where it has one
     episodes: np.ndarray | None = None  # EPISODES_COLUMN per step, where the run logged it
 
 
-# task -> group -> curves sorted by seed; a group is an algorithm or a paired evaluation
-Runs = dict[str, dict[str, list[Curve]]]
+# task -> (algorithm, action) -> curves sorted by seed
+Runs = dict[str, dict[Key, list[Curve]]]
 
 
 def optional_columns() -> tuple[str, ...]:
     """eval.csv's optional columns: each evaluation action's return and choice shares, the
     shift statistics, the distinct episodes."""
-    return (*(action.prefix + RETURN_COLUMN for action in EVALUATION_ACTIONS),
-            *(column for action in EVALUATION_ACTIONS for column in action.choice_shares),
+    return (*(f"{action}_{RETURN_COLUMN}" for action in ACTIONS),
+            *(column for columns in CHOICE_SHARES.values() for column in columns),
             *dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS), EPISODES_COLUMN)
 
 
@@ -349,19 +343,21 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
         shift = {c: columns[c] for c in dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS)
                  if c in columns}
         episodes = columns.get(EPISODES_COLUMN)
-        _add_curve(runs, task, algorithm, Curve(run_dir, seed, steps, columns[RETURN_COLUMN],
-                                                action_dim, shift, budget=budget,
-                                                episodes=episodes))
-        for action in EVALUATION_ACTIONS:
-            paired = columns.get(action.prefix + RETURN_COLUMN)
-            if paired is not None and np.isfinite(paired).all():
-                shares = {c: columns[c] for c in action.choice_shares if c in columns}
+        own = (algorithm, own_action(algorithm))
+        _add_curve(runs, task, own, Curve(run_dir, seed, steps, columns[RETURN_COLUMN],
+                                          action_dim, shift, budget=budget, episodes=episodes))
+        for action in ACTIONS:
+            paired = columns.get(f"{action}_{RETURN_COLUMN}")
+            if paired is None or action == own[1]:
+                continue
+            if np.isfinite(paired).all():
+                shares = {c: columns[c] for c in CHOICE_SHARES.get(action, ()) if c in columns}
                 curve = Curve(run_dir, seed, steps, paired, action_dim, shares=shares,
                               budget=budget, episodes=episodes)
-                _add_curve(runs, task, algorithm + action.suffix, curve)
-            elif paired is not None:
-                notes.append(f"{run_dir}: {action.prefix + RETURN_COLUMN} has empty cells; "
-                             f"its paired {action.name} eval left out")
+                _add_curve(runs, task, (algorithm, action), curve)
+            else:
+                notes.append(f"{run_dir}: {action}_{RETURN_COLUMN} has empty cells; "
+                             f"its paired {action} eval left out")
     if not runs:
         raise AnalysisError(
             f"no runs found under {', '.join(map(str, roots))}: a run is a folder holding "
@@ -375,61 +371,34 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
     return runs, notes
 
 
-def _add_curve(runs: Runs, task: str, group: str, curve: Curve) -> None:
-    curves = runs.setdefault(task, {}).setdefault(group, [])
+def _add_curve(runs: Runs, task: str, key: Key, curve: Curve) -> None:
+    curves = runs.setdefault(task, {}).setdefault(key, [])
     twin = next((other for other in curves if other.seed == curve.seed), None)
     if twin is not None:
         raise AnalysisError(
-            f"two runs of {task}, {group}, seed {curve.seed}: {twin.run_dir} and "
+            f"two runs of {task}, {group_name(key)}, seed {curve.seed}: {twin.run_dir} and "
             f"{curve.run_dir}; move one out of the folder"
         )
     curves.append(curve)
 
 
-def action_suffix(group: str) -> str:
-    """The suffix naming a group's paired evaluation action, "" for an algorithm's own."""
-    return next((a.suffix for a in EVALUATION_ACTIONS if group.endswith(a.suffix)), "")
-
-
-def algorithm_of(group: str) -> str:
-    """The algorithm whose runs a group evaluates: "corrected" for "corrected (mean eval)"."""
-    return group.removesuffix(action_suffix(group))
-
-
-def is_algorithm(group: str) -> bool:
-    """A group of the runs' own evaluations, not a paired evaluation of another action."""
-    return not action_suffix(group)
-
-
-def action_of(group: str) -> str:
-    """The action a group evaluates: mode, tanh_mu, mean, q_best, or the algorithm's name for
-    an algorithm other than the two scripts (its own action)."""
-    suffix = action_suffix(group)
-    if suffix:
-        return next(a.name for a in EVALUATION_ACTIONS if a.suffix == suffix)
-    return OWN_ACTIONS.get(group, group)
-
-
-def group_order() -> list[str]:
+def group_order() -> list[Key]:
     """The paper's groups in a fixed order (so that tables and colours stay put): the two
     algorithms, corrected's tanh(mu), then each algorithm's other evaluation actions."""
-    others = [algorithm + action.suffix for algorithm in (CORRECTED, STANDARD)
-              for action in EVALUATION_ACTIONS
-              if action.name not in (TANH_MU.name, OWN_ACTIONS[algorithm])]
-    return [STANDARD, CORRECTED, PAIRED_CORRECTED, *others]
+    others = [(algorithm, action) for algorithm in (CORRECTED, STANDARD) for action in ACTIONS
+              if action not in (BASELINE, own_action(algorithm))]
+    return [(STANDARD, BASELINE), (CORRECTED, "mode"), (CORRECTED, BASELINE), *others]
 
 
-def ordered_groups(runs: Runs) -> list[str]:
+def group_rank(key: Key) -> tuple[int, str]:
+    """Sort key: the paper's groups first, in a fixed order, then the others by name."""
+    order = group_order()
+    return (order.index(key) if key in order else len(order), group_name(key))
+
+
+def ordered_groups(runs: Runs) -> list[Key]:
     """Every group in the folder: the paper's first, in a fixed order (so colours stay put)."""
-    found = {group for groups in runs.values() for group in groups}
-    order = group_order()
-    return [g for g in order if g in found] + sorted(found - set(order))
-
-
-def group_rank(group: str) -> tuple[int, str]:
-    """Sort key: the paper's groups first, in a fixed order."""
-    order = group_order()
-    return (order.index(group) if group in order else len(order), group)
+    return sorted({key for groups in runs.values() for key in groups}, key=group_rank)
 
 
 # ------------------------------------------------------------------------------------- pair
@@ -447,15 +416,16 @@ def standard_from_paired(runs: Runs) -> Pairing:
     decisions, same start states, same actor). A task without sac_standard.py runs gets them
     from it; a task with both is checked point by point (same seed, same step)."""
     pairing = Pairing([], {}, [])
+    paired_key, standard_key = (CORRECTED, BASELINE), (STANDARD, BASELINE)
     for task, groups in sorted(runs.items()):
-        if PAIRED_CORRECTED not in groups:
+        if paired_key not in groups:
             continue
-        if STANDARD not in groups:
-            groups[STANDARD] = groups.pop(PAIRED_CORRECTED)
+        if standard_key not in groups:
+            groups[standard_key] = groups.pop(paired_key)
             pairing.derived.append(task)
             continue
-        paired = {curve.seed: curve for curve in groups[PAIRED_CORRECTED]}
-        for standard in groups[STANDARD]:
+        paired = {curve.seed: curve for curve in groups[paired_key]}
+        for standard in groups[standard_key]:
             twin = paired.get(standard.seed)
             if twin is None:
                 continue
@@ -489,16 +459,16 @@ class Task:
     """A task's runs aligned on the evaluation steps all of them share."""
 
     steps: np.ndarray  # (steps,) shared by every run of the task
-    returns: dict[str, np.ndarray]  # group -> (seeds, steps)
-    seeds: dict[str, list[int]]
+    returns: dict[Key, np.ndarray]  # (seeds, steps)
+    seeds: dict[Key, list[int]]
     scored_step: int  # the step final scores are taken at
     budget: int  # the runs' total_timesteps where they agree, else the last shared step
 
-    def at(self, group: str, steps: np.ndarray) -> np.ndarray:
+    def at(self, group: Key, steps: np.ndarray) -> np.ndarray:
         """The group's returns at some of the shared steps, (seeds, steps)."""
         return self.returns[group][:, np.searchsorted(self.steps, steps)]
 
-    def scored(self, group: str) -> np.ndarray:
+    def scored(self, group: Key) -> np.ndarray:
         """The group's returns at the scored step, one per seed."""
         return self.at(group, np.array([self.scored_step]))[:, 0]
 
@@ -580,27 +550,27 @@ def returns_at(curve: Curve, steps: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------- paired differences
 # Each evaluation action minus tanh(mu) of the same actors, per seed: the paired difference
 # report, over training and the dimension study read these arrays.
-def tanh_mu_group(groups: Sequence[str], algorithm: str, derived: bool) -> str | None:
+def baseline_of(keys: Sequence[Key], algorithm: str, derived: bool) -> Key | None:
     """The group holding the tanh(mu) evaluation of an algorithm's actors, if the task has one."""
-    if algorithm + PAIRED_SUFFIX in groups:
-        return algorithm + PAIRED_SUFFIX
-    if algorithm == CORRECTED and derived and STANDARD in groups:
-        return STANDARD  # the standard group is the corrected runs' paired evaluation
-    return algorithm if algorithm == STANDARD and algorithm in groups else None
+    if (algorithm, BASELINE) in keys:
+        return (algorithm, BASELINE)
+    if algorithm == CORRECTED and derived and (STANDARD, BASELINE) in keys:
+        return (STANDARD, BASELINE)  # the standard group is the corrected runs' paired evaluation
+    return None
 
 
-def paired_groups(data: Task, derived: bool) -> list[tuple[str, str]]:
+def paired_groups(data: Task, derived: bool) -> list[tuple[Key, Key]]:
     """(group of some evaluation action, group of tanh(mu) of the same actors) pairs present in
     a task: the corrected runs' mode, each run's mean, q_best and (standard runs) mode."""
     pairs = []
-    for group in sorted(data.returns, key=group_rank):
-        baseline = tanh_mu_group(list(data.returns), algorithm_of(group), derived)
-        if baseline is not None and baseline != group and action_of(group) != TANH_MU.name:
-            pairs.append((group, baseline))
+    for key in sorted(data.returns, key=group_rank):
+        baseline = baseline_of(list(data.returns), key[0], derived)
+        if baseline is not None and key[1] != BASELINE:
+            pairs.append((key, baseline))
     return pairs
 
 
-def paired_values(data: Task, group: str, baseline: str, steps: np.ndarray
+def paired_values(data: Task, group: Key, baseline: Key, steps: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray]:
     """(group, baseline) returns at `steps`, (seeds, steps) each, on the seeds both have: a run
     made without some evaluation action has no partner there."""
@@ -763,16 +733,16 @@ def robust_selectors(path: Path, step: int,
                      selectors: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
                      ) -> dict[str, np.ndarray]:
     """One policy's returns by selector, checked to be paired with its tanh(mu) episodes."""
-    if TANH_MU.name not in selectors:
+    if BASELINE not in selectors:
         raise AnalysisError(
-            f"{path}: no {TANH_MU.name} episodes at step {format_step(step)}; every action is "
+            f"{path}: no {BASELINE} episodes at step {format_step(step)}; every action is "
             f"compared with tanh(mu) of the same actor, so evaluate with --selectors ... "
-            f"{TANH_MU.name}")
-    baseline = selectors[TANH_MU.name][0]
+            f"{BASELINE}")
+    baseline = selectors[BASELINE][0]
     for selector, (episodes, _, _) in selectors.items():
         if not np.array_equal(episodes, baseline):
             raise AnalysisError(
-                f"{path}, step {format_step(step)}: {selector} and {TANH_MU.name} played "
+                f"{path}, step {format_step(step)}: {selector} and {BASELINE} played "
                 "different episodes, so they are not paired; evaluate the campaign again")
     return {selector: returns for selector, (_, returns, _) in selectors.items()}
 
@@ -802,7 +772,7 @@ def robust_paired_differences(robust: RobustEpisodes) -> dict[str, dict[int, Rob
     by_task: dict[str, dict[int, RobustStep]] = {}
     for (task, seed, step), selectors in sorted(robust.returns.items()):
         at = by_task.setdefault(task, {}).setdefault(step, RobustStep({}, {}, {}, np.empty(0)))
-        baseline = selectors[TANH_MU.name]
+        baseline = selectors[BASELINE]
         at.episodes = np.append(at.episodes, baseline.size)
         for selector in (s for s in robust.selectors if s in selectors):
             at.seeds.setdefault(selector, []).append(seed)
@@ -814,7 +784,7 @@ def robust_paired_differences(robust: RobustEpisodes) -> dict[str, dict[int, Rob
             ended = robust.ends[task, seed, step][selector]
             so_far = at.ends.get(selector, collections.Counter())
             at.ends[selector] = None if ended is None or so_far is None else so_far + ended
-            if selector != TANH_MU.name:
+            if selector != BASELINE:
                 diffs = stats.paired_difference(selectors[selector], baseline)
                 at.differences[selector] = np.append(at.differences.get(selector, []),
                                                      diffs.mean())
@@ -873,34 +843,36 @@ class Aggregate:
     """Normalised scores of the groups compared across tasks, as rliable wants them."""
 
     tasks: list[str]
-    groups: list[str]
-    final: dict[str, np.ndarray]  # group -> (runs, tasks) at each task's scored step
+    groups: list[Key]
+    final: dict[Key, np.ndarray]  # group -> (runs, tasks) at each task's scored step
     frames: np.ndarray  # x of the sample-efficiency curve: steps, or fractions of the budgets
     curves: dict[str, np.ndarray]  # group -> (runs, tasks, frames)
     by_fraction: bool = False  # frames are fractions of each task's budget
 
 
 def build_aggregate(
-    tasks: dict[str, Task], norms: dict, groups: list[str], curve_points: int
+    tasks: dict[str, Task], norms: dict, groups: list[Key], curve_points: int
 ) -> tuple[Aggregate | None, list[str]]:
     """Score matrices over the tasks that every algorithm ran, and notes on what was left out."""
     notes = []
-    algorithms = [g for g in groups if is_algorithm(g)]
+    algorithms = [g for g in groups if is_own(g)]
     common = [t for t, data in tasks.items() if all(a in data.returns for a in algorithms)]
     for task in sorted(set(tasks) - set(common)):
         lacking = [a for a in algorithms if a not in tasks[task].returns]
-        notes.append(f"{task}: left out of the aggregate metrics (no {', '.join(lacking)} runs)")
+        notes.append(f"{task}: left out of the aggregate metrics (no "
+                     f"{', '.join(map(group_name, lacking))} runs)")
     if not common:
         notes.append("no task was run by every algorithm: aggregate metrics skipped")
         return None, notes
     members = [g for g in groups if all(g in tasks[t].returns for t in common)]
     for group in sorted(set(groups) - set(members), key=groups.index):
-        notes.append(f"{group}: left out of the aggregate metrics (missing on some tasks)")
+        notes.append(f"{group_name(group)}: left out of the aggregate metrics (missing on some "
+                     "tasks)")
     runs = {g: min(tasks[t].returns[g].shape[0] for t in common) for g in members}
     for g in members:
         if any(tasks[t].returns[g].shape[0] > runs[g] for t in common):
             notes.append(
-                f"{g}: tasks have different numbers of seeds; the aggregate uses the "
+                f"{group_name(g)}: tasks have different numbers of seeds; the aggregate uses the "
                 f"{runs[g]} lowest seeds of each task"
             )
     final = {
@@ -1023,9 +995,10 @@ class Report:
     figures: list[Path] = dataclasses.field(default_factory=list)
     notes: list[str] = dataclasses.field(default_factory=list)
 
-    def row(self, section: str, task: str, group: str, metric: str, step: int | str,
+    def row(self, section: str, task: str, group: Key | str, metric: str, step: int | str,
             runs: int | str, estimate: float, low: float, high: float) -> None:
-        self.rows.append(dict(section=section, task=task, group=group, metric=metric, step=step,
+        name = group if isinstance(group, str) else group_name(group)
+        self.rows.append(dict(section=section, task=task, group=name, metric=metric, step=step,
                               n_runs=runs, estimate=float(estimate), ci_low=float(low),
                               ci_high=float(high)))
 
@@ -1058,25 +1031,20 @@ class GroupLabels:
 
     standard: str = STANDARD_LABEL
 
-    def __call__(self, group: str) -> str:
-        algorithm = algorithm_of(group)
-        name = self.standard if algorithm == STANDARD else \
+    def __call__(self, key: Key) -> str:
+        algorithm, action = key
+        return self.algorithm(algorithm) + (
+            "" if is_own(key) else f" ({ACTIONS.get(action, action)} eval)")
+
+    def algorithm(self, algorithm: str) -> str:
+        return self.standard if algorithm == STANDARD else \
             ALGORITHM_LABELS.get(algorithm, algorithm)
-        return name + action_suffix(group)
 
 
-def group_color_index() -> dict[str, int]:
-    """Each group's fixed colour, an index in seaborn's colorblind palette (EVALUATION_ACTIONS)."""
-    index = {STANDARD: 0, CORRECTED: 1}  # blue, orange
-    for action in EVALUATION_ACTIONS:
-        index |= {algorithm + action.suffix: i for algorithm, i in action.colors.items()}
-    return index
-
-
-def group_colors(groups: list[str]) -> dict[str, tuple]:
+def group_colors(groups: list[Key]) -> dict[Key, tuple]:
     """Each group's colour: its fixed one, else a free one of the palette, else a dark one."""
     palette = sns.color_palette("colorblind", n_colors=10)
-    fixed = group_color_index()
+    fixed = COLORS
     extra = iter(c for i, c in enumerate(palette) if i not in fixed.values())
     cycle = iter(sns.color_palette("dark", n_colors=max(len(groups), 1)))
     return {g: palette[fixed[g]] if g in fixed else next(extra, None) or next(cycle)
@@ -1124,7 +1092,7 @@ class Analysis:
     args: Args  # --normalize resolved from auto
     runs: Runs
     tasks: dict[str, Task]
-    groups: list[str]  # every group, in group_order
+    groups: list[Key]  # every group, in group_order
     pairing: Pairing
     norms: dict[str, tuple[float, float]]  # task -> (offset, scale)
     aggregate: Aggregate | None  # the normalised scores of the groups compared across tasks
@@ -1251,7 +1219,7 @@ def aggregate_title(agg: Aggregate) -> str:
 # it reads `analysis` (the data layer's output) and the shared tools, never another section.
 
 # --------------------------------------- 1. the header, and where the standard numbers come from
-def found_table(runs: Runs, groups: list[str]) -> str:
+def found_table(runs: Runs, groups: list[Key]) -> str:
     """Tasks x groups: how many seeds, and the last step they reached."""
     rows = []
     for task, by_group in sorted(runs.items()):
@@ -1265,10 +1233,10 @@ def found_table(runs: Runs, groups: list[str]) -> str:
                                              if max(last) > min(last) else "")
             cells.append(f"{counted(len(last), 'seed')}, to step {span}")
         rows.append([task, *cells])
-    return markdown_table(["task", *groups], rows)
+    return markdown_table(["task", *map(group_name, groups)], rows)
 
 
-def found_text(runs_dirs: Sequence[Path], runs: Runs, groups: list[str]) -> str:
+def found_text(runs_dirs: Sequence[Path], runs: Runs, groups: list[Key]) -> str:
     """What the folder holds: how many runs, and found_table."""
     # Run folders, not groups: a corrected folder also stands for the derived standard group.
     n_runs = len({curve.run_dir for by_group in runs.values() for curves in by_group.values()
@@ -1429,28 +1397,27 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict) -> 
     args, norms, labels = analysis.args, analysis.norms, analysis.labels
     lines = []
     found = {group for by_group in differences.values() for group in by_group}
-    for algorithm in sorted(found, key=group_rank):
-        per_task = {t: d[algorithm] / norms[t][1] for t, d in differences.items()
-                    if algorithm in d}
+    for key in sorted(found, key=group_rank):
+        per_task = {t: d[key] / norms[t][1] for t, d in differences.items() if key in d}
         if len(per_task) < 2:
             continue
         seeds = min(d.size for d in per_task.values())
         scores = np.stack([d[:seeds] for d in per_task.values()], axis=1)  # (seeds, tasks)
-        point, interval = interval_estimates({algorithm: scores}, metrics.aggregate_mean,
+        point, interval = interval_estimates({key: scores}, metrics.aggregate_mean,
                                              args.reps, args.seed)
-        low, high = interval[algorithm].ravel()
+        low, high = interval[key].ravel()
         won = sum(int((d > 0).sum()) for d in per_task.values())
         pairs = sum(d.size for d in per_task.values())
         t_values = welch_interval(list(scores.T))
-        report.row("paired_difference", "all", algorithm, "mean_score", "", seeds,
-                   point[algorithm], low, high)
-        report.row("paired_difference", "all", algorithm, "mean_score_t", "", seeds, *t_values)
-        report.row("paired_difference", "all", algorithm, "share_won", "", pairs, won / pairs,
+        report.row("paired_difference", "all", key, "mean_score", "", seeds, point[key], low,
+                   high)
+        report.row("paired_difference", "all", key, "mean_score_t", "", seeds, *t_values)
+        report.row("paired_difference", "all", key, "share_won", "", pairs, won / pairs,
                    math.nan, math.nan)
-        action = action_of(algorithm)
-        lines += ["", f"Over {len(per_task)} tasks, {labels(algorithm_of(algorithm))}, {action} "
+        action = key[1]
+        lines += ["", f"Over {len(per_task)} tasks, {labels.algorithm(key[0])}, {action} "
                   f"minus tanh(mu): mean {SCORE_NAMES[args.normalize].lower()} difference "
-                  f"{format_ci(float(point[algorithm]), low, high, runs=seeds)} ({seeds} seeds "
+                  f"{format_ci(float(point[key]), low, high, runs=seeds)} ({seeds} seeds "
                   "per task, "
                   f"stratified bootstrap CI), t-interval [{t_values[1]:.3f}, "
                   f"{t_values[2]:.3f}] (Welch, the tasks' seeds independent); the {action} won "
@@ -1480,7 +1447,7 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
         for group, diffs in by_group.items():
             last = diffs[:, np.searchsorted(tasks[task].steps, step)]
             cells = seed_cells(last, scored[task, group], 1)
-            table.append([task, labels(algorithm_of(group)), action_of(group), last.size,
+            table.append([task, labels.algorithm(group[0]), group[1], last.size,
                           f"last ({format_step(step)})", *cells, f"{int((last > 0).sum())} of "
                           f"{last.size}"])
             for k in LAST_ROUNDS:
@@ -1499,7 +1466,7 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
                     [c for cs in runs[task].values() for c in cs], window)
                 rounds = f"last {k} ({format_step(window[0])}-{format_step(window[-1])})" + \
                     (", one episode each" if episodes else "")
-                table.append([task, labels(algorithm_of(group)), action_of(group),
+                table.append([task, labels.algorithm(group[0]), group[1],
                               values.size, rounds, *seed_cells(values, estimate, 1),
                               f"{won} of {values.size}"])
     lines += ["", "Averaged over the last rounds: per seed, the difference averaged over the "
@@ -1559,10 +1526,10 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
                        *(v / scale for v in t_values))
             report.row("paired_difference", task, group, "share_won", step, n, won / n,
                        math.nan, math.nan)
-            table.append([task, format_step(step), labels(algorithm_of(group)),
-                          action_of(group), n, *seed_cells(diffs, values, 1),
+            table.append([task, format_step(step), labels.algorithm(group[0]),
+                          group[1], n, *seed_cells(diffs, values, 1),
                           seed_cells(diffs / scale, scaled)[0], f"{won} of {n}"])
-            name = f"{labels(algorithm_of(group))}: {action_of(group)}, " \
+            name = f"{labels.algorithm(group[0])}: {group[1]}, " \
                 if len(by_group) > 1 else ""
             row_labels[task, group] = (f"{task}, {format_step(step)}\n{name}n = "
                                        f"{counted(n, 'seed')}"
@@ -1615,11 +1582,8 @@ def robust_action_label(action: str) -> str:
 def robust_action_colors(selectors: Sequence[str]) -> dict[str, tuple]:
     """Each action's colour: that of the corrected runs' group evaluated with it (the mode is
     Corrected SAC's own), so that it matches the paired-difference figure."""
-    actions = {action.name: action for action in EVALUATION_ACTIONS}
-    groups = {s: CORRECTED if s == OWN_ACTIONS[CORRECTED] else
-              CORRECTED + actions.get(s, EvaluationAction(s)).suffix for s in selectors}
-    colors = group_colors(list(groups.values()))
-    return {s: colors[g] for s, g in groups.items()}
+    colors = group_colors([(CORRECTED, s) for s in selectors])
+    return {s: colors[CORRECTED, s] for s in selectors}
 
 
 def episodes_span(episodes: np.ndarray) -> str:
@@ -2049,7 +2013,7 @@ def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.n
     that logged it with no empty cell there."""
     shifts: dict[str, dict[str, np.ndarray]] = {}
     for task, data in tasks.items():
-        curves = runs[task].get(CORRECTED, [])
+        curves = runs[task].get((CORRECTED, own_action(CORRECTED)), [])
         for column in OVER_TRAINING_SHIFT_COLUMNS:
             rows = [c.shift[column][np.searchsorted(c.steps, data.steps)] for c in curves
                     if column in c.shift]
@@ -2081,7 +2045,7 @@ def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dic
         for group, diffs in differences.get(task, {}).items():
             mean, (low, high) = estimates[task][group]
             seeds.add(diffs.shape[0])
-            name = f"{action_of(group)} ({labels(algorithm_of(group))})"
+            name = f"{group[1]} ({labels.algorithm(group[0])})"
             if rolling:  # a round is one draw of the evaluation noise: the trend needs a window
                 ax.plot(x, mean, color=colors[group], lw=0.7, alpha=0.45)
                 window = np.convolve(mean, np.ones(ROLLING_ROUNDS) / ROLLING_ROUNDS, "valid")
@@ -2168,7 +2132,7 @@ def report_over_training(report: Report, analysis: Analysis) -> None:
             if i in shown:
                 table.append([format_step(step), *cells])
         header = ["step", *(name for g in by_group
-                            for name in (f"{action_of(g)} minus tanh(mu)", "t-interval")),
+                            for name in (f"{g[1]} minus tanh(mu)", "t-interval")),
                   *task_shift]
         lines += [f"**{task}**", "", markdown_table(header, table), ""]
     report.section("Over training: paired differences and the measured shift", *lines)
@@ -2180,48 +2144,45 @@ def report_choice_shares(report: Report, analysis: Analysis) -> None:
     mean, at each task's scored step, for each evaluation action that logs its choice_shares.
     Estimator: the mean over seeds with rliable's bootstrap CI (seed_mean_estimates:
     stats.bootstrap_mean), a share per seed being one value per seed."""
-    for action in EVALUATION_ACTIONS:
-        if action.choice_shares:
-            report_choice_shares_of(report, analysis, action)
+    for action in CHOICE_SHARES:
+        report_choice_shares_of(report, analysis, action)
 
 
-def report_choice_shares_of(report: Report, analysis: Analysis, action: EvaluationAction
-                            ) -> None:
+def report_choice_shares_of(report: Report, analysis: Analysis, action: str) -> None:
     """One action's choice shares (q_best's: mode, tanh(mu), mean), where it was evaluated."""
     args, runs, tasks = analysis.args, analysis.runs, analysis.tasks
     samples = {}
     for task, data in tasks.items():
         for group, curves in runs[task].items():
-            if action_of(group) != action.name:
+            if group[1] != action:
                 continue
-            for column in action.choice_shares:
+            for column in CHOICE_SHARES[action]:
                 values = np.array([c.shares[column][c.steps == data.scored_step][0]
                                    for c in curves if column in c.shares])
                 if np.isfinite(values).any():
                     samples[task, group, column] = values[np.isfinite(values)]
     if not samples:
         return
-    estimates = seed_mean_estimates({(f"{t}|{g}", c): v for (t, g, c), v in samples.items()},
+    estimates = seed_mean_estimates({((t, g), c): v for (t, g, c), v in samples.items()},
                                     args.reps, args.seed)
-    prefix = f"{action.name}_share_"
-    candidates = [column.removeprefix(prefix) for column in action.choice_shares]
-    titles = {a.name: a.title or a.name for a in EVALUATION_ACTIONS}
+    prefix = f"{action}_share_"
+    candidates = [column.removeprefix(prefix) for column in CHOICE_SHARES[action]]
     table = {}
     for (task, group, column), values in samples.items():
         step = tasks[task].scored_step
-        estimate = estimates[f"{task}|{group}", column]
+        estimate = estimates[(task, group), column]
         name = column.removeprefix(prefix)
-        report.row(f"{action.name}_share", task, group, name, step, values.size, *estimate)
+        report.row(f"{action}_share", task, group, name, step, values.size, *estimate)
         row = table.setdefault((task, group), [task, format_step(step),
-                                               analysis.labels(algorithm_of(group)),
+                                               analysis.labels.algorithm(group[0]),
                                                values.size, *["-"] * len(candidates)])
         row[4 + candidates.index(name)] = format_ci(*estimate)
     report.section(
-        f"{action.name}: which action the critic picked",
-        f"Share of {action.name}'s evaluation steps at which the critic preferred each "
+        f"{action}: which action the critic picked",
+        f"Share of {action}'s evaluation steps at which the critic preferred each "
         "candidate, at each task's scored step; mean over seeds with a 95% bootstrap CI.", "",
         markdown_table(["task", "step", "algorithm", "seeds",
-                        *(titles.get(c, c) for c in candidates)], list(table.values())))
+                        *(ACTIONS.get(c, c) for c in candidates)], list(table.values())))
 
 
 # ------------------------------------------------- 6. reward curves and final returns (Fig. 5)
@@ -2273,7 +2234,7 @@ def plot_reward_curves(
         top = -math.inf
         for group in [g for g in groups if g in data.returns]:
             mean, (low, high) = curves[task][group]
-            style = ":" if single[task, group] else "-" if is_algorithm(group) else "--"
+            style = ":" if single[task, group] else "-" if is_own(group) else "--"
             ax.plot(data.steps / unit, mean, style, color=colors[group], lw=width_line,
                     label=labels(group) + (" (one episode per evaluation)"
                                            if single[task, group] else ""))
@@ -2450,10 +2411,11 @@ def report_probability_of_improvement(report: Report, analysis: Analysis) -> Non
         return
     x, y = COMPARISON
     if x not in agg.groups or y not in agg.groups:
-        report.notes.append(f"probability of improvement needs both {x} and {y} runs: skipped")
+        report.notes.append(f"probability of improvement needs both {group_name(x)} and "
+                            f"{group_name(y)} runs: skipped")
         return
     print(f"probability of improvement ({args.curve_reps:,} reps) ...")
-    pair = f"{x} > {y}"
+    pair = f"{group_name(x)} > {group_name(y)}"
     point, interval = interval_estimates({pair: [agg.final[x], agg.final[y]]},
                                          metrics.probability_of_improvement,
                                          args.curve_reps, args.seed)
@@ -2521,8 +2483,8 @@ def dimension_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
         pairs = paired_groups(data, task in derived)
         if not pairs:
             continue
-        algorithms = {algorithm_of(group) for group, _ in pairs}
-        dims = {c.action_dim for a in algorithms for c in runs[task].get(a, [])}
+        algorithms = {group[0] for group, _ in pairs}
+        dims = {c.action_dim for a in algorithms for c in runs[task].get((a, own_action(a)), [])}
         if None in dims or len(dims) != 1:
             notes.append(f"{task}: its runs' config.json give no single action_dim "
                          f"({sorted(dims, key=str)}); left out of the dimension study")
@@ -2535,8 +2497,8 @@ def dimension_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
             own, paired = paired_values(data, group, baseline, np.array(list(steps.values())))
             differences[group] = dict(zip(steps, (own - paired).T, strict=True))
         shift = {}
-        for algorithm in sorted(algorithms, key=group_rank):  # corrected's shift first
-            shift = shift or shift_at(runs[task][algorithm], data.scored_step)
+        for key in sorted(((a, own_action(a)) for a in algorithms), key=group_rank):
+            shift = shift or shift_at(runs[task][key], data.scored_step)
         study[task] = Dimension(dims.pop(), scale, steps, differences, shift)
     return study, notes
 
@@ -2568,10 +2530,10 @@ def _errorbar(ax, x: float, estimate: tuple[float, float, float], **style) -> No
 
 
 def study_actions(study: dict[str, Dimension]) -> list[str]:
-    """The evaluation actions compared with tanh(mu) in the study, in EVALUATION_ACTIONS' order
+    """The evaluation actions compared with tanh(mu) in the study, in ACTIONS' order
     (mode, mean, q_best), then any other."""
-    found = {action_of(g) for d in study.values() for g in d.differences}
-    known = [a.name for a in EVALUATION_ACTIONS if a.name in found]
+    found = {g[1] for d in study.values() for g in d.differences}
+    known = [a for a in ACTIONS if a in found]
     return known + sorted(found - set(known))
 
 
@@ -2590,16 +2552,16 @@ def plot_dimension_study(study: dict[str, Dimension], estimates: dict, colors: l
     xs = dimension_positions(study)
     markers = {CORRECTED: "o", STANDARD: "s"}
     for (ax_dim, ax_progress), action in zip(axes[:-1], actions, strict=True):
-        groups = {g for d in study.values() for g in d.differences if action_of(g) == action}
-        several = len({algorithm_of(g) for g in groups}) > 1
+        groups = {g for d in study.values() for g in d.differences if g[1] == action}
+        several = len({g[0] for g in groups}) > 1
         for (task, d), color in zip(study.items(), colors, strict=False):
             for group in sorted(d.differences, key=group_rank):
-                if action_of(group) != action:
+                if group[1] != action:
                     continue
-                name = f"{task} ({d.action_dim})" + (f", {labels(algorithm_of(group))}"
+                name = f"{task} ({d.action_dim})" + (f", {labels.algorithm(group[0])}"
                                                      if several else "")
                 _plot_difference(ax_dim, ax_progress, xs[task], d, estimates, (task, group),
-                                 color=color, marker=markers.get(algorithm_of(group), "D"),
+                                 color=color, marker=markers.get(group[0], "D"),
                                  label=name)
         ylabel = f"{action} - tanh(mu), normalised"
         ax_dim.set(xscale="log", xlabel="action dimensions", ylabel=ylabel,
@@ -2697,7 +2659,7 @@ def report_dimension_study(report: Report, analysis: Analysis) -> None:
                 report.row("dimension", task, group, f"raw_difference_t@{f:g}", step, runs_n,
                            *t_values)
                 raw, t_cell = seed_cells(diffs, [v * d.scale for v in (point, low, high)], 1)
-                table.append([task, d.action_dim, labels(algorithm_of(group)), action_of(group),
+                table.append([task, d.action_dim, labels.algorithm(group[0]), group[1],
                               runs_n, f"{f:g} ({format_step(step)})", raw, t_cell,
                               seed_cells(diffs / d.scale, (point, low, high))[0],
                               f"{int((diffs > 0).sum())} of {runs_n}"])
