@@ -565,9 +565,11 @@ def test_dimension_study_recovers_known_offsets_per_dimension(tmp_path):
 
 
 def test_dimension_positions_spread_tasks_that_share_a_dimension():
-    study = {t: analyze.Dimension(d, 1.0, {}, {}, {}) for t, d in
+    from sac_utils.dimension_study import Dimension, dimension_positions
+
+    study = {t: Dimension(d, 1.0, {}, {}, {}) for t, d in
              (("a", 3), ("b", 61), ("c", 61), ("d", 61))}
-    xs = analyze.dimension_positions(study)
+    xs = dimension_positions(study)
     assert xs["a"] == 3 and np.isclose(xs["c"], 61) and xs["b"] < 61 < xs["d"]
     assert np.isclose(xs["b"] * xs["d"], 61**2)  # symmetric on the log axis
 
