@@ -18,7 +18,7 @@ action minus tanh(mu) of the same actor, per task and over tasks.
 
 The file, top to bottom (docs/analyze.md maps each figure to its section and function):
 
-- What to edit: SUCCESS_BARS (a task's success bar) and EVALUATION_ACTIONS (an action the same
+- What to edit: SUCCESS_BARS (a task's success bar) and ACTIONS (an action the same
   actor is also evaluated with). Adding either is one entry there; every report follows.
 - The data layer: load -> pair -> align -> paired differences -> normalise, run folders in,
   arrays out; and --robust's evaluate.py folders, read into episodes and per-seed paired
@@ -58,8 +58,11 @@ from matplotlib.patches import Patch
 from rliable import library as rly
 from rliable import metrics, plot_utils
 
+from sac_utils import dimension_study as dimensions
 from sac_utils import stats
-from sac_utils.stats import CONFIDENCE, t_interval, welch_interval
+from sac_utils.dimension_study import SHIFT_COLUMNS, Dimension, training_fraction_steps
+from sac_utils.report import Report, counted, format_ci, format_step, markdown_table, seed_cells
+from sac_utils.stats import CONFIDENCE, seed_mean_estimates, t_interval, welch_interval
 
 # ============================================================================== what to edit
 # A task with a success bar: one entry here. HumanoidBench's success bars, the return at which a
@@ -74,46 +77,42 @@ SUCCESS_BARS = {
 }
 
 STANDARD, CORRECTED = "standard", "corrected"
-# The action each script evaluates with on its own (eval.csv's return_mean).
+# The action each script evaluates with on its own (eval.csv's unprefixed columns).
 OWN_ACTIONS = {CORRECTED: "mode", STANDARD: "tanh_mu"}
-# Optional (q_best_): how often the critic picked each candidate action (shares summing to 1).
-Q_BEST_SHARE_COLUMNS = ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_share_mean")
-
-
-@dataclasses.dataclass(frozen=True)
-class EvaluationAction:
-    """An action the same actor is also evaluated with, from the same start states: eval.csv's
-    block of columns `NAME_return_mean`, ... forms the group "ALGORITHM (TITLE eval)" (e.g.
-    `corrected (mean eval)`), which every report compares with tanh(mu) of the same actors."""
-
-    name: str  # eval.csv's column prefix without its "_"; the tables' "action" column
-    title: str = ""  # in the group's name, when other than `name`: "tanh(mu)"
-    # algorithm -> index of the group's colour in seaborn's colorblind palette, fixed so that
-    # colours stay put between reports (the actions of one algorithm get distant hues); a group
-    # without one gets a free colour.
-    colors: dict[str, int] = dataclasses.field(default_factory=dict)
-    choice_shares: tuple[str, ...] = ()  # eval.csv columns: how often each candidate was chosen
-
-    @property
-    def prefix(self) -> str:
-        return self.name + "_"
-
-    @property
-    def suffix(self) -> str:
-        return f" ({self.title or self.name} eval)"
-
-
+# An evaluation action: a block of eval.csv columns NAME_return_mean, ... of the same actor
+# from the same start states (sac_corrected.py always logs tanh_mu_; --eval-selectors adds
+# mean_, q_best_ and, for sac_standard.py, mode_) -> its name in figures and tables. A new one
+# is one entry here; every report follows.
+ACTIONS = {"tanh_mu": "tanh(mu)", "mode": "mode", "mean": "mean", "q_best": "q_best"}
 # The baseline every other action is compared with: sac_corrected.py always logs it.
-TANH_MU = EvaluationAction("tanh_mu", "tanh(mu)", colors={CORRECTED: 9})  # sky blue
-# A new evaluation action: one entry here (its eval.csv columns NAME_return_mean, ...). With
-# --eval-selectors both scripts log mean_ and q_best_, and sac_standard.py mode_.
-EVALUATION_ACTIONS = (
-    TANH_MU,
-    EvaluationAction("mode", colors={STANDARD: 3}),  # vermillion; corrected's own action
-    EvaluationAction("mean", colors={CORRECTED: 2, STANDARD: 5}),  # green, brown
-    EvaluationAction("q_best", colors={CORRECTED: 4, STANDARD: 6},  # pink, light pink
-                     choice_shares=Q_BEST_SHARE_COLUMNS),
-)
+BASELINE = stats.BASELINE
+# Optional: how often an action's critic picked each candidate (shares summing to 1).
+CHOICE_SHARES = {"q_best": ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_share_mean")}
+# Each (algorithm, action)'s colour, an index in seaborn's colorblind palette, fixed so that
+# colours stay put between reports (an algorithm's actions get distant hues); any other gets a
+# free colour.
+COLORS = {(STANDARD, "tanh_mu"): 0, (CORRECTED, "mode"): 1, (CORRECTED, "tanh_mu"): 9,
+          (STANDARD, "mode"): 3, (CORRECTED, "mean"): 2, (STANDARD, "mean"): 5,
+          (CORRECTED, "q_best"): 4, (STANDARD, "q_best"): 6}
+# A group of evaluations: the runs of an algorithm, evaluated with an action.
+Key = tuple[str, str]
+
+
+def own_action(algorithm: str) -> str:
+    """The action an algorithm's runs evaluate with on their own; another algorithm's name."""
+    return OWN_ACTIONS.get(algorithm, algorithm)
+
+
+def is_own(key: Key) -> bool:
+    """The runs' own evaluation, not a paired evaluation with another action."""
+    return key[1] == own_action(key[0])
+
+
+def group_name(key: Key) -> str:
+    """summary.csv's group: "corrected", "corrected (mean eval)"."""
+    algorithm, action = key
+    return algorithm if is_own(key) else f"{algorithm} ({ACTIONS.get(action, action)} eval)"
+
 
 # ------------------------------------------------------------------------- the run-folder format
 # The run-folder format read here (docs/scripts.md, "The run folder", documents it, also for users
@@ -124,10 +123,7 @@ REQUIRED_CONFIG_KEYS = ("env_id", "seed", "algorithm")
 STEP_COLUMN = "global_step"
 RETURN_COLUMN = "return_mean"  # mean return of the script's own evaluation action
 REQUIRED_EVAL_COLUMNS = (STEP_COLUMN, RETURN_COLUMN)
-PAIRED_SUFFIX = TANH_MU.suffix
-PAIRED_RETURN_COLUMN = TANH_MU.prefix + RETURN_COLUMN
-# Optional (sac_corrected.py): the distribution shift at the states the mode policy visited.
-SHIFT_COLUMNS = ("mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
+PAIRED_RETURN_COLUMN = f"{BASELINE}_{RETURN_COLUMN}"
 # Over training: the shift per action dimension, which tasks of any dimension share an axis on.
 OVER_TRAINING_SHIFT_COLUMNS = ("mode_shift_abs_mean", "sigma_mean", "bimodal_fraction")
 # Optional: how many distinct episodes an evaluation round held. A task that resets without
@@ -135,9 +131,8 @@ OVER_TRAINING_SHIFT_COLUMNS = ("mode_shift_abs_mean", "sigma_mean", "bimodal_fra
 EPISODES_COLUMN = "distinct_episodes"
 
 # ----------------------------------------------------------------------------- groups and settings
-PAIRED_CORRECTED = CORRECTED + PAIRED_SUFFIX
 # Probability of improvement of the first over the second.
-COMPARISON = (CORRECTED, STANDARD)
+COMPARISON = ((CORRECTED, "mode"), (STANDARD, BASELINE))
 STANDARD_LABEL = "Standard SAC"
 ALGORITHM_LABELS = {STANDARD: STANDARD_LABEL, CORRECTED: "Corrected SAC"}
 STANDARD_FROM_PAIRED_LABEL = "Standard SAC (tanh(mu), paired)"
@@ -193,21 +188,6 @@ class AnalysisError(Exception):
 # ============================================================================== the data layer
 # Run folders in, arrays out: load -> pair -> align -> paired differences -> normalise. Nothing
 # here writes a report; the notes it returns (runs skipped, cut, left out) go to summary.md.
-def counted(n: int | str, noun: str) -> str:
-    """'1 seed', '3 seeds', '2 or 3 seeds'."""
-    return f"{n} {noun}" + ("" if str(n) == "1" else "s")
-
-
-def format_step(step: int | float) -> str:
-    """Steps as people write them: 10M, 2.5M, 250k, 1,234."""
-    step = int(step)
-    if step >= 1_000_000 and step % 1_000 == 0:
-        return f"{step / 1_000_000:g}M"
-    if step >= 1_000 and step % 1_000 == 0:
-        return f"{step // 1_000}k"
-    return f"{step:,}"
-
-
 # ------------------------------------------------------------------------------------- load
 @dataclasses.dataclass
 class Curve:
@@ -219,20 +199,20 @@ class Curve:
     returns: np.ndarray
     action_dim: int | None = None  # config.json's, where it has one
     shift: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # SHIFT_COLUMNS
-    shares: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # choice_shares
+    shares: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # CHOICE_SHARES
     budget: int | None = None  # config.json's total_timesteps, where it has one
     episodes: np.ndarray | None = None  # EPISODES_COLUMN per step, where the run logged it
 
 
-# task -> group -> curves sorted by seed; a group is an algorithm or a paired evaluation
-Runs = dict[str, dict[str, list[Curve]]]
+# task -> (algorithm, action) -> curves sorted by seed
+Runs = dict[str, dict[Key, list[Curve]]]
 
 
 def optional_columns() -> tuple[str, ...]:
     """eval.csv's optional columns: each evaluation action's return and choice shares, the
     shift statistics, the distinct episodes."""
-    return (*(action.prefix + RETURN_COLUMN for action in EVALUATION_ACTIONS),
-            *(column for action in EVALUATION_ACTIONS for column in action.choice_shares),
+    return (*(f"{action}_{RETURN_COLUMN}" for action in ACTIONS),
+            *(column for columns in CHOICE_SHARES.values() for column in columns),
             *dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS), EPISODES_COLUMN)
 
 
@@ -349,19 +329,21 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
         shift = {c: columns[c] for c in dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS)
                  if c in columns}
         episodes = columns.get(EPISODES_COLUMN)
-        _add_curve(runs, task, algorithm, Curve(run_dir, seed, steps, columns[RETURN_COLUMN],
-                                                action_dim, shift, budget=budget,
-                                                episodes=episodes))
-        for action in EVALUATION_ACTIONS:
-            paired = columns.get(action.prefix + RETURN_COLUMN)
-            if paired is not None and np.isfinite(paired).all():
-                shares = {c: columns[c] for c in action.choice_shares if c in columns}
+        own = (algorithm, own_action(algorithm))
+        _add_curve(runs, task, own, Curve(run_dir, seed, steps, columns[RETURN_COLUMN],
+                                          action_dim, shift, budget=budget, episodes=episodes))
+        for action in ACTIONS:
+            paired = columns.get(f"{action}_{RETURN_COLUMN}")
+            if paired is None or action == own[1]:
+                continue
+            if np.isfinite(paired).all():
+                shares = {c: columns[c] for c in CHOICE_SHARES.get(action, ()) if c in columns}
                 curve = Curve(run_dir, seed, steps, paired, action_dim, shares=shares,
                               budget=budget, episodes=episodes)
-                _add_curve(runs, task, algorithm + action.suffix, curve)
-            elif paired is not None:
-                notes.append(f"{run_dir}: {action.prefix + RETURN_COLUMN} has empty cells; "
-                             f"its paired {action.name} eval left out")
+                _add_curve(runs, task, (algorithm, action), curve)
+            else:
+                notes.append(f"{run_dir}: {action}_{RETURN_COLUMN} has empty cells; "
+                             f"its paired {action} eval left out")
     if not runs:
         raise AnalysisError(
             f"no runs found under {', '.join(map(str, roots))}: a run is a folder holding "
@@ -375,61 +357,34 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
     return runs, notes
 
 
-def _add_curve(runs: Runs, task: str, group: str, curve: Curve) -> None:
-    curves = runs.setdefault(task, {}).setdefault(group, [])
+def _add_curve(runs: Runs, task: str, key: Key, curve: Curve) -> None:
+    curves = runs.setdefault(task, {}).setdefault(key, [])
     twin = next((other for other in curves if other.seed == curve.seed), None)
     if twin is not None:
         raise AnalysisError(
-            f"two runs of {task}, {group}, seed {curve.seed}: {twin.run_dir} and "
+            f"two runs of {task}, {group_name(key)}, seed {curve.seed}: {twin.run_dir} and "
             f"{curve.run_dir}; move one out of the folder"
         )
     curves.append(curve)
 
 
-def action_suffix(group: str) -> str:
-    """The suffix naming a group's paired evaluation action, "" for an algorithm's own."""
-    return next((a.suffix for a in EVALUATION_ACTIONS if group.endswith(a.suffix)), "")
-
-
-def algorithm_of(group: str) -> str:
-    """The algorithm whose runs a group evaluates: "corrected" for "corrected (mean eval)"."""
-    return group.removesuffix(action_suffix(group))
-
-
-def is_algorithm(group: str) -> bool:
-    """A group of the runs' own evaluations, not a paired evaluation of another action."""
-    return not action_suffix(group)
-
-
-def action_of(group: str) -> str:
-    """The action a group evaluates: mode, tanh_mu, mean, q_best, or the algorithm's name for
-    an algorithm other than the two scripts (its own action)."""
-    suffix = action_suffix(group)
-    if suffix:
-        return next(a.name for a in EVALUATION_ACTIONS if a.suffix == suffix)
-    return OWN_ACTIONS.get(group, group)
-
-
-def group_order() -> list[str]:
+def group_order() -> list[Key]:
     """The paper's groups in a fixed order (so that tables and colours stay put): the two
     algorithms, corrected's tanh(mu), then each algorithm's other evaluation actions."""
-    others = [algorithm + action.suffix for algorithm in (CORRECTED, STANDARD)
-              for action in EVALUATION_ACTIONS
-              if action.name not in (TANH_MU.name, OWN_ACTIONS[algorithm])]
-    return [STANDARD, CORRECTED, PAIRED_CORRECTED, *others]
+    others = [(algorithm, action) for algorithm in (CORRECTED, STANDARD) for action in ACTIONS
+              if action not in (BASELINE, own_action(algorithm))]
+    return [(STANDARD, BASELINE), (CORRECTED, "mode"), (CORRECTED, BASELINE), *others]
 
 
-def ordered_groups(runs: Runs) -> list[str]:
+def group_rank(key: Key) -> tuple[int, str]:
+    """Sort key: the paper's groups first, in a fixed order, then the others by name."""
+    order = group_order()
+    return (order.index(key) if key in order else len(order), group_name(key))
+
+
+def ordered_groups(runs: Runs) -> list[Key]:
     """Every group in the folder: the paper's first, in a fixed order (so colours stay put)."""
-    found = {group for groups in runs.values() for group in groups}
-    order = group_order()
-    return [g for g in order if g in found] + sorted(found - set(order))
-
-
-def group_rank(group: str) -> tuple[int, str]:
-    """Sort key: the paper's groups first, in a fixed order."""
-    order = group_order()
-    return (order.index(group) if group in order else len(order), group)
+    return sorted({key for groups in runs.values() for key in groups}, key=group_rank)
 
 
 # ------------------------------------------------------------------------------------- pair
@@ -447,15 +402,16 @@ def standard_from_paired(runs: Runs) -> Pairing:
     decisions, same start states, same actor). A task without sac_standard.py runs gets them
     from it; a task with both is checked point by point (same seed, same step)."""
     pairing = Pairing([], {}, [])
+    paired_key, standard_key = (CORRECTED, BASELINE), (STANDARD, BASELINE)
     for task, groups in sorted(runs.items()):
-        if PAIRED_CORRECTED not in groups:
+        if paired_key not in groups:
             continue
-        if STANDARD not in groups:
-            groups[STANDARD] = groups.pop(PAIRED_CORRECTED)
+        if standard_key not in groups:
+            groups[standard_key] = groups.pop(paired_key)
             pairing.derived.append(task)
             continue
-        paired = {curve.seed: curve for curve in groups[PAIRED_CORRECTED]}
-        for standard in groups[STANDARD]:
+        paired = {curve.seed: curve for curve in groups[paired_key]}
+        for standard in groups[standard_key]:
             twin = paired.get(standard.seed)
             if twin is None:
                 continue
@@ -489,16 +445,16 @@ class Task:
     """A task's runs aligned on the evaluation steps all of them share."""
 
     steps: np.ndarray  # (steps,) shared by every run of the task
-    returns: dict[str, np.ndarray]  # group -> (seeds, steps)
-    seeds: dict[str, list[int]]
+    returns: dict[Key, np.ndarray]  # (seeds, steps)
+    seeds: dict[Key, list[int]]
     scored_step: int  # the step final scores are taken at
     budget: int  # the runs' total_timesteps where they agree, else the last shared step
 
-    def at(self, group: str, steps: np.ndarray) -> np.ndarray:
+    def at(self, group: Key, steps: np.ndarray) -> np.ndarray:
         """The group's returns at some of the shared steps, (seeds, steps)."""
         return self.returns[group][:, np.searchsorted(self.steps, steps)]
 
-    def scored(self, group: str) -> np.ndarray:
+    def scored(self, group: Key) -> np.ndarray:
         """The group's returns at the scored step, one per seed."""
         return self.at(group, np.array([self.scored_step]))[:, 0]
 
@@ -580,27 +536,27 @@ def returns_at(curve: Curve, steps: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------- paired differences
 # Each evaluation action minus tanh(mu) of the same actors, per seed: the paired difference
 # report, over training and the dimension study read these arrays.
-def tanh_mu_group(groups: Sequence[str], algorithm: str, derived: bool) -> str | None:
+def baseline_of(keys: Sequence[Key], algorithm: str, derived: bool) -> Key | None:
     """The group holding the tanh(mu) evaluation of an algorithm's actors, if the task has one."""
-    if algorithm + PAIRED_SUFFIX in groups:
-        return algorithm + PAIRED_SUFFIX
-    if algorithm == CORRECTED and derived and STANDARD in groups:
-        return STANDARD  # the standard group is the corrected runs' paired evaluation
-    return algorithm if algorithm == STANDARD and algorithm in groups else None
+    if (algorithm, BASELINE) in keys:
+        return (algorithm, BASELINE)
+    if algorithm == CORRECTED and derived and (STANDARD, BASELINE) in keys:
+        return (STANDARD, BASELINE)  # the standard group is the corrected runs' paired evaluation
+    return None
 
 
-def paired_groups(data: Task, derived: bool) -> list[tuple[str, str]]:
+def paired_groups(data: Task, derived: bool) -> list[tuple[Key, Key]]:
     """(group of some evaluation action, group of tanh(mu) of the same actors) pairs present in
     a task: the corrected runs' mode, each run's mean, q_best and (standard runs) mode."""
     pairs = []
-    for group in sorted(data.returns, key=group_rank):
-        baseline = tanh_mu_group(list(data.returns), algorithm_of(group), derived)
-        if baseline is not None and baseline != group and action_of(group) != TANH_MU.name:
-            pairs.append((group, baseline))
+    for key in sorted(data.returns, key=group_rank):
+        baseline = baseline_of(list(data.returns), key[0], derived)
+        if baseline is not None and key[1] != BASELINE:
+            pairs.append((key, baseline))
     return pairs
 
 
-def paired_values(data: Task, group: str, baseline: str, steps: np.ndarray
+def paired_values(data: Task, group: Key, baseline: Key, steps: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray]:
     """(group, baseline) returns at `steps`, (seeds, steps) each, on the seeds both have: a run
     made without some evaluation action has no partner there."""
@@ -763,16 +719,16 @@ def robust_selectors(path: Path, step: int,
                      selectors: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
                      ) -> dict[str, np.ndarray]:
     """One policy's returns by selector, checked to be paired with its tanh(mu) episodes."""
-    if TANH_MU.name not in selectors:
+    if BASELINE not in selectors:
         raise AnalysisError(
-            f"{path}: no {TANH_MU.name} episodes at step {format_step(step)}; every action is "
+            f"{path}: no {BASELINE} episodes at step {format_step(step)}; every action is "
             f"compared with tanh(mu) of the same actor, so evaluate with --selectors ... "
-            f"{TANH_MU.name}")
-    baseline = selectors[TANH_MU.name][0]
+            f"{BASELINE}")
+    baseline = selectors[BASELINE][0]
     for selector, (episodes, _, _) in selectors.items():
         if not np.array_equal(episodes, baseline):
             raise AnalysisError(
-                f"{path}, step {format_step(step)}: {selector} and {TANH_MU.name} played "
+                f"{path}, step {format_step(step)}: {selector} and {BASELINE} played "
                 "different episodes, so they are not paired; evaluate the campaign again")
     return {selector: returns for selector, (_, returns, _) in selectors.items()}
 
@@ -802,7 +758,7 @@ def robust_paired_differences(robust: RobustEpisodes) -> dict[str, dict[int, Rob
     by_task: dict[str, dict[int, RobustStep]] = {}
     for (task, seed, step), selectors in sorted(robust.returns.items()):
         at = by_task.setdefault(task, {}).setdefault(step, RobustStep({}, {}, {}, np.empty(0)))
-        baseline = selectors[TANH_MU.name]
+        baseline = selectors[BASELINE]
         at.episodes = np.append(at.episodes, baseline.size)
         for selector in (s for s in robust.selectors if s in selectors):
             at.seeds.setdefault(selector, []).append(seed)
@@ -814,7 +770,7 @@ def robust_paired_differences(robust: RobustEpisodes) -> dict[str, dict[int, Rob
             ended = robust.ends[task, seed, step][selector]
             so_far = at.ends.get(selector, collections.Counter())
             at.ends[selector] = None if ended is None or so_far is None else so_far + ended
-            if selector != TANH_MU.name:
+            if selector != BASELINE:
                 diffs = stats.paired_difference(selectors[selector], baseline)
                 at.differences[selector] = np.append(at.differences.get(selector, []),
                                                      diffs.mean())
@@ -873,34 +829,36 @@ class Aggregate:
     """Normalised scores of the groups compared across tasks, as rliable wants them."""
 
     tasks: list[str]
-    groups: list[str]
-    final: dict[str, np.ndarray]  # group -> (runs, tasks) at each task's scored step
+    groups: list[Key]
+    final: dict[Key, np.ndarray]  # group -> (runs, tasks) at each task's scored step
     frames: np.ndarray  # x of the sample-efficiency curve: steps, or fractions of the budgets
     curves: dict[str, np.ndarray]  # group -> (runs, tasks, frames)
     by_fraction: bool = False  # frames are fractions of each task's budget
 
 
 def build_aggregate(
-    tasks: dict[str, Task], norms: dict, groups: list[str], curve_points: int
+    tasks: dict[str, Task], norms: dict, groups: list[Key], curve_points: int
 ) -> tuple[Aggregate | None, list[str]]:
     """Score matrices over the tasks that every algorithm ran, and notes on what was left out."""
     notes = []
-    algorithms = [g for g in groups if is_algorithm(g)]
+    algorithms = [g for g in groups if is_own(g)]
     common = [t for t, data in tasks.items() if all(a in data.returns for a in algorithms)]
     for task in sorted(set(tasks) - set(common)):
         lacking = [a for a in algorithms if a not in tasks[task].returns]
-        notes.append(f"{task}: left out of the aggregate metrics (no {', '.join(lacking)} runs)")
+        notes.append(f"{task}: left out of the aggregate metrics (no "
+                     f"{', '.join(map(group_name, lacking))} runs)")
     if not common:
         notes.append("no task was run by every algorithm: aggregate metrics skipped")
         return None, notes
     members = [g for g in groups if all(g in tasks[t].returns for t in common)]
     for group in sorted(set(groups) - set(members), key=groups.index):
-        notes.append(f"{group}: left out of the aggregate metrics (missing on some tasks)")
+        notes.append(f"{group_name(group)}: left out of the aggregate metrics (missing on some "
+                     "tasks)")
     runs = {g: min(tasks[t].returns[g].shape[0] for t in common) for g in members}
     for g in members:
         if any(tasks[t].returns[g].shape[0] > runs[g] for t in common):
             notes.append(
-                f"{g}: tasks have different numbers of seeds; the aggregate uses the "
+                f"{group_name(g)}: tasks have different numbers of seeds; the aggregate uses the "
                 f"{runs[g]} lowest seeds of each task"
             )
     final = {
@@ -969,6 +927,20 @@ def interval_estimates(
     )
 
 
+def difference_over_tasks(per_task: Sequence[np.ndarray], reps: int, seed: int
+                          ) -> tuple[np.ndarray, tuple[float, float, float],
+                                     tuple[float, float, float]]:
+    """A paired difference over tasks, each task's per-seed values already divided by its
+    scale: the (seeds, tasks) matrix (the lowest seeds, where tasks have more), the mean over
+    tasks of the mean over seeds with rliable's stratified bootstrap CI (seeds resampled within
+    each task: the tasks are fixed, only the seeds are drawn) and Welch's t-interval beside it."""
+    seeds = min(values.size for values in per_task)
+    matrix = np.stack([values[:seeds] for values in per_task], axis=1)
+    point, interval = interval_estimates({"": matrix}, metrics.aggregate_mean, reps, seed)
+    boot = (float(point[""]), *map(float, interval[""].ravel()))
+    return matrix, boot, welch_interval(list(matrix.T))
+
+
 AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
 
 
@@ -991,66 +963,7 @@ def iqm_per_step(scores: np.ndarray) -> np.ndarray:
     return scipy.stats.trim_mean(scores.reshape(-1, scores.shape[-1]), 0.25, axis=0)
 
 
-def seed_mean_estimates(samples: dict[tuple[str, str], np.ndarray], reps: int, seed: int) -> dict:
-    """(task, group) -> (mean, low, high) of one value per seed, with the bootstrap CI that
-    rliable's get_interval_estimates gives after seeding NumPy's global generator with `seed`.
-
-    The tasks of a group with equal seed counts share one bootstrap: it resamples each task's
-    seeds independently, so each task's interval is distributed as in a bootstrap of its own,
-    at a fraction of the cost.
-    """
-    batches: dict[tuple[str, int], list[str]] = {}
-    for (task, group), values in samples.items():
-        batches.setdefault((group, values.size), []).append(task)
-    estimates = {}
-    for (group, _), batch in batches.items():
-        scores = np.stack([samples[task, group] for task in batch], axis=1)
-        point, low, high = stats.bootstrap_mean(scores, reps, np.random.RandomState(seed))
-        for i, task in enumerate(batch):
-            estimates[task, group] = (float(point[i]), float(low[i]), float(high[i]))
-    return estimates
-
-
 # ------------------------------------------------------------------------- the report writer
-@dataclasses.dataclass
-class Report:
-    """What the analysis writes: summary.csv rows, summary.md sections, figures, notes."""
-
-    out: Path
-    formats: Sequence[str]
-    rows: list[dict] = dataclasses.field(default_factory=list)
-    sections: list[str] = dataclasses.field(default_factory=list)
-    figures: list[Path] = dataclasses.field(default_factory=list)
-    notes: list[str] = dataclasses.field(default_factory=list)
-
-    def row(self, section: str, task: str, group: str, metric: str, step: int | str,
-            runs: int | str, estimate: float, low: float, high: float) -> None:
-        self.rows.append(dict(section=section, task=task, group=group, metric=metric, step=step,
-                              n_runs=runs, estimate=float(estimate), ci_low=float(low),
-                              ci_high=float(high)))
-
-    def figure(self, fig: plt.Figure, name: str) -> None:
-        for fmt in self.formats:
-            self.figures.append(self.out / f"{name}.{fmt}")
-            fig.savefig(self.figures[-1], dpi=150, bbox_inches="tight")
-        plt.close(fig)
-
-    def section(self, title: str, *lines: str) -> None:
-        self.sections += [f"## {title}", "", *lines, ""]
-
-    def write(self, header: list[str]) -> None:
-        with (self.out / "summary.csv").open("w", newline="") as file:
-            writer = csv.DictWriter(file, fieldnames=list(self.rows[0]))
-            writer.writeheader()
-            writer.writerows(self.rows)
-        notes = ["## Notes", "", *([f"- {note}" for note in self.notes] or ["- none"]), ""]
-        figures = ["## Figures", "", *[f"- `{path.name}`" for path in self.figures]]
-        text = "\n".join(header + notes + self.sections + figures) + "\n"
-        (self.out / "summary.md").write_text(text)
-        print("\n".join(["", *notes, *self.sections]))
-        print(f"wrote {len(self.figures) + 2} files to {self.out}")
-
-
 @dataclasses.dataclass(frozen=True)
 class GroupLabels:
     """A group's name in figures and tables, "Corrected SAC (mean eval)"; `standard` says where
@@ -1058,25 +971,20 @@ class GroupLabels:
 
     standard: str = STANDARD_LABEL
 
-    def __call__(self, group: str) -> str:
-        algorithm = algorithm_of(group)
-        name = self.standard if algorithm == STANDARD else \
+    def __call__(self, key: Key) -> str:
+        algorithm, action = key
+        return self.algorithm(algorithm) + (
+            "" if is_own(key) else f" ({ACTIONS.get(action, action)} eval)")
+
+    def algorithm(self, algorithm: str) -> str:
+        return self.standard if algorithm == STANDARD else \
             ALGORITHM_LABELS.get(algorithm, algorithm)
-        return name + action_suffix(group)
 
 
-def group_color_index() -> dict[str, int]:
-    """Each group's fixed colour, an index in seaborn's colorblind palette (EVALUATION_ACTIONS)."""
-    index = {STANDARD: 0, CORRECTED: 1}  # blue, orange
-    for action in EVALUATION_ACTIONS:
-        index |= {algorithm + action.suffix: i for algorithm, i in action.colors.items()}
-    return index
-
-
-def group_colors(groups: list[str]) -> dict[str, tuple]:
+def group_colors(groups: list[Key]) -> dict[Key, tuple]:
     """Each group's colour: its fixed one, else a free one of the palette, else a dark one."""
     palette = sns.color_palette("colorblind", n_colors=10)
-    fixed = group_color_index()
+    fixed = COLORS
     extra = iter(c for i, c in enumerate(palette) if i not in fixed.values())
     cycle = iter(sns.color_palette("dark", n_colors=max(len(groups), 1)))
     return {g: palette[fixed[g]] if g in fixed else next(extra, None) or next(cycle)
@@ -1092,30 +1000,6 @@ def steps_axis(max_step: float) -> tuple[float, str]:
     return 1.0, "Environment steps"
 
 
-format_ci = stats.interval_text
-
-
-def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
-               ) -> tuple[str, str]:
-    """summary.md's cells for the mean of one value per seed: (mean with its bootstrap CI,
-    t-interval). With one or two seeds an interval says less than the values themselves, so
-    the cells give those ("two seeds: a to b")."""
-    point = estimate[0]
-    if values.size == 1:
-        return f"{point:.{digits}f} (one seed)", "-"
-    if values.size == 2:
-        a, b = sorted(float(v) for v in values)
-        return f"{point:.{digits}f} (two seeds: {a:.{digits}f} to {b:.{digits}f})", "-"
-    _, low, high = t_interval(values)
-    return format_ci(*estimate, digits=digits), f"[{low:.{digits}f}, {high:.{digits}f}]"
-
-
-def markdown_table(header: Sequence[str], rows: Sequence[Sequence]) -> str:
-    """A GitHub markdown table."""
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return "\n".join(lines + ["| " + " | ".join(map(str, row)) + " |" for row in rows])
-
-
 @dataclasses.dataclass(frozen=True)
 class Analysis:
     """The data layer's output and the flags: what every report section reads (none changes
@@ -1124,7 +1008,7 @@ class Analysis:
     args: Args  # --normalize resolved from auto
     runs: Runs
     tasks: dict[str, Task]
-    groups: list[str]  # every group, in group_order
+    groups: list[Key]  # every group, in group_order
     pairing: Pairing
     norms: dict[str, tuple[float, float]]  # task -> (offset, scale)
     aggregate: Aggregate | None  # the normalised scores of the groups compared across tasks
@@ -1245,13 +1129,121 @@ def aggregate_title(agg: Aggregate) -> str:
     return f"{', '.join(agg.tasks)}: {' or '.join(map(str, runs))} runs per task and group"
 
 
+# ------------------------------------------------ the headline figure (paired differences)
+@dataclasses.dataclass
+class PairedCell:
+    """One series' paired difference at one x of the headline figure: per seed the value (and,
+    from the robust evaluation, its standard error), the mean over seeds' bootstrap and t
+    (mean, low, high), and per value a marker where they come from several tasks."""
+
+    values: np.ndarray
+    boot: Sequence[float]
+    t: Sequence[float]
+    errors: np.ndarray | None = None
+    markers: Sequence[str] | None = None
+
+
+@dataclasses.dataclass
+class PairedRow:
+    """A panel of the headline figure: a task, or the tasks together; (x, series) -> cell."""
+
+    title: str
+    ticks: list[str]
+    cells: dict[tuple[int, object], PairedCell]
+    ylabel: str
+    reference: tuple[float, str] | None = None  # tanh(mu)'s return: a right axis in % of it
+    shapes: dict[str, str] = dataclasses.field(default_factory=dict)  # task -> its marker
+
+
+def draw_seed_summary(ax, x: float, width: float, cell: PairedCell, color: tuple) -> None:
+    """Within x +- width: the seeds (dots, left; whiskers: +-VERDICT_SE standard errors of each
+    seed's paired episodes, where given), their mean (tick) with its t-interval (whisker) and,
+    right, the bootstrap CI (bar). Dots beyond the axis's range sit on its edge as triangles,
+    the farthest one's value written beside it."""
+    values, errors, boot, t_values = cell.values, cell.errors, cell.boot, cell.t
+    xs = x - 0.6 * width + np.linspace(-0.15, 0.15, values.size) * width
+    low, high = ax.get_ylim()
+    outside = [i for i, v in enumerate(values) if not low <= v <= high]
+    farthest = max(outside, key=lambda i: abs(values[i]), default=None)
+    for i, (xi, value) in enumerate(zip(xs, values, strict=True)):
+        inside = i not in outside
+        marker = (cell.markers[i] if cell.markers else "o") if inside else \
+            ("v" if value < low else "^")
+        ax.scatter(xi, min(max(value, low), high), s=16, marker=marker, color=color, alpha=0.7,
+                   lw=0, zorder=3, clip_on=False)
+        if i == farthest:
+            ax.annotate(f"{value:.3g}", (xi, min(max(value, low), high)), xytext=(-3, 0),
+                        textcoords="offset points", ha="right", va="center", fontsize=6)
+        elif inside and errors is not None and np.isfinite(errors[i]):
+            ax.errorbar(xi, value, yerr=stats.VERDICT_SE * errors[i], color=color, lw=0.7,
+                        alpha=0.7, zorder=3)
+    ax.bar(x + 0.6 * width, boot[2] - boot[1], bottom=boot[1], width=0.4 * width, color=color,
+           alpha=0.4)
+    ax.hlines(t_values[0], x - 0.35 * width, x + 0.35 * width, color="k", lw=1.5, zorder=4)
+    if np.isfinite(t_values[1]):
+        ax.errorbar(x, t_values[0], yerr=[[t_values[0] - t_values[1]], [t_values[2] -
+                    t_values[0]]], color=color, lw=1.5, capsize=3, zorder=4)
+
+
+def summary_range(cells: Sequence[PairedCell]) -> tuple[float, float]:
+    """A y-range that holds the estimates' intervals, zero and the middle 90% of the seeds'
+    dots: one seed's outlier does not set it."""
+    bounds = [v for c in cells for v in (*c.boot, *c.t) if np.isfinite(v)] + [0.0]
+    dots = np.concatenate([c.values for c in cells])
+    low = min(min(bounds), np.percentile(dots, 5))
+    high = max(max(bounds), np.percentile(dots, 95))
+    pad = 0.12 * (high - low or 1.0)
+    return low - pad, high + pad
+
+
+def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str) -> plt.Figure:
+    """The headline figure of both the training log and the robust evaluation: a panel per task
+    (and one over tasks), in each every series' paired difference against tanh(mu) at each x,
+    the seeds beside their mean's t-interval and bootstrap CI (draw_seed_summary); a task's
+    right axis in % of tanh(mu)'s return. `how`: the protocol, under the title."""
+    series = list(dict.fromkeys(s for row in rows for _, s in row.cells))
+    slot = 0.8 / len(series)  # each series' share of an x
+    offsets = {s: (j - (len(series) - 1) / 2) * slot for j, s in enumerate(series)}
+    fig, axes = plt.subplots(len(rows), 1, figsize=(8, 3.1 * len(rows) + 1.0), squeeze=False,
+                             layout="constrained")
+    for ax, row in zip(axes[:, 0], rows, strict=True):
+        ax.set_ylim(*summary_range(list(row.cells.values())))
+        for (i, s), cell in row.cells.items():
+            draw_seed_summary(ax, i + offsets[s], slot / 2, cell, colors[s])
+        ax.set_xticks(range(len(row.ticks)), row.ticks, fontsize="small")
+        ax.set_xlim(-0.5, len(row.ticks) - 0.5)
+        ax.set_title(row.title, fontsize="medium")
+        ax.set_ylabel(row.ylabel)
+        if row.reference is not None:
+            value, where = row.reference
+            reference = abs(value) or 1.0
+            right = ax.secondary_yaxis("right", functions=(lambda y, r=reference: 100 * y / r,
+                                                           lambda p, r=reference: p * r / 100))
+            right.set_ylabel(f"% of tanh(mu)'s return ({value:.3g} {where})", fontsize="small")
+        if row.shapes:
+            ax.legend(handles=[plt.Line2D([], [], ls="", marker=m, color="0.4", label=t)
+                               for t, m in row.shapes.items()], fontsize="x-small", loc="best")
+        ax.axhline(0, color="0.4", ls=":", lw=1)
+        ax.grid(axis="y", alpha=0.25)
+    handles = [Patch(color=colors[s], label=labels[s]) for s in series]
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3),
+               fontsize="small", title="evaluation action", title_fontsize="small")
+    episodes = any(c.errors is not None for row in rows for c in row.cells.values())
+    dots = f"dots: seeds, +-{stats.VERDICT_SE:g} SE of their paired episodes" if episodes \
+        else "dots: seeds"
+    fig.suptitle(f"Each action minus tanh(mu): same actor, same start states\n{how}\n{dots} "
+                 "(triangles: beyond the axis)\ntick and whisker: mean over seeds and its 95% "
+                 "t-interval; bar: bootstrap CI", fontsize="medium")
+    return fig
+
+
 # ============================================================================== the reports
 # One section per report, in the order summary.md prints them. Each report_*(report, analysis)
 # computes its estimates, draws its figure and writes its summary.csv rows and summary.md table;
 # it reads `analysis` (the data layer's output) and the shared tools, never another section.
 
 # --------------------------------------- 1. the header, and where the standard numbers come from
-def found_table(runs: Runs, groups: list[str]) -> str:
+def found_table(runs: Runs, groups: list[Key]) -> str:
     """Tasks x groups: how many seeds, and the last step they reached."""
     rows = []
     for task, by_group in sorted(runs.items()):
@@ -1265,10 +1257,10 @@ def found_table(runs: Runs, groups: list[str]) -> str:
                                              if max(last) > min(last) else "")
             cells.append(f"{counted(len(last), 'seed')}, to step {span}")
         rows.append([task, *cells])
-    return markdown_table(["task", *groups], rows)
+    return markdown_table(["task", *map(group_name, groups)], rows)
 
 
-def found_text(runs_dirs: Sequence[Path], runs: Runs, groups: list[str]) -> str:
+def found_text(runs_dirs: Sequence[Path], runs: Runs, groups: list[Key]) -> str:
     """What the folder holds: how many runs, and found_table."""
     # Run folders, not groups: a corrected folder also stands for the derived standard group.
     n_runs = len({curve.run_dir for by_group in runs.values() for curves in by_group.values()
@@ -1357,121 +1349,59 @@ def last_rounds_averages(tasks: dict[str, Task], curves: dict[str, dict[str, np.
     return averages, windows, notes
 
 
-@dataclasses.dataclass
-class PairedPanel:
-    """One reading of the paired differences for plot_paired_difference: its title, and per
-    (task, group) the per-seed values and their bootstrap (mean, low, high)."""
-
-    title: str
-    values: dict[tuple[str, str], np.ndarray]
-    estimates: dict[tuple[str, str], tuple[float, float, float]]
-    missing: str = ""  # said in a row the panel has no values for
-
-
-def plot_paired_difference(panels: Sequence[PairedPanel], row_labels: dict[tuple[str, str], str],
-                           norms: dict, colors: dict, xlabel: str) -> plt.Figure:
-    """Per (task, evaluation action), each seed's difference from tanh(mu) of the same actor
-    (dots), their mean (tick), its bootstrap CI (bar) and t-interval (whisker); a panel per
-    reading (the scored step, each seed's mean over its last rounds), rows and x axis shared so
-    that the readings' spreads compare."""
-    rows = list(row_labels)
-    fig, axes = plt.subplots(1, len(panels), figsize=(1.5 + 5.6 * len(panels),
-                                                       0.8 * len(rows) + 1.7),
-                             squeeze=False, sharey=True)
-    extent = [0.0]
-    for ax, panel in zip(axes[0], panels, strict=True):
-        rng = np.random.default_rng(0)  # vertical jitter of the dots only
-        for i, key in enumerate(rows):
-            if key not in panel.values:
-                ax.text(0, i, panel.missing, ha="center", va="center", color="0.4",
-                        fontsize="small")
-                continue
-            scale = norms[key[0]][1]
-            point, low, high = (v / scale for v in panel.estimates[key])
-            dots = panel.values[key] / scale
-            color = colors[key[1]]
-            ax.barh(i, high - low, left=low, height=0.5, color=color, alpha=0.35)
-            ax.vlines(point, i - 0.25, i + 0.25, color="k")
-            ax.scatter(dots, i + rng.uniform(-0.15, 0.15, dots.size), s=14, color=color,
-                       zorder=3)
-            extent += [low, high, *dots]
-            if dots.size > 2:  # two seeds: their range is the bar, a t-interval says nothing
-                _, t_low, t_high = t_interval(dots)
-                ax.errorbar(point, i + 0.34, xerr=[[point - t_low], [t_high - point]],
-                            color="k", lw=1, capsize=3)
-                extent += [t_low, t_high]
-        ax.axvline(0, color="0.4", ls=":", lw=1)
-        ax.set_xlabel(xlabel)
-        ax.set_title(panel.title, fontsize="medium")
-        ax.grid(axis="x", alpha=0.25)
-    # Bars pin the autoscaled limits to their edges; pad so the outermost seeds stay visible.
-    pad = 0.05 * (max(extent) - min(extent)) or 0.01
-    for ax in axes[0]:
-        ax.set_xlim(min(extent) - pad, max(extent) + pad)
-    axes[0, 0].set_yticks(range(len(rows)))
-    axes[0, 0].set_yticklabels(list(row_labels.values()))
-    axes[0, 0].set_ylim(len(rows) - 0.5, -0.5)  # first row on top
-    pairs = any(v.size <= 2 for panel in panels for v in panel.values.values())
-    fig.suptitle("Evaluation action minus tanh(mu): same actor, same start states\n"
-                 "dots: seeds; tick: mean; bar: 95% bootstrap CI; whisker: 95% t-interval"
-                 + (" (none for two seeds: the bar spans them)" if pairs else ""),
-                 fontsize="medium")
-    fig.tight_layout()
-    return fig
-
-
-def paired_over_tasks(report: Report, analysis: Analysis, differences: dict) -> list[str]:
+def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
+                      ) -> tuple[list[str], PairedRow | None]:
     """Over tasks, per evaluation action: the mean normalised paired difference and the share
-    of (task, seed) pairs won; summary.md's lines. Estimator: rliable's
-    get_interval_estimates of metrics.aggregate_mean over a (seeds x tasks) matrix, its
-    stratified bootstrap resampling seeds within each task, since the tasks are fixed and only
-    the seeds are drawn; beside it Welch's t-interval (stats.welch_interval), for few seeds."""
+    of (task, seed) pairs won; summary.md's lines and the figure's panel. Estimator:
+    difference_over_tasks."""
     args, norms, labels = analysis.args, analysis.norms, analysis.labels
-    lines = []
+    lines, cells = [], {}
+    shapes = dict(zip(differences, "osD^vP*X", strict=False))
     found = {group for by_group in differences.values() for group in by_group}
-    for algorithm in sorted(found, key=group_rank):
-        per_task = {t: d[algorithm] / norms[t][1] for t, d in differences.items()
-                    if algorithm in d}
+    for key in sorted(found, key=group_rank):
+        per_task = {t: d[key] / norms[t][1] for t, d in differences.items() if key in d}
         if len(per_task) < 2:
             continue
-        seeds = min(d.size for d in per_task.values())
-        scores = np.stack([d[:seeds] for d in per_task.values()], axis=1)  # (seeds, tasks)
-        point, interval = interval_estimates({algorithm: scores}, metrics.aggregate_mean,
-                                             args.reps, args.seed)
-        low, high = interval[algorithm].ravel()
+        scores, boot, t_values = difference_over_tasks(list(per_task.values()), args.reps,
+                                                       args.seed)
+        seeds = scores.shape[0]
         won = sum(int((d > 0).sum()) for d in per_task.values())
         pairs = sum(d.size for d in per_task.values())
-        t_values = welch_interval(list(scores.T))
-        report.row("paired_difference", "all", algorithm, "mean_score", "", seeds,
-                   point[algorithm], low, high)
-        report.row("paired_difference", "all", algorithm, "mean_score_t", "", seeds, *t_values)
-        report.row("paired_difference", "all", algorithm, "share_won", "", pairs, won / pairs,
+        report.row("paired_difference", "all", key, "mean_score", "", seeds, *boot)
+        report.row("paired_difference", "all", key, "mean_score_t", "", seeds, *t_values)
+        report.row("paired_difference", "all", key, "share_won", "", pairs, won / pairs,
                    math.nan, math.nan)
-        action = action_of(algorithm)
-        lines += ["", f"Over {len(per_task)} tasks, {labels(algorithm_of(algorithm))}, {action} "
+        action = key[1]
+        lines += ["", f"Over {len(per_task)} tasks, {labels.algorithm(key[0])}, {action} "
                   f"minus tanh(mu): mean {SCORE_NAMES[args.normalize].lower()} difference "
-                  f"{format_ci(float(point[algorithm]), low, high, runs=seeds)} ({seeds} seeds "
+                  f"{format_ci(*boot, runs=seeds)} ({seeds} seeds "
                   "per task, "
                   f"stratified bootstrap CI), t-interval [{t_values[1]:.3f}, "
                   f"{t_values[2]:.3f}] (Welch, the tasks' seeds independent); the {action} won "
                   f"in {won} of {pairs} (task, seed) pairs."]
-    return lines
+        cells[0, key] = PairedCell(scores.T.ravel(), boot, t_values,
+                                   markers=[shapes[t] for t in per_task for _ in range(seeds)])
+    if not cells:
+        return lines, None
+    name = SCORE_NAMES[args.normalize].lower()
+    return lines, PairedRow(f"Over {len(shapes)} tasks at their scored steps", ["all tasks"],
+                            cells, f"difference in {name}", shapes=shapes)
 
 
 def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: list[str]
-                       ) -> list[PairedPanel]:
+                       ) -> dict[tuple[str, Key], tuple[PairedCell, str]]:
     """Beside the scored step, each seed's paired difference averaged over its last 20 and 50
     evaluation rounds: one round of a noisy task is one draw of its noise, and a headline read
     at one step can be the extreme of its neighbours. `scored`: the scored step's bootstrap
     estimates, (task, group) -> (mean, low, high). Appends summary.md's table to `lines`;
-    returns the figure's panel of the last LAST_ROUNDS[0] rounds, if any task has them.
+    returns the figure's cells of the last LAST_ROUNDS[0] rounds, with their steps.
     Estimator: as at the scored step (seed_mean_estimates and t_interval), on the averages."""
     args, runs, tasks, labels = analysis.args, analysis.runs, analysis.tasks, analysis.labels
     curves = paired_difference_curves(tasks, analysis.derived)
     averages, windows, notes = last_rounds_averages(tasks, curves)
     report.notes.extend(notes)
     if not averages:
-        return []
+        return {}
     estimates = seed_mean_estimates({(f"{t}|{k}", g): v for (t, g, k), v in averages.items()},
                                     args.reps, args.seed)
     table = []
@@ -1480,7 +1410,7 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
         for group, diffs in by_group.items():
             last = diffs[:, np.searchsorted(tasks[task].steps, step)]
             cells = seed_cells(last, scored[task, group], 1)
-            table.append([task, labels(algorithm_of(group)), action_of(group), last.size,
+            table.append([task, labels.algorithm(group[0]), group[1], last.size,
                           f"last ({format_step(step)})", *cells, f"{int((last > 0).sum())} of "
                           f"{last.size}"])
             for k in LAST_ROUNDS:
@@ -1499,7 +1429,7 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
                     [c for cs in runs[task].values() for c in cs], window)
                 rounds = f"last {k} ({format_step(window[0])}-{format_step(window[-1])})" + \
                     (", one episode each" if episodes else "")
-                table.append([task, labels(algorithm_of(group)), action_of(group),
+                table.append([task, labels.algorithm(group[0]), group[1],
                               values.size, rounds, *seed_cells(values, estimate, 1),
                               f"{won} of {values.size}"])
     lines += ["", "Averaged over the last rounds: per seed, the difference averaged over the "
@@ -1510,15 +1440,9 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
               markdown_table(["task", "algorithm", "action", "seeds", "rounds",
                               "return difference (bootstrap CI)", "t-interval", "won"], table)]
     k = LAST_ROUNDS[0]
-    values = {(t, g): v for (t, g, kk), v in averages.items() if kk == k}
-    if not values:
-        return []
-    spans = {(int(w[0]), int(w[-1])) for (_, kk), w in windows.items() if kk == k}
-    span = f" ({format_step(min(spans)[0])}-{format_step(min(spans)[1])})" \
-        if len(spans) == 1 else ""
-    return [PairedPanel(f"Per seed, mean over the last {k} rounds{span}", values,
-                        {(t, g): estimates[f"{t}|{k}", g] for t, g in values},
-                        missing=f"fewer than {k} rounds")]
+    return {(t, g): (PairedCell(v, estimates[f"{t}|{k}", g], t_interval(v)),
+                     f"{format_step(windows[t, k][0])}-{format_step(windows[t, k][-1])}")
+            for (t, g, kk), v in averages.items() if kk == k}
 
 
 def report_paired_difference(report: Report, analysis: Analysis) -> None:
@@ -1539,7 +1463,7 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
     print(f"paired differences ({args.reps:,} reps) ...")
     estimates = seed_mean_estimates({(t, g): d for t, by_group in differences.items()
                                      for g, d in by_group.items()}, args.reps, args.seed)
-    table, row_labels, one_episode = [], {}, []
+    table, one_episode = [], []
     for task, by_group in differences.items():
         step, scale = tasks[task].scored_step, norms[task][1]
         single = one_episode_per_seed([c for cs in runs[task].values() for c in cs],
@@ -1559,14 +1483,9 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
                        *(v / scale for v in t_values))
             report.row("paired_difference", task, group, "share_won", step, n, won / n,
                        math.nan, math.nan)
-            table.append([task, format_step(step), labels(algorithm_of(group)),
-                          action_of(group), n, *seed_cells(diffs, values, 1),
+            table.append([task, format_step(step), labels.algorithm(group[0]),
+                          group[1], n, *seed_cells(diffs, values, 1),
                           seed_cells(diffs / scale, scaled)[0], f"{won} of {n}"])
-            name = f"{labels(algorithm_of(group))}: {action_of(group)}, " \
-                if len(by_group) > 1 else ""
-            row_labels[task, group] = (f"{task}, {format_step(step)}\n{name}n = "
-                                       f"{counted(n, 'seed')}"
-                                       + (", one episode per seed" if single else ""))
     seeds = [d.size for by_group in differences.values() for d in by_group.values()]
     lines = ["Per seed, at each task's scored step: the return of an evaluation action minus "
              "that of tanh(mu), same actor, same start states: the mode (Corrected SAC's own "
@@ -1588,15 +1507,29 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
     lines += ["", markdown_table(["task", "step", "algorithm", "action", "seeds",
                                   "return difference (bootstrap CI)", "t-interval",
                                   "score difference (bootstrap CI)", "won"], table)]
-    lines += paired_over_tasks(report, analysis, differences)
-    steps = {tasks[t].scored_step for t in differences}
-    title = f"At {format_step(steps.pop())}" if len(steps) == 1 else "At each task's scored step"
-    flat = {(t, g): d for t, by_group in differences.items() for g, d in by_group.items()}
-    panels = [PairedPanel(title, flat, estimates)]
-    panels += paired_last_rounds(report, analysis, estimates, lines)
-    xlabel = f"Difference in {SCORE_NAMES[args.normalize].lower()}"
-    report.figure(plot_paired_difference(panels, row_labels, norms, analysis.colors, xlabel),
-                  "paired_difference")
+    over_lines, over = paired_over_tasks(report, analysis, differences)
+    lines += over_lines
+    last_rounds = paired_last_rounds(report, analysis, estimates, lines)
+    rows = []
+    for task, by_group in differences.items():
+        data, step = tasks[task], tasks[task].scored_step
+        seeds = " or ".join(sorted({str(d.size) for d in by_group.values()}))
+        ticks = [f"at {format_step(step)}\n{counted(seeds, 'seed')}"
+                 + (", one episode each" if task in one_episode else "")]
+        cells = {(0, g): PairedCell(d, estimates[task, g], t_interval(d))
+                 for g, d in by_group.items()}
+        spans = {last_rounds[task, g][1] for g in by_group if (task, g) in last_rounds}
+        if spans:
+            ticks.append(f"mean of the last {LAST_ROUNDS[0]} rounds\n{spans.pop()}")
+            cells |= {(1, g): last_rounds[task, g][0] for g in by_group
+                      if (task, g) in last_rounds}
+        baseline = paired_groups(data, task in analysis.derived)[0][1]
+        reference = (float(data.scored(baseline).mean()), f"at {format_step(step)}")
+        rows.append(PairedRow(task, ticks, cells, "return minus tanh(mu)'s", reference))
+    keys = list(dict.fromkeys(g for by_group in differences.values() for g in by_group))
+    names = {g: f"{g[1]} ({labels.algorithm(g[0])})" for g in keys}
+    report.figure(plot_paired(rows + ([over] if over else []), analysis.colors, names,
+                              "the training log's evaluation rounds"), "paired_difference")
     report.section("Headline: paired difference, each evaluation action minus tanh(mu) of the "
                    "same actors", *lines)
 
@@ -1615,11 +1548,8 @@ def robust_action_label(action: str) -> str:
 def robust_action_colors(selectors: Sequence[str]) -> dict[str, tuple]:
     """Each action's colour: that of the corrected runs' group evaluated with it (the mode is
     Corrected SAC's own), so that it matches the paired-difference figure."""
-    actions = {action.name: action for action in EVALUATION_ACTIONS}
-    groups = {s: CORRECTED if s == OWN_ACTIONS[CORRECTED] else
-              CORRECTED + actions.get(s, EvaluationAction(s)).suffix for s in selectors}
-    colors = group_colors(list(groups.values()))
-    return {s: colors[g] for s, g in groups.items()}
+    colors = group_colors([(CORRECTED, s) for s in selectors])
+    return {s: colors[CORRECTED, s] for s in selectors}
 
 
 def episodes_span(episodes: np.ndarray) -> str:
@@ -1710,10 +1640,9 @@ def robust_over_tasks(report: Report, analysis: Analysis,
                       by_task: dict[str, dict[int, RobustStep]], step: int
                       ) -> tuple[RobustOverTasks, list[str]]:
     """At the tasks' shared last step, each action's paired difference divided by each task's
-    success bar, over the tasks that have one: rliable's stratified bootstrap of
-    metrics.aggregate_mean over the (seeds x tasks) matrix and Welch's interval beside it (as
-    the headline aggregates over tasks); then IQM, median and mean of each action's normalised
-    returns. Writes summary.csv's rows; returns the figure's data and summary.md's lines."""
+    success bar, over the tasks that have one (difference_over_tasks, as the headline's); then
+    the aggregate metrics of each action's normalised returns. Writes summary.csv's rows;
+    returns the figure's data and summary.md's lines."""
     args = analysis.args
     tasks = [t for t in by_task if t in SUCCESS_BARS]
     actions = [a for a in by_task[tasks[0]][step].returns
@@ -1734,12 +1663,10 @@ def robust_over_tasks(report: Report, analysis: Analysis,
     for action in actions:
         if action not in by_task[tasks[0]][step].differences:
             continue
-        values = np.stack([by_task[t][step].differences[action][:seeds] / SUCCESS_BARS[t]
-                           for t in tasks], axis=1)
-        point, interval = interval_estimates({action: values}, metrics.aggregate_mean,
-                                             args.reps, args.seed)
-        boot = (float(point[action]), *map(float, interval[action].ravel()))
-        t_values, won = welch_interval(list(values.T)), int((values > 0).sum())
+        values, boot, t_values = difference_over_tasks(
+            [by_task[t][step].differences[action][:seeds] / SUCCESS_BARS[t] for t in tasks],
+            args.reps, args.seed)
+        won = int((values > 0).sum())
         over.values[action], over.bootstrap[action], over.t[action] = values, boot, t_values
         report.row("robust_difference", "all", action, "score", step, seeds, *boot)
         report.row("robust_difference_t", "all", action, "score", step, seeds, *t_values)
@@ -1765,117 +1692,6 @@ def robust_over_tasks(report: Report, analysis: Analysis,
                   + ("; rliable's median is the median over tasks of each task's mean, so with "
                      "one task it is the mean" if len(tasks) == 1 else "") + "."]
     return over, lines
-
-
-def draw_seed_summary(ax, x: float, width: float, values: np.ndarray, errors: np.ndarray | None,
-                      boot: Sequence[float], t_values: Sequence[float], color: tuple,
-                      markers: Sequence[str] | None = None) -> None:
-    """Within x +- width: the seeds (dots, left; whiskers: +-VERDICT_SE standard errors of each
-    seed's paired episodes, where given), their mean (tick) with its t-interval (whisker) and,
-    right, the bootstrap CI (bar). Dots beyond the axis's range sit on its edge as triangles,
-    the farthest one's value written beside it."""
-    xs = x - 0.6 * width + np.linspace(-0.15, 0.15, values.size) * width
-    low, high = ax.get_ylim()
-    outside = [i for i, v in enumerate(values) if not low <= v <= high]
-    farthest = max(outside, key=lambda i: abs(values[i]), default=None)
-    for i, (xi, value) in enumerate(zip(xs, values, strict=True)):
-        inside = i not in outside
-        marker = (markers[i] if markers else "o") if inside else ("v" if value < low else "^")
-        ax.scatter(xi, min(max(value, low), high), s=16, marker=marker, color=color, alpha=0.7,
-                   lw=0, zorder=3, clip_on=False)
-        if i == farthest:
-            ax.annotate(f"{value:.3g}", (xi, min(max(value, low), high)), xytext=(-3, 0),
-                        textcoords="offset points", ha="right", va="center", fontsize=6)
-        elif inside and errors is not None and np.isfinite(errors[i]):
-            ax.errorbar(xi, value, yerr=stats.VERDICT_SE * errors[i], color=color, lw=0.7,
-                        alpha=0.7, zorder=3)
-    ax.bar(x + 0.6 * width, boot[2] - boot[1], bottom=boot[1], width=0.4 * width, color=color,
-           alpha=0.4)
-    ax.hlines(t_values[0], x - 0.35 * width, x + 0.35 * width, color="k", lw=1.5, zorder=4)
-    if np.isfinite(t_values[1]):
-        ax.errorbar(x, t_values[0], yerr=[[t_values[0] - t_values[1]], [t_values[2] -
-                    t_values[0]]], color=color, lw=1.5, capsize=3, zorder=4)
-
-
-def summary_range(intervals: Sequence[Sequence[float]], dots: np.ndarray
-                  ) -> tuple[float, float]:
-    """A y-range that holds the estimates' intervals, zero and the middle 90% of the seeds'
-    dots: one seed's outlier does not set it."""
-    values = np.array([v for interval in intervals for v in interval if np.isfinite(v)] + [0.0])
-    low = min(values.min(), np.percentile(dots, 5))
-    high = max(values.max(), np.percentile(dots, 95))
-    pad = 0.12 * (high - low or 1.0)
-    return low - pad, high + pad
-
-
-def plot_robust_evaluation(by_task: dict[str, dict[int, RobustStep]], estimates: dict,
-                           over: RobustOverTasks | None, colors: dict) -> plt.Figure:
-    """The headline figure from the robust evaluation. A row per task: each action's paired
-    difference against tanh(mu) at each evaluated step, in return (left axis) and in % of
-    tanh(mu)'s mean return at the task's last step (right axis); under each step, the starts
-    per seed and the seeds. Last row, over tasks at their shared last step: the difference
-    divided by each success bar, a marker per task."""
-    actions = list(dict.fromkeys(a for steps in by_task.values() for at in steps.values()
-                                 for a in at.differences))
-    slot = 0.8 / len(actions)  # each action's share of a step's x range
-    offsets = {a: (j - (len(actions) - 1) / 2) * slot for j, a in enumerate(actions)}
-    rows = len(by_task) + (over is not None)
-    fig, axes = plt.subplots(rows, 1, figsize=(8, 3.1 * rows + 1.0), squeeze=False,
-                             layout="constrained")
-    for ax, (task, steps) in zip(axes[:, 0], by_task.items(), strict=False):
-        drawn = {(step, a): (at.differences[a], at.errors.get(a), estimates[f"{task}|{step}", a],
-                             t_interval(at.differences[a]))
-                 for step, at in steps.items() for a in at.differences}
-        ax.set_ylim(*summary_range([v for _, _, boot, t in drawn.values() for v in (boot, t)],
-                                   np.concatenate([d[0] for d in drawn.values()])))
-        for i, step in enumerate(steps):
-            for action in actions:
-                if (step, action) in drawn:
-                    draw_seed_summary(ax, i + offsets[action], slot / 2, *drawn[step, action][:2],
-                                      *drawn[step, action][2:], colors[action])
-        ax.set_xticks(range(len(steps)), [
-            f"{format_step(s)}\n{episodes_span(at.episodes)} starts x {at.episodes.size} seeds"
-            for s, at in steps.items()], fontsize="small")
-        ax.set_xlim(-0.5, len(steps) - 0.5)
-        ax.set_title(task, fontsize="medium")
-        ax.set_ylabel("return minus tanh(mu)'s")
-        last = steps[max(steps)]
-        reference = abs(float(last.returns[stats.BASELINE].mean())) or 1.0
-        right = ax.secondary_yaxis("right", functions=(lambda y, r=reference: 100 * y / r,
-                                                       lambda p, r=reference: p * r / 100))
-        right.set_ylabel(f"% of tanh(mu)'s return ({reference:.3g} at {format_step(max(steps))})",
-                         fontsize="small")
-    if over is not None:
-        ax = axes[-1, 0]
-        ax.set_ylim(*summary_range([v for a in over.values for v in (over.bootstrap[a],
-                                                                     over.t[a])],
-                                   np.concatenate([v.ravel() for v in over.values.values()])))
-        shapes = dict(zip(over.tasks, "osD^vP*X", strict=False))
-        for i, action in enumerate(over.values):
-            values = over.values[action]  # (seeds, tasks)
-            draw_seed_summary(ax, i, 0.25, values.T.ravel(), None, over.bootstrap[action],
-                              over.t[action], colors[action],
-                              [shapes[t] for t in over.tasks for _ in range(values.shape[0])])
-        seeds = next(iter(over.values.values())).shape[0]
-        ax.set_xticks(range(len(over.values)), list(over.values))
-        ax.set_xlim(-0.5, len(over.values) - 0.5)
-        ax.set_title(f"Over {counted(len(over.tasks), 'task')} at {format_step(over.step)}, each "
-                     f"divided by its success bar: {seeds} seeds per task", fontsize="medium")
-        ax.set_ylabel("difference / success bar")
-        ax.legend(handles=[plt.Line2D([], [], ls="", marker=shapes[t], color="0.4", label=t)
-                           for t in over.tasks], fontsize="x-small", loc="best")
-    for ax in axes[:, 0]:
-        ax.axhline(0, color="0.4", ls=":", lw=1)
-        ax.grid(axis="y", alpha=0.25)
-    handles = [Patch(color=colors[a], label=a) for a in actions]
-    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles),
-               fontsize="small", title="evaluation action", title_fontsize="small")
-    fig.suptitle("Each action minus tanh(mu): same actor, same start states\n"
-                 f"dots: seeds, +-{stats.VERDICT_SE:g} SE of their paired episodes (triangles: "
-                 "beyond the axis)\ntick and whisker: mean over seeds and its 95% t-interval; "
-                 "bar: bootstrap CI",
-                 fontsize="medium")
-    return fig
 
 
 def robust_settings_lines(robust: RobustEpisodes) -> list[str]:
@@ -1944,7 +1760,28 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
         over, over_lines = robust_over_tasks(report, analysis, by_task, step)
         lines += ["", *over_lines]
     colors = robust_action_colors(robust.selectors)
-    report.figure(plot_robust_evaluation(by_task, estimates, over, colors), "robust_evaluation")
+    rows = []
+    for task, steps in by_task.items():
+        ticks = [f"{format_step(s)}\n{episodes_span(at.episodes)} starts x {at.episodes.size} "
+                 "seeds" for s, at in steps.items()]
+        cells = {(i, a): PairedCell(d, estimates[f"{task}|{step}", a], t_interval(d),
+                                    at.errors.get(a))
+                 for i, (step, at) in enumerate(steps.items()) for a, d in at.differences.items()}
+        last = max(steps)
+        reference = (float(steps[last].returns[BASELINE].mean()), f"at {format_step(last)}")
+        rows.append(PairedRow(task, ticks, cells, "return minus tanh(mu)'s", reference))
+    if over is not None:
+        seeds = next(iter(over.values.values())).shape[0]
+        shapes = dict(zip(over.tasks, "osD^vP*X", strict=False))
+        cells = {(0, a): PairedCell(v.T.ravel(), over.bootstrap[a], over.t[a], markers=[
+            shapes[t] for t in over.tasks for _ in range(seeds)]) for a, v in over.values.items()}
+        rows.append(PairedRow(f"Over {counted(len(over.tasks), 'task')} at "
+                              f"{format_step(over.step)}, each divided by its success bar",
+                              [f"{seeds} seeds per task"], cells, "difference / success bar",
+                              shapes=shapes))
+    labels = {a: robust_action_label(a) for a in colors}
+    report.figure(plot_paired(rows, colors, labels, "the robust evaluation: evaluate.py's noisy "
+                              "starts"), "robust_evaluation")
     if over is not None:
         report_robust_aggregate(report, analysis, over, colors)
     lines += robust_sample_efficiency(report, analysis, barred, colors)
@@ -2049,7 +1886,7 @@ def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.n
     that logged it with no empty cell there."""
     shifts: dict[str, dict[str, np.ndarray]] = {}
     for task, data in tasks.items():
-        curves = runs[task].get(CORRECTED, [])
+        curves = runs[task].get((CORRECTED, own_action(CORRECTED)), [])
         for column in OVER_TRAINING_SHIFT_COLUMNS:
             rows = [c.shift[column][np.searchsorted(c.steps, data.steps)] for c in curves
                     if column in c.shift]
@@ -2081,7 +1918,7 @@ def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dic
         for group, diffs in differences.get(task, {}).items():
             mean, (low, high) = estimates[task][group]
             seeds.add(diffs.shape[0])
-            name = f"{action_of(group)} ({labels(algorithm_of(group))})"
+            name = f"{group[1]} ({labels.algorithm(group[0])})"
             if rolling:  # a round is one draw of the evaluation noise: the trend needs a window
                 ax.plot(x, mean, color=colors[group], lw=0.7, alpha=0.45)
                 window = np.convolve(mean, np.ones(ROLLING_ROUNDS) / ROLLING_ROUNDS, "valid")
@@ -2168,7 +2005,7 @@ def report_over_training(report: Report, analysis: Analysis) -> None:
             if i in shown:
                 table.append([format_step(step), *cells])
         header = ["step", *(name for g in by_group
-                            for name in (f"{action_of(g)} minus tanh(mu)", "t-interval")),
+                            for name in (f"{g[1]} minus tanh(mu)", "t-interval")),
                   *task_shift]
         lines += [f"**{task}**", "", markdown_table(header, table), ""]
     report.section("Over training: paired differences and the measured shift", *lines)
@@ -2180,48 +2017,45 @@ def report_choice_shares(report: Report, analysis: Analysis) -> None:
     mean, at each task's scored step, for each evaluation action that logs its choice_shares.
     Estimator: the mean over seeds with rliable's bootstrap CI (seed_mean_estimates:
     stats.bootstrap_mean), a share per seed being one value per seed."""
-    for action in EVALUATION_ACTIONS:
-        if action.choice_shares:
-            report_choice_shares_of(report, analysis, action)
+    for action in CHOICE_SHARES:
+        report_choice_shares_of(report, analysis, action)
 
 
-def report_choice_shares_of(report: Report, analysis: Analysis, action: EvaluationAction
-                            ) -> None:
+def report_choice_shares_of(report: Report, analysis: Analysis, action: str) -> None:
     """One action's choice shares (q_best's: mode, tanh(mu), mean), where it was evaluated."""
     args, runs, tasks = analysis.args, analysis.runs, analysis.tasks
     samples = {}
     for task, data in tasks.items():
         for group, curves in runs[task].items():
-            if action_of(group) != action.name:
+            if group[1] != action:
                 continue
-            for column in action.choice_shares:
+            for column in CHOICE_SHARES[action]:
                 values = np.array([c.shares[column][c.steps == data.scored_step][0]
                                    for c in curves if column in c.shares])
                 if np.isfinite(values).any():
                     samples[task, group, column] = values[np.isfinite(values)]
     if not samples:
         return
-    estimates = seed_mean_estimates({(f"{t}|{g}", c): v for (t, g, c), v in samples.items()},
+    estimates = seed_mean_estimates({((t, g), c): v for (t, g, c), v in samples.items()},
                                     args.reps, args.seed)
-    prefix = f"{action.name}_share_"
-    candidates = [column.removeprefix(prefix) for column in action.choice_shares]
-    titles = {a.name: a.title or a.name for a in EVALUATION_ACTIONS}
+    prefix = f"{action}_share_"
+    candidates = [column.removeprefix(prefix) for column in CHOICE_SHARES[action]]
     table = {}
     for (task, group, column), values in samples.items():
         step = tasks[task].scored_step
-        estimate = estimates[f"{task}|{group}", column]
+        estimate = estimates[(task, group), column]
         name = column.removeprefix(prefix)
-        report.row(f"{action.name}_share", task, group, name, step, values.size, *estimate)
+        report.row(f"{action}_share", task, group, name, step, values.size, *estimate)
         row = table.setdefault((task, group), [task, format_step(step),
-                                               analysis.labels(algorithm_of(group)),
+                                               analysis.labels.algorithm(group[0]),
                                                values.size, *["-"] * len(candidates)])
         row[4 + candidates.index(name)] = format_ci(*estimate)
     report.section(
-        f"{action.name}: which action the critic picked",
-        f"Share of {action.name}'s evaluation steps at which the critic preferred each "
+        f"{action}: which action the critic picked",
+        f"Share of {action}'s evaluation steps at which the critic preferred each "
         "candidate, at each task's scored step; mean over seeds with a 95% bootstrap CI.", "",
         markdown_table(["task", "step", "algorithm", "seeds",
-                        *(titles.get(c, c) for c in candidates)], list(table.values())))
+                        *(ACTIONS.get(c, c) for c in candidates)], list(table.values())))
 
 
 # ------------------------------------------------- 6. reward curves and final returns (Fig. 5)
@@ -2273,7 +2107,7 @@ def plot_reward_curves(
         top = -math.inf
         for group in [g for g in groups if g in data.returns]:
             mean, (low, high) = curves[task][group]
-            style = ":" if single[task, group] else "-" if is_algorithm(group) else "--"
+            style = ":" if single[task, group] else "-" if is_own(group) else "--"
             ax.plot(data.steps / unit, mean, style, color=colors[group], lw=width_line,
                     label=labels(group) + (" (one episode per evaluation)"
                                            if single[task, group] else ""))
@@ -2450,10 +2284,11 @@ def report_probability_of_improvement(report: Report, analysis: Analysis) -> Non
         return
     x, y = COMPARISON
     if x not in agg.groups or y not in agg.groups:
-        report.notes.append(f"probability of improvement needs both {x} and {y} runs: skipped")
+        report.notes.append(f"probability of improvement needs both {group_name(x)} and "
+                            f"{group_name(y)} runs: skipped")
         return
     print(f"probability of improvement ({args.curve_reps:,} reps) ...")
-    pair = f"{x} > {y}"
+    pair = f"{group_name(x)} > {group_name(y)}"
     point, interval = interval_estimates({pair: [agg.final[x], agg.final[y]]},
                                          metrics.probability_of_improvement,
                                          args.curve_reps, args.seed)
@@ -2476,31 +2311,7 @@ def report_probability_of_improvement(report: Report, analysis: Analysis) -> Non
 
 
 # ---------------------------------------------------------------------- 11. the dimension study
-# Paired differences at these fractions of each task's shared steps.
-TRAINING_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
-
-
-@dataclasses.dataclass
-class Dimension:
-    """One task of the dimension study: its action dimension, the per-seed paired difference of
-    each evaluation action (minus tanh(mu)) at fractions of training, and the shift measured at
-    its final step."""
-
-    action_dim: int
-    scale: float  # the range of the task's tanh(mu) returns in the folder
-    steps: dict[float, int]  # training fraction -> step
-    differences: dict[str, dict[float, np.ndarray]]  # group -> fraction -> per-seed raw difference
-    shift: dict[str, np.ndarray]  # SHIFT_COLUMN -> per-seed value at the final step (logged ones)
-
-
-def training_fraction_steps(steps: np.ndarray, scored_step: int) -> dict[float, int]:
-    """The shared step at each of TRAINING_FRACTIONS: the last one at or before that share of
-    the scored step (the first shared step if none is), the scored step at 1.0."""
-    picks = {f: int(steps[max(0, np.searchsorted(steps, f * scored_step, side="right") - 1)])
-             for f in TRAINING_FRACTIONS}
-    return {**picks, 1.0: scored_step}
-
-
+# Beyond the paper; sac_utils/dimension_study.py estimates, tabulates and draws it.
 def shift_at(curves: list[Curve], step: int) -> dict[str, np.ndarray]:
     """Each SHIFT_COLUMN at `step`, one value per run that logged it (empty cells left out)."""
     shift = {}
@@ -2521,8 +2332,8 @@ def dimension_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
         pairs = paired_groups(data, task in derived)
         if not pairs:
             continue
-        algorithms = {algorithm_of(group) for group, _ in pairs}
-        dims = {c.action_dim for a in algorithms for c in runs[task].get(a, [])}
+        algorithms = {group[0] for group, _ in pairs}
+        dims = {c.action_dim for a in algorithms for c in runs[task].get((a, own_action(a)), [])}
         if None in dims or len(dims) != 1:
             notes.append(f"{task}: its runs' config.json give no single action_dim "
                          f"({sorted(dims, key=str)}); left out of the dimension study")
@@ -2535,195 +2346,19 @@ def dimension_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
             own, paired = paired_values(data, group, baseline, np.array(list(steps.values())))
             differences[group] = dict(zip(steps, (own - paired).T, strict=True))
         shift = {}
-        for algorithm in sorted(algorithms, key=group_rank):  # corrected's shift first
-            shift = shift or shift_at(runs[task][algorithm], data.scored_step)
+        for key in sorted(((a, own_action(a)) for a in algorithms), key=group_rank):
+            shift = shift or shift_at(runs[task][key], data.scored_step)
         study[task] = Dimension(dims.pop(), scale, steps, differences, shift)
     return study, notes
 
 
-def dimension_estimates(study: dict[str, Dimension], reps: int, seed: int) -> dict:
-    """Mean over seeds with its bootstrap CI (rliable), (mean, low, high): keyed
-    ((task, group), fraction) for the normalised paired difference, (task, column) for the
-    measured shift."""
-    samples = {((t, g), f): by_fraction[f] / d.scale for t, d in study.items()
-               for g, by_fraction in d.differences.items() for f in d.steps}
-    samples |= {(t, column): v for t, d in study.items() for column, v in d.shift.items()}
-    return seed_mean_estimates(samples, reps, seed)
-
-
-def dimension_positions(study: dict[str, Dimension]) -> dict[str, float]:
-    """Each task's x on the log dimension axis: its action dimension, tasks that share one
-    spread a little around it so that their CIs do not hide each other."""
-    positions = {}
-    for dim in {d.action_dim for d in study.values()}:
-        same = [t for t, d in study.items() if d.action_dim == dim]
-        for k, task in enumerate(same):
-            positions[task] = dim * 1.07 ** (k - (len(same) - 1) / 2)
-    return positions
-
-
-def _errorbar(ax, x: float, estimate: tuple[float, float, float], **style) -> None:
-    point, low, high = estimate
-    ax.errorbar(x, point, yerr=[[point - low], [high - point]], capsize=3, **style)
-
-
-def study_actions(study: dict[str, Dimension]) -> list[str]:
-    """The evaluation actions compared with tanh(mu) in the study, in EVALUATION_ACTIONS' order
-    (mode, mean, q_best), then any other."""
-    found = {action_of(g) for d in study.values() for g in d.differences}
-    known = [a.name for a in EVALUATION_ACTIONS if a.name in found]
-    return known + sorted(found - set(known))
-
-
-def plot_dimension_study(study: dict[str, Dimension], estimates: dict, colors: list,
-                         labels: GroupLabels) -> plt.Figure:
-    """Per evaluation action, a row: its paired difference against the action dimension and
-    against training; last row: the measured shift beside mode_search's theory curve, and
-    sigma / bimodal share against the dimension."""
-    from mode_search import SPREADS, summed_shift_by_dimension  # torch: only for this figure
-
-    actions = study_actions(study)
-    fig, axes = plt.subplots(len(actions) + 1, 2, figsize=(13, 4.75 * (len(actions) + 1)),
-                             squeeze=False)
-    (ax_shift, ax_sigma) = axes[-1]
-    ax_bimodal = ax_sigma.twinx()
-    xs = dimension_positions(study)
-    markers = {CORRECTED: "o", STANDARD: "s"}
-    for (ax_dim, ax_progress), action in zip(axes[:-1], actions, strict=True):
-        groups = {g for d in study.values() for g in d.differences if action_of(g) == action}
-        several = len({algorithm_of(g) for g in groups}) > 1
-        for (task, d), color in zip(study.items(), colors, strict=False):
-            for group in sorted(d.differences, key=group_rank):
-                if action_of(group) != action:
-                    continue
-                name = f"{task} ({d.action_dim})" + (f", {labels(algorithm_of(group))}"
-                                                     if several else "")
-                _plot_difference(ax_dim, ax_progress, xs[task], d, estimates, (task, group),
-                                 color=color, marker=markers.get(algorithm_of(group), "D"),
-                                 label=name)
-        ylabel = f"{action} - tanh(mu), normalised"
-        ax_dim.set(xscale="log", xlabel="action dimensions", ylabel=ylabel,
-                   title=f"{action}: paired difference, final step (95% CI); hollow: 25/50/75%")
-        ax_progress.set(xlabel="fraction of training", ylabel=ylabel,
-                        title=f"{action}: ... as training goes on")
-        for ax in (ax_dim, ax_progress):
-            ax.axhline(0, color="0.4", ls=":", lw=1)
-        ax_dim.legend(fontsize=7)
-    for (task, d), color in zip(study.items(), colors, strict=False):
-        if "mode_shift_abs_sum" in d.shift:
-            _errorbar(ax_shift, xs[task], estimates[task, "mode_shift_abs_sum"], fmt="o",
-                      color=color, zorder=3)
-        if "sigma_mean" in d.shift:
-            _errorbar(ax_sigma, xs[task], estimates[task, "sigma_mean"], fmt="o", color=color)
-        if "bimodal_fraction" in d.shift:
-            _errorbar(ax_bimodal, xs[task], estimates[task, "bimodal_fraction"], fmt="s",
-                      mfc="none", color=color)
-    top = max(d.action_dim for d in study.values())
-    n = np.arange(1, top + 1)
-    for i, ((name, spread), color) in enumerate(zip(SPREADS.items(), ("0.3", "0.6"),
-                                                    strict=True)):
-        mean, low, high = (t.numpy() for t in summed_shift_by_dimension(top, spread, seed=i))
-        ax_shift.plot(n, mean, color=color, lw=1, label=f"theory, {name}")
-        ax_shift.fill_between(n, low, high, color=color, alpha=0.15)
-    ax_shift.set(xscale="log", yscale="log", xlabel="action dimensions",
-                 ylabel="sum |mode - tanh(mu)| at visited states",
-                 title="Measured shift at the final step (95% CI) and theory (mode_search)")
-    ax_sigma.set(xscale="log", xlabel="action dimensions", ylabel="sigma_mean (dots)",
-                 title="Policy sigma and share of bimodal dimensions at the final step")
-    ax_bimodal.set(ylabel="bimodal_fraction (squares)", ylim=(-0.02, 1.02))
-    dims = sorted({d.action_dim for d in study.values()})
-    for ax in (*axes[:-1, 0], ax_shift, ax_sigma):  # label the dimensions themselves, not decades
-        ax.set_xticks(dims, [str(d) for d in dims])
-        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
-    for ax in axes.flat:
-        ax.grid(alpha=0.25)
-    ax_shift.legend(fontsize=7, loc="upper left")
-    fig.suptitle("Each point is a different task (its own body, reward and action dimension), "
-                 "not one task swept over the dimension", fontsize="large")
-    fig.tight_layout()
-    return fig
-
-
-def _plot_difference(ax_dim, ax_progress, x: float, d: Dimension, estimates: dict,
-                     key: tuple[str, str], color, marker: str, label: str) -> None:
-    """One (task, evaluation action): final step with CI and earlier fractions hollow against
-    the dimension; the mean with its CI band against the fraction of training."""
-    fractions = sorted(d.steps)
-    _errorbar(ax_dim, x, estimates[key, 1.0], fmt=marker, color=color, ms=7, label=label)
-    for f in fractions[:-1]:  # earlier in training: hollow, fainter the earlier
-        ax_dim.plot(x, estimates[key, f][0], marker, mfc="none", color=color,
-                    alpha=0.25 + 0.6 * f, ms=4 + 3 * f)
-    ax_progress.plot(fractions, [estimates[key, f][0] for f in fractions], f"{marker}-",
-                     color=color, label=label)
-    ax_progress.fill_between(fractions, [estimates[key, f][1] for f in fractions],
-                             [estimates[key, f][2] for f in fractions], color=color, alpha=0.15)
-
-
 def report_dimension_study(report: Report, analysis: Analysis) -> None:
     """Beyond the paper (figure `dimension_study`): what each evaluation action is worth as the
-    action dimension grows, one task per dimension. Estimator: the mean over seeds with
-    rliable's bootstrap CI (seed_mean_estimates: stats.bootstrap_mean) of
-    each task's per-seed paired difference, normalised by the range of its tanh(mu) returns so
-    that tasks of different reward scales share an axis, and of the measured shift; beside it
-    Student's t-interval of the raw difference (few seeds). Tasks are not pooled: each point is
-    a different task."""
-    args, labels = analysis.args, analysis.labels
+    action dimension grows, one task per dimension (sac_utils/dimension_study.py)."""
     study, notes = dimension_study(analysis.runs, analysis.tasks, analysis.derived)
     report.notes.extend(notes)
-    dims = sorted({d.action_dim for d in study.values()})
-    if len(dims) < 2:
-        report.notes.append(
-            "dimension study skipped: it needs paired evaluations against tanh(mu) (corrected "
-            "runs, or runs made with --eval-selectors) on tasks of at least two different "
-            f"action dimensions; found {'only ' + str(dims) if dims else 'none'}")
-        return
-    print(f"dimension study over {len(study)} tasks ({args.reps:,} reps) ...")
-    study = dict(sorted(study.items(), key=lambda item: (item[1].action_dim, item[0])))
-    estimates = dimension_estimates(study, args.reps, args.seed)
-    table, shift_table = [], []
-    for task, d in study.items():
-        for group in sorted(d.differences, key=group_rank):
-            for f, step in d.steps.items():
-                diffs = d.differences[group][f]
-                runs_n = diffs.size
-                point, low, high = estimates[(task, group), f]
-                report.row("dimension", task, group, f"normalised_difference@{f:g}", step,
-                           runs_n, point, low, high)
-                report.row("dimension", task, group, f"raw_difference@{f:g}", step, runs_n,
-                           *(v * d.scale for v in (point, low, high)))
-                t_values = t_interval(diffs)
-                report.row("dimension", task, group, f"normalised_difference_t@{f:g}", step,
-                           runs_n, *(v / d.scale for v in t_values))
-                report.row("dimension", task, group, f"raw_difference_t@{f:g}", step, runs_n,
-                           *t_values)
-                raw, t_cell = seed_cells(diffs, [v * d.scale for v in (point, low, high)], 1)
-                table.append([task, d.action_dim, labels(algorithm_of(group)), action_of(group),
-                              runs_n, f"{f:g} ({format_step(step)})", raw, t_cell,
-                              seed_cells(diffs / d.scale, (point, low, high))[0],
-                              f"{int((diffs > 0).sum())} of {runs_n}"])
-        for column, values in d.shift.items():
-            report.row("dimension_shift", task, CORRECTED, column, d.steps[1.0], values.size,
-                       *estimates[task, column])
-        shift_table.append([task, d.action_dim, *(format_ci(*estimates[task, c]) if c in d.shift
-                                                  else "-" for c in SHIFT_COLUMNS)])
-    colors = sns.color_palette("viridis", n_colors=len(study))
-    report.figure(plot_dimension_study(study, estimates, colors, labels), "dimension_study")
-    report.section(
-        "Beyond the paper: the paired difference against the action dimension",
-        "Each evaluation action (the mode, and where logged the mean and q_best) minus tanh(mu) "
-        "of the same actors, per seed, at fractions of each task's shared steps; normalised by "
-        "the range of the task's tanh(mu) returns in this folder (all seeds and steps), so that "
-        "tasks compare; mean over seeds with a 95% bootstrap CI, and the raw difference's "
-        "t-interval. Raw numbers are in summary.csv (section `dimension`). Each dimension is a "
-        "different task, with its own body and reward: the points compare tasks, they are not "
-        "one task swept over its action dimension.", "",
-        markdown_table(["task", "action dims", "algorithm", "action", "seeds", "fraction (step)",
-                        "raw difference (bootstrap CI)", "t-interval", "normalised difference",
-                        "won"], table), "",
-        "Measured shift at the final step (eval.csv, over the states the mode policy visited; "
-        "mean over seeds with a 95% bootstrap CI), beside the theory curve of mode_search.py "
-        "(figure, last row):", "",
-        markdown_table(["task", "action dims", *SHIFT_COLUMNS], shift_table))
+    dimensions.report_study(report, study, analysis.labels, list(ACTIONS), analysis.args.reps,
+                            analysis.args.seed)
 
 
 # ============================================================================== the pipeline
@@ -2782,7 +2417,8 @@ def analyze(args: Args) -> Report:
                         GroupLabels(standard_label(pairing, list(runs))), group_colors(groups),
                         robust)
     args.out.mkdir(parents=True, exist_ok=True)
-    report = Report(args.out, args.format, notes=notes + align_notes + aggregate_notes)
+    report = Report(args.out, args.format, notes=notes + align_notes + aggregate_notes,
+                    names=group_name)
     for section in REPORT_SECTIONS:
         section(report, analysis)
     report.write(summary_header(analysis, chosen, found))

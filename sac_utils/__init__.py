@@ -1,8 +1,11 @@
-"""What the SAC scripts, evaluate.py and sweep.py import, each module owning one thing: cli (the
+"""What the scripts at the top import, each module owning one thing: cli (the
 command line: each flag's range, --resume's rules, --env-id, the one-line error), run_folder
 (RunFolder: the run folder from start to finish), checkpoints (what a checkpoint holds and the
 exact resume; the restart from a snapshot), eval_rounds (evaluation rounds as jobs, beside
 training or in evaluate.py), speedups (torch.compile at start-up, CUDA graphs, the update's
-compiled pieces), files (written whole or not at all), sweep_run (one run of a sweep.py grid).
+compiled pieces), files (written whole or not at all), sweep_run (one run of a sweep.py grid),
+stats (the statistics analyze.py and evaluate.py share), report (what analyze.py's reports are
+made of), dimension_study (beyond the paper: the paired difference against the action
+dimension).
 docs/scripts.md describes them.
 """

@@ -105,3 +105,25 @@ def interval_text(point: float, low: float, high: float, digits: int = 3, runs: 
     if runs < 2 or math.isnan(low) or math.isnan(high):
         return f"{point:.{digits}f} (n/a)"
     return f"{point:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+
+
+def seed_mean_estimates(samples: dict[tuple, np.ndarray], reps: int, seed: int
+                        ) -> dict[tuple, tuple[float, float, float]]:
+    """(task, group) -> (mean, low, high) of one value per seed: bootstrap_mean, each batch
+    drawn from RandomState(seed), as rliable's get_interval_estimates draws after
+    np.random.seed(seed).
+
+    The tasks of a group with equal seed counts share one bootstrap: it resamples each task's
+    seeds independently, so each task's interval is distributed as in a bootstrap of its own,
+    at a fraction of the cost.
+    """
+    batches: dict[tuple, list] = {}
+    for (task, group), values in samples.items():
+        batches.setdefault((group, values.size), []).append(task)
+    estimates = {}
+    for (group, _), batch in batches.items():
+        scores = np.stack([samples[task, group] for task in batch], axis=1)
+        point, low, high = bootstrap_mean(scores, reps, np.random.RandomState(seed))
+        for i, task in enumerate(batch):
+            estimates[task, group] = (float(point[i]), float(low[i]), float(high[i]))
+    return estimates

@@ -565,9 +565,11 @@ def test_dimension_study_recovers_known_offsets_per_dimension(tmp_path):
 
 
 def test_dimension_positions_spread_tasks_that_share_a_dimension():
-    study = {t: analyze.Dimension(d, 1.0, {}, {}, {}) for t, d in
+    from sac_utils.dimension_study import Dimension, dimension_positions
+
+    study = {t: Dimension(d, 1.0, {}, {}, {}) for t, d in
              (("a", 3), ("b", 61), ("c", 61), ("d", 61))}
-    xs = analyze.dimension_positions(study)
+    xs = dimension_positions(study)
     assert xs["a"] == 3 and np.isclose(xs["c"], 61) and xs["b"] < 61 < xs["d"]
     assert np.isclose(xs["b"] * xs["d"], 61**2)  # symmetric on the log axis
 
@@ -639,7 +641,7 @@ def test_tasks_with_no_step_in_common_and_other_budgets_share_a_fraction_axis(tm
     for fraction, cube, powerlift in ((0.5, 125, 150), (0.6, 125, 180)):
         frame = int(np.argmin(np.abs(aggregate.frames - fraction)))
         expected = np.stack([(cube + seeds) / 370, (powerlift + seeds) / 800], axis=1)
-        assert np.allclose(aggregate.curves["corrected"][:, :, frame], expected)
+        assert np.allclose(aggregate.curves["corrected", "mode"][:, :, frame], expected)
 
 
 @pytest.mark.slow
@@ -886,7 +888,7 @@ def write_toy_folder(root: Path) -> dict[tuple[str, int], dict[str, float]]:
 @pytest.mark.slow
 def test_a_new_task_and_a_new_evaluation_action_are_one_entry_each(tmp_path, monkeypatch):
     """docs/analyze.md: a task with a success bar is one entry in SUCCESS_BARS, an evaluation
-    action one entry in EVALUATION_ACTIONS; with them, both go through every report."""
+    action one entry in ACTIONS; with them, both go through every report."""
     final = write_toy_folder(tmp_path / "runs")
     # Without the two entries: the toy task has no bar (auto falls back to min-max) and the
     # median_ columns are not read.
@@ -896,8 +898,7 @@ def test_a_new_task_and_a_new_evaluation_action_are_one_entry_each(tmp_path, mon
     assert not any("median" in key[2] for key in read_summary(tmp_path / "before"))
 
     monkeypatch.setitem(analyze.SUCCESS_BARS, TOY_TASK, TOY_BAR)
-    monkeypatch.setattr(analyze, "EVALUATION_ACTIONS",
-                        (*analyze.EVALUATION_ACTIONS, analyze.EvaluationAction("median")))
+    monkeypatch.setitem(analyze.ACTIONS, "median", "median")
     out = tmp_path / "out"
     assert run_analysis(tmp_path / "runs", out) == 0
     summary = read_summary(out)

@@ -1,0 +1,94 @@
+"""What analyze.py's reports are made of: summary.csv rows, summary.md sections and tables,
+figures and notes, and the cells and numbers they print (steps, intervals, seeds)."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from sac_utils import stats
+
+format_ci = stats.interval_text
+
+
+def counted(n: int | str, noun: str) -> str:
+    """'1 seed', '3 seeds', '2 or 3 seeds'."""
+    return f"{n} {noun}" + ("" if str(n) == "1" else "s")
+
+
+def format_step(step: int | float) -> str:
+    """Steps as people write them: 10M, 2.5M, 250k, 1,234."""
+    step = int(step)
+    if step >= 1_000_000 and step % 1_000 == 0:
+        return f"{step / 1_000_000:g}M"
+    if step >= 1_000 and step % 1_000 == 0:
+        return f"{step // 1_000}k"
+    return f"{step:,}"
+
+
+def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
+               ) -> tuple[str, str]:
+    """summary.md's cells for the mean of one value per seed: (mean with its bootstrap CI,
+    t-interval). With one or two seeds an interval says less than the values themselves, so
+    the cells give those ("two seeds: a to b")."""
+    point = estimate[0]
+    if values.size == 1:
+        return f"{point:.{digits}f} (one seed)", "-"
+    if values.size == 2:
+        a, b = sorted(float(v) for v in values)
+        return f"{point:.{digits}f} (two seeds: {a:.{digits}f} to {b:.{digits}f})", "-"
+    _, low, high = stats.t_interval(values)
+    return format_ci(*estimate, digits=digits), f"[{low:.{digits}f}, {high:.{digits}f}]"
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence]) -> str:
+    """A GitHub markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(map(str, row)) + " |" for row in rows])
+
+
+@dataclasses.dataclass
+class Report:
+    """What an analysis writes: summary.csv rows, summary.md sections, figures, notes. A row's
+    group is a name, or a key that `names` turns into one."""
+
+    out: Path
+    formats: Sequence[str]
+    notes: list[str] = dataclasses.field(default_factory=list)
+    names: Callable[[object], str] = str
+    rows: list[dict] = dataclasses.field(default_factory=list)
+    sections: list[str] = dataclasses.field(default_factory=list)
+    figures: list[Path] = dataclasses.field(default_factory=list)
+
+    def row(self, section: str, task: str, group: object, metric: str, step: int | str,
+            runs: int | str, estimate: float, low: float, high: float) -> None:
+        name = group if isinstance(group, str) else self.names(group)
+        self.rows.append(dict(section=section, task=task, group=name, metric=metric, step=step,
+                              n_runs=runs, estimate=float(estimate), ci_low=float(low),
+                              ci_high=float(high)))
+
+    def figure(self, fig: plt.Figure, name: str) -> None:
+        for fmt in self.formats:
+            self.figures.append(self.out / f"{name}.{fmt}")
+            fig.savefig(self.figures[-1], dpi=150, bbox_inches="tight")
+        plt.close(fig)
+
+    def section(self, title: str, *lines: str) -> None:
+        self.sections += [f"## {title}", "", *lines, ""]
+
+    def write(self, header: list[str]) -> None:
+        with (self.out / "summary.csv").open("w", newline="") as file:
+            writer = csv.DictWriter(file, fieldnames=list(self.rows[0]))
+            writer.writeheader()
+            writer.writerows(self.rows)
+        notes = ["## Notes", "", *([f"- {note}" for note in self.notes] or ["- none"]), ""]
+        figures = ["## Figures", "", *[f"- `{path.name}`" for path in self.figures]]
+        text = "\n".join(header + notes + self.sections + figures) + "\n"
+        (self.out / "summary.md").write_text(text)
+        print("\n".join(["", *notes, *self.sections]))
+        print(f"wrote {len(self.figures) + 2} files to {self.out}")
