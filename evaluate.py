@@ -53,7 +53,7 @@ import tyro
 
 import sac_corrected as sac
 from sac_utils import stats
-from sac_utils.cli import check_reset_noise, fail, read_config_json
+from sac_utils.cli import check_reset_noise, check_rules, fail, read_config_json
 from sac_utils.eval_rounds import (
     ACTIONS,
     Q_BEST_CANDIDATES,
@@ -144,11 +144,7 @@ def check_args(args: Args) -> None:
         ("steps", all(s >= 0 for s in args.steps), "steps of the runs' snapshots (>= 0)"),
         ("workers", args.workers is None or args.workers >= 0, "0 (in-process) or more"),
     )
-    for name, ok, allowed in rules:
-        if not ok:
-            value = getattr(args, name)
-            shown = " ".join(value) if isinstance(value, tuple) else value
-            fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
+    check_rules(args, rules)
     if not args.source.exists():
         fail(f"{args.source} does not exist; give a run folder, a final_model.pt or an SB3 "
              "SAC .zip")

@@ -157,6 +157,11 @@ def check_args(args, eval_actions: Callable) -> None:
          "a folder name without '/'"),
         ("wandb_project_name", bool(args.wandb_project_name), "a non-empty name"),
     )
+    check_rules(args, rules)
+
+
+def check_rules(args, rules: tuple[tuple[str, bool, str], ...]) -> None:
+    """The first (flag name, holds, allowed values) that does not hold, as one line."""
     for name, ok, allowed in rules:
         if not ok:
             value = getattr(args, name)
