@@ -200,26 +200,24 @@ def load_policy(args: Args) -> tuple[nn.Module, nn.Module | None, str, dict]:
         return actor, SB3Critic(actor.policy) if need_critic else None, env_id, info
     if source.is_dir():
         config = read_config(source)
-        weights = next((source / n for n in ("final_model.pt", "checkpoint.pt")
-                        if (source / n).is_file()), None)
-        if weights is None:
+        path = next((source / n for n in ("final_model.pt", "checkpoint.pt")
+                     if (source / n).is_file()), None)
+        if path is None:
             fail(f"{source} holds no final_model.pt or checkpoint.pt yet: nothing to evaluate")
-        state = load_weights(weights)
-        env_id = args.env_id or config.get("env_id")
+        state, env_id = load_weights(path), args.env_id or config.get("env_id")
         if not isinstance(env_id, str):
             fail(f"{source / 'config.json'} names no env_id; restore it, or pass --env-id")
-        actor = build_actor(state["actor"], env_id, config, weights)
-        return actor, build_critic(state, actor, weights) if need_critic else None, env_id, \
-            {"source": str(weights), "kind": "run", "run_seed": config.get("seed")}
-    state = load_weights(source)
-    # final_model.pt keeps the fields that rebuild the actor; checkpoint.pt keeps all arguments.
-    config = state.get("config") or state.get("args") or {}
-    env_id = args.env_id or (config.get("env_id") if isinstance(config, dict) else None)
-    if not isinstance(env_id, str):
-        fail(f"{source} does not say which env it was trained on; pass --env-id")
-    actor = build_actor(state["actor"], env_id, config, source)
-    return actor, build_critic(state, actor, source) if need_critic else None, env_id, \
-        {"source": str(source), "kind": "weights"}
+        info = {"source": str(path), "kind": "run", "run_seed": config.get("seed")}
+    else:
+        path, state = source, load_weights(source)
+        # final_model.pt keeps the fields that rebuild the actor; checkpoint.pt keeps all arguments.
+        config = state.get("config") or state.get("args") or {}
+        env_id = args.env_id or (config.get("env_id") if isinstance(config, dict) else None)
+        if not isinstance(env_id, str):
+            fail(f"{source} does not say which env it was trained on; pass --env-id")
+        info = {"source": str(path), "kind": "weights"}
+    actor = build_actor(state["actor"], env_id, config, path)
+    return actor, build_critic(state, actor, path) if need_critic else None, env_id, info
 
 
 def read_config(run_dir: Path) -> dict:
@@ -236,38 +234,51 @@ def load_weights(path: Path) -> dict:
     except Exception as error:  # not a torch file, truncated, or holding more than weights
         fail(f"{path} is not a weights file of ours ({type(error).__name__}: "
              f"{str(error).splitlines()[0][:120]}); give a final_model.pt or a run folder")
-    actor = state.get("actor") if isinstance(state, dict) else None
-    if not isinstance(actor, dict) or not all(torch.is_tensor(v) for v in actor.values()):
+    if not isinstance(state, dict) or not tensors(state.get("actor")):
         fail(f"{path} holds no 'actor' weights; give a final_model.pt or a run folder")
-    broken = [k for k, v in actor.items() if v.is_floating_point() and not v.isfinite().all()]
-    if broken:
-        fail(f"{path}: the actor's {broken[0]} holds NaN/inf (training diverged); evaluate "
+    if broken := non_finite(state["actor"]):
+        fail(f"{path}: the actor's {broken} holds NaN/inf (training diverged); evaluate "
              "an earlier model")
-    return without_seed_axis(state)
-
-
-def without_seed_axis(state: dict) -> dict:
-    """The file's actor and critic in the scripts' layout: (in, out) weights, (out,) biases.
-    Files written with --num-seeds (results/*-1M's) hold them with a leading seed axis of 1:
-    (1, in, out) and (1, 1, out)."""
+    # Files written with --num-seeds (results/*-1M's) hold the actor and critic with a leading
+    # seed axis of 1: (1, in, out) weights and (1, 1, out) biases, not (in, out) and (out,).
     def fit(key: str, value: torch.Tensor) -> torch.Tensor:
-        if value.dim() == 3:
-            return value[0] if key.endswith(".weight") else value[0, 0]
-        return value
+        if value.dim() != 3:
+            return value
+        return value[0] if key.endswith(".weight") else value[0, 0]
 
-    parts = [p for p in ("actor", "qf") if isinstance(state.get(p), dict)
-             and all(torch.is_tensor(v) for v in state[p].values())]
-    return state | {part: {k: fit(k, v) for k, v in state[part].items()} for part in parts}
+    return state | {part: {k: fit(k, v) for k, v in state[part].items()}
+                    for part in ("actor", "qf") if tensors(state.get(part))}
+
+
+def tensors(weights: object) -> bool:
+    return isinstance(weights, dict) and all(torch.is_tensor(v) for v in weights.values())
+
+
+def non_finite(weights: dict) -> str | None:
+    """The first floating-point tensor holding NaN/inf."""
+    return next((k for k, v in weights.items()
+                 if v.is_floating_point() and not v.isfinite().all()), None)
+
+
+def layers(weights: dict, prefix: str) -> list[torch.Tensor]:
+    """The weight matrices of the MLP under prefix, in layer order."""
+    keys = [k for k in weights if k.startswith(prefix) and k.endswith(".weight")]
+    return [weights[k] for k in sorted(keys, key=lambda k: int(k.split(".")[1]))]
+
+
+def load_into(module: nn.Module, weights: dict, path: Path, what: str, fix: str = "") -> None:
+    try:
+        module.load_state_dict(weights)
+    except RuntimeError as error:  # layers missing, extra or of the wrong shape
+        fail(f"{path}: its {what} ({' '.join(str(error).split())[:200]}); give a final_model.pt "
+             f"of sac_standard.py or sac_corrected.py{fix}")
 
 
 def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Actor:
-    """Our Actor with the layer widths read off its weights (without_seed_axis), checked against
-    the env."""
+    """Our Actor, its layer widths read off its weights and checked against the env."""
     env = sac.make_env(env_id)
     obs_dim, action_dim = env.observation_space.shape[0], int(np.prod(env.action_space.shape))
-    trunk = [weights[k] for k in sorted((k for k in weights if k.startswith("trunk.")
-                                         and k.endswith(".weight")),
-                                        key=lambda k: int(k.split(".")[1]))]
+    trunk = layers(weights, "trunk.")
     if not trunk or trunk[0].dim() != 2 or "fc_mean.weight" not in weights:
         fail(f"{path} holds no actor of sac_standard.py or sac_corrected.py (no trunk or "
              "fc_mean layers); give a final_model.pt or a run folder")
@@ -279,42 +290,28 @@ def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Act
     actor = sac.Actor(obs_dim, tuple(w.shape[1] for w in trunk), env.action_space,
                       config.get("log_std_min", sac.Args.log_std_min),
                       config.get("log_std_max", sac.Args.log_std_max))
-    try:
-        actor.load_state_dict(weights)
-    except RuntimeError as error:  # layers missing, extra or of the wrong shape
-        fail(f"{path}: its actor does not fit our Actor ({' '.join(str(error).split())[:200]})"
-             "; give a final_model.pt of sac_standard.py or sac_corrected.py")
+    load_into(actor, weights, path, "actor does not fit our Actor")
     return actor
 
 
 def build_critic(state: dict, actor: sac.Actor, path: Path) -> sac.TwinQ:
-    """Our TwinQ from the file's "qf" weights, its widths read off them and checked against the
-    actor's observation and action sizes."""
-    weights = state.get("qf")
-    if not isinstance(weights, dict) or not weights or \
-            not all(torch.is_tensor(v) for v in weights.values()):
+    """Our TwinQ from the file's "qf", its widths read off it and checked against the actor."""
+    weights, drop = state.get("qf"), ", or drop q_best from --selectors"
+    if not tensors(weights) or not weights:
         fail(f"{path} holds no critic weights ('qf'), which q_best needs; give a "
-             "final_model.pt or checkpoint.pt that holds them, or drop q_best from --selectors")
-    layers = [weights[k] for k in sorted((k for k in weights if k.startswith("qf1.")
-                                          and k.endswith(".weight")),
-                                         key=lambda k: int(k.split(".")[1]))]
+             f"final_model.pt or checkpoint.pt that holds them{drop}")
+    qf1 = layers(weights, "qf1.")
     obs_dim, action_dim = actor.trunk[0].weight.shape[0], actor.fc_mean.weight.shape[1]
-    if not layers or any(w.dim() != 2 for w in layers) or layers[-1].shape[1] != 1 \
-            or layers[0].shape[0] != obs_dim + action_dim:
+    if not qf1 or any(w.dim() != 2 for w in qf1) or qf1[-1].shape[1] != 1 \
+            or qf1[0].shape[0] != obs_dim + action_dim:
         fail(f"{path}: its 'qf' is not a critic of sac_standard.py or sac_corrected.py for "
              f"{obs_dim}-dim observations and {action_dim}-dim actions; give the run's own "
-             "final_model.pt, or drop q_best from --selectors")
-    critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[1] for w in layers[:-1]))
-    try:
-        critic.load_state_dict(weights)
-    except RuntimeError as error:  # the second critic missing, or of other widths
-        fail(f"{path}: its critic does not fit our TwinQ "
-             f"({' '.join(str(error).split())[:200]}); give a final_model.pt of "
-             "sac_standard.py or sac_corrected.py, or drop q_best from --selectors")
-    broken = [k for k, v in weights.items() if v.is_floating_point() and not v.isfinite().all()]
-    if broken:
-        fail(f"{path}: the critic's {broken[0]} holds NaN/inf (training diverged); evaluate "
-             "an earlier model, or drop q_best from --selectors")
+             f"final_model.pt{drop}")
+    critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[1] for w in qf1[:-1]))
+    load_into(critic, weights, path, "critic does not fit our TwinQ", drop)
+    if broken := non_finite(weights):
+        fail(f"{path}: the critic's {broken} holds NaN/inf (training diverged); evaluate "
+             f"an earlier model{drop}")
     return critic.eval()
 
 
