@@ -364,7 +364,7 @@ def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: li
     return jobs
 
 
-def run_jobs(jobs: list[Round], workers: int, progress: Callable[[int], None],
+def run_jobs(jobs: list[Round], workers: int | None, progress: Callable[[int], None],
              keep: Callable[[dict], None] | None = None) -> list[dict]:
     """Every job's result, in job order, the progress bar advanced as each one comes back;
     `keep`, if given, is handed each result as it comes back (in job order too)."""
@@ -376,6 +376,7 @@ def run_jobs(jobs: list[Round], workers: int, progress: Callable[[int], None],
             keep(result)
         progress(sum(len(j.seeds) for j in jobs[:len(results)]))
 
+    workers = len(os.sched_getaffinity(0)) if workers is None else workers
     # More processes than jobs would only cost their start-up.
     pool = EvalPool(min(workers, len(jobs)), done)
     try:
@@ -534,7 +535,9 @@ def print_summary(summary: dict) -> None:
 def write_outputs(out: Path, results: dict, seeds: list[int], summary: dict) -> None:
     try:
         out.mkdir(parents=True, exist_ok=True)
-        write_files(out, results, seeds, summary)
+        (out / "episodes.csv").write_text(
+            csv_text([EPISODE_COLUMNS, *episode_rows(results, seeds)]), newline="")
+        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     except OSError as error:
         fail(f"--out {out}: cannot write there ({error.strerror}); give a writable folder")
 
@@ -554,14 +557,6 @@ def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
             yield [action, k, seed, repr(episodes["returns"][k]), episodes["lengths"][k],
                    "" if success is None else success, int(episodes["unstable"][k]),
                    episodes["ends"][k]]
-
-
-def write_files(out: Path, results: dict, seeds: list[int], summary: dict) -> None:
-    with open(out / "episodes.csv", "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(EPISODE_COLUMNS)
-        writer.writerows(episode_rows(results, seeds))
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
 
 
 # ----------------------------------------------------------------------------- a campaign
@@ -654,7 +649,7 @@ def evaluate_campaign(args: Args) -> None:
                                     recorded.get("seconds", 0.0) if recorded else 0.0)
         for run in dict.fromkeys(p.run for p in policies):  # as one attempt would leave them:
             write_run_files(args.out, run, finished)  # rows of policies now gone, dropped
-        write_campaign(args, actions, policies, seconds)
+        write_campaign(args.out, settings, policies, seconds, args.workers)
     except OSError as error:
         fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable folder")
     summarize_campaign(args.out)
@@ -699,23 +694,20 @@ def evaluate_policies(args: Args, settings: dict,
         write_text_atomically(args.out / PARTIAL_FILE, json.dumps(
             settings | {"seconds": seconds + time.perf_counter() - start}, indent=2) + "\n")
 
-    workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
-    run_jobs([job for *_, jobs in planned for job in jobs], workers, progress_bar(
+    run_jobs([job for *_, jobs in planned for job in jobs], args.workers, progress_bar(
         f"{len(planned)} policies x {' '.join(actions)}", len(planned) * args.episodes), keep)
     return seconds + time.perf_counter() - start
 
 
-def write_campaign(args: Args, actions: list[str], policies: list[Policy],
-                   seconds: float) -> None:
-    """evaluation.json, which marks --out complete (written last, in one step); then the marker
+def write_campaign(out: Path, settings: dict, policies: list[Policy], seconds: float,
+                   workers: int | None) -> None:
+    """evaluation.json, which marks out complete (written last, in one step); then the marker
     of an evaluation under way goes."""
-    settings = {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
-                "episodes": args.episodes, "eval_round": args.eval_round,
-                "reset_noise": args.reset_noise, "selectors": actions, "solver": args.solver,
-                "seconds": round(seconds, 1), "workers": args.workers,
-                "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
-    write_text_atomically(args.out / CAMPAIGN_FILE, json.dumps(settings, indent=2) + "\n")
-    (args.out / PARTIAL_FILE).unlink(missing_ok=True)
+    complete = {k: v for k, v in settings.items() if k != "steps"} | {
+        "seconds": round(seconds, 1), "workers": workers,
+        "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
+    write_text_atomically(out / CAMPAIGN_FILE, json.dumps(complete, indent=2) + "\n")
+    (out / PARTIAL_FILE).unlink(missing_ok=True)
 
 
 # ----------------------------------------------------------------------- resuming a campaign
@@ -997,10 +989,9 @@ def main(argv: list[str] | None = None) -> None:
     seeds = eval_seeds(args.seed, args.eval_round, args.episodes)
     check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
     actions = list(dict.fromkeys(args.selectors))
-    workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
     jobs = make_jobs(actor, critic, env_id, seeds, actions, args)
-    results, shift = merge(run_jobs(jobs, workers, progress_bar(" ".join(actions), len(seeds))),
-                           actions)
+    results, shift = merge(run_jobs(jobs, args.workers, progress_bar(" ".join(actions),
+                                                                     len(seeds))), actions)
     summary = summarise(results, shift, args, info, env_id,
                         distinct_starts(env_id, seeds, args.reset_noise))
     print_summary(summary)
