@@ -63,7 +63,7 @@ from sac_utils.eval_rounds import (
     eval_seeds,
     start_key,
 )
-from sac_utils.files import write_text_atomically
+from sac_utils.files import complete_lines, write_text_atomically
 
 # Episodes per job. Fixed, not derived from --workers: a job's episodes share one batch per
 # actor call, and the numbers must not depend on how many processes ran the jobs.
@@ -776,8 +776,8 @@ def finished_policies(out: Path, policies: list[Policy], actions: list[str],
     finished = {}
     for run, group in itertools.groupby(policies, key=lambda p: p.run):
         episodes = rows_by_step(out / run / "episodes.csv", EPISODES_HEADER,
-                                older=OLD_EPISODES_HEADERS)
-        shifts = rows_by_step(out / run / "shift.csv", SHIFT_HEADER)
+                                OLD_EPISODES_HEADERS) or {}
+        shifts = rows_by_step(out / run / "shift.csv", SHIFT_HEADER) or {}
         for policy in group:
             seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
             expected = [[s, str(k), str(seed)] for s in actions for k, seed in enumerate(seeds)]
@@ -788,21 +788,16 @@ def finished_policies(out: Path, policies: list[Policy], actions: list[str],
 
 
 def rows_by_step(path: Path, header: list[str], older: tuple[list[str], ...] = ()
-                 ) -> dict[int, list[list[str]]]:
-    """A run file's rows by their step, as text (rewritten, they are the same bytes); none if
-    the file is missing or has another header. Rows under an `older` header (header's first
-    columns) get empty cells for the columns it lacks."""
-    if not path.is_file():
-        return {}
-    with open(path, newline="") as f:
-        reader = csv.reader(f)
-        found = next(reader, None)
-        if found != header and found not in older:
-            return {}
-        padding = [""] * (len(header) - len(found))
-        grouped: dict[int, list[list[str]]] = {}
-        for row in reader:
-            grouped.setdefault(int(row[0]), []).append(row + padding)
+                 ) -> dict[int, list[list[str]]] | None:
+    """A run file's whole rows by their step, as text (rewritten, they are the same bytes);
+    None if the file is missing or has another header. Rows under an `older` header (header's
+    first columns) get empty cells for the columns it lacks."""
+    rows = list(csv.reader(complete_lines(path))) if path.is_file() else []
+    if not rows or (rows[0] != header and rows[0] not in older):
+        return None
+    grouped: dict[int, list[list[str]]] = {}
+    for row in rows[1:]:
+        grouped.setdefault(int(row[0]), []).append(row + [""] * (len(header) - len(rows[0])))
     return grouped
 
 
@@ -830,45 +825,43 @@ def csv_text(rows: list[list]) -> str:
     return text.getvalue()
 
 
-def read_campaign(out: Path) -> tuple[dict, dict, dict, dict]:
-    """evaluation.json, the returns by (run, step, action) in episode order, and by the same
-    keys the episodes a physics blow-up ended (None where episodes.csv does not record it: an
-    older file, or rows kept from one) and the count of each way an episode ended (None where
-    not recorded)."""
+def read_campaign(out: Path) -> tuple[dict, dict[tuple[str, int, str], list[list[str]]]]:
+    """evaluation.json, and the episodes.csv rows by (run, step, action) in episode order."""
     settings = json.loads((out / CAMPAIGN_FILE).read_text())
-    returns: dict[tuple[str, int, str], list[float]] = {}
-    unstable: dict[tuple[str, int, str], int | None] = {}
-    ends: dict[tuple[str, int, str], collections.Counter | None] = {}
+    episodes: dict[tuple[str, int, str], list[list[str]]] = {}
     for run in settings["runs"]:
         path = out / run / "episodes.csv"
         if not path.is_file():
             fail(f"{path} is missing: {out} is incomplete; evaluate the campaign again")
-        with open(path, newline="") as f:
-            for row in csv.DictReader(f):
-                key = (run, int(row["step"]), row["selector"])
-                returns.setdefault(key, []).append(float(row["return"]))
-                flag, count = row.get("physics_unstable"), unstable.get(key, 0)
-                unstable[key] = None if not flag or count is None else count + int(flag)
-                end, counts = row.get("end"), ends.setdefault(key, collections.Counter())
-                if not end or counts is None:
-                    ends[key] = None
-                else:
-                    counts[end] += 1
-    return settings, returns, unstable, ends
+        by_step = rows_by_step(path, EPISODES_HEADER, OLD_EPISODES_HEADERS)
+        if by_step is None:
+            fail(f"{path} does not start with a header evaluate.py writes; restore it")
+        for step, rows in by_step.items():
+            for row in rows:
+                episodes.setdefault((run, step, row[1]), []).append(row)
+    return settings, episodes
 
 
-def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> list[dict]:
+def per_seed_rows(settings: dict, episodes: dict[tuple[str, int, str], list[list[str]]]
+                  ) -> list[dict]:
     """Per run, step and action: the mean return and its standard error over the episodes,
     the paired difference against tanh(mu) from the same starts with its standard error and,
     where any episode of the campaign records it, unstable_ends: the episodes a physics blow-up
     ended, and end_<why>: the episodes that ended each way (eval_rounds.episode_end; None where
     not recorded). A folder of older files only keeps its summary as it was."""
-    recorded = any(v is not None for v in unstable.values())
-    reasons = sorted({why for counts in ends.values() if counts for why in counts})
+    column = {c: EPISODES_HEADER.index(c) for c in ("return", "physics_unstable", "end")}
+
+    def recorded(rows: list[list[str]], name: str) -> list[str] | None:
+        cells = [row[column[name]] for row in rows]
+        return cells if all(cells) else None  # an empty cell: not recorded
+
+    returns = {key: np.array([float(row[column["return"]]) for row in rows])
+               for key, rows in episodes.items()}
+    any_unstable = any(recorded(rows, "physics_unstable") for rows in episodes.values())
+    reasons = sorted({why for rows in episodes.values() for why in recorded(rows, "end") or ()})
     rows, order = [], {s: i for i, s in enumerate(settings["selectors"])}
     for (run, step, action), values in sorted(returns.items(),
                                                 key=lambda kv: (*kv[0][:2], order[kv[0][2]])):
-        values = np.array(values)
         row = {"env_id": settings["runs"][run]["env_id"], "run": run,
                "seed": settings["runs"][run]["seed"], "step": step, "selector": action,
                "episodes": len(values), "return_mean": values.mean(),
@@ -879,9 +872,11 @@ def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> 
             row |= {"tanh_mu_return_mean": float(np.mean(baseline)),
                     "difference_mean": diffs.mean(), "difference_se": stats.standard_error(diffs),
                     "share_better": float(np.mean(diffs > 0))}
-        if recorded:
-            row["unstable_ends"] = unstable.get((run, step, action))
-        counts = ends.get((run, step, action))
+        flags, ends = (recorded(episodes[run, step, action], c)
+                       for c in ("physics_unstable", "end"))
+        if any_unstable:
+            row["unstable_ends"] = None if flags is None else sum(map(int, flags))
+        counts = None if ends is None else collections.Counter(ends)
         row |= {f"end_{why}": None if counts is None else counts[why] for why in reasons}
         rows.append(row)
     return rows
@@ -900,8 +895,8 @@ def summarize_campaign(out: Path) -> None:
     """From the CSVs under out: per_seed.csv and summary.md (printed). Everything across seeds
     is analyze.py's (`analyze.py RUNS --robust OUT`). The precision check: each seed's paired
     difference should have a standard error below PRECISION of tanh(mu)'s mean return."""
-    settings, returns, unstable, ends = read_campaign(out)
-    per_seed = per_seed_rows(settings, returns, unstable, ends)
+    settings, episodes = read_campaign(out)
+    per_seed = per_seed_rows(settings, episodes)
     write_rows(out / "per_seed.csv", per_seed)
     text = campaign_markdown(settings, per_seed)
     (out / "summary.md").write_text(text)
