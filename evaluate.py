@@ -7,25 +7,12 @@ actions, paired: every action starts its episode k from the same state.
     python evaluate.py campaign/ --out robust/ --reset-noise 0.01 --episodes 100 \
         --selectors mode tanh_mu mean q_best          # every run of a campaign, every snapshot
 
-SOURCE is a run folder of ours (its final_model.pt, else its checkpoint.pt), one of our
-final_model.pt or checkpoint.pt files, or a Stable-Baselines3 SAC .zip (gSDE ones too). Our
-weight files are loaded with torch.load(weights_only=True): they cannot run code. An SB3 .zip
-is unpickled by SB3 itself and must come from a source you trust. `q_best` also needs the
-critic: our files' "qf", or the critic inside the SB3 .zip.
-
-SOURCE may also be a folder of run folders (a campaign): then every run's final_model.pt and
-snapshots/step<N>.pt (or those at --steps) are evaluated, each from the same --episodes starts
-of its run's seed, and --out receives one episodes.csv per run and, per seed, per_seed.csv and
-summary.md (`summarize_campaign`); across seeds is analyze.py's (`--robust OUT`). Given that
---out folder as SOURCE, the summary is rewritten from its CSVs without running an episode. Each
-policy's rows are written to --out as soon as it is evaluated: the same command again, after a
-kill, evaluates only the policies not there yet.
-
-The episodes run through sac_utils/eval_rounds.py, the training runs' own evaluation: split into
-jobs of JOB_EPISODES episodes, each job stepping all its episodes of every action in lockstep, the
-jobs spread over --workers processes. A job is the same whatever runs it, so the numbers do not
-depend on --workers; with a run's seed and --eval-round N they are those of the run's N-th
-evaluation.
+SOURCE: a run folder of ours (its final_model.pt, else checkpoint.pt), one of our weight files
+(loaded with weights_only=True: they cannot run code), or a Stable-Baselines3 SAC .zip (unpickled
+by SB3: only from a source you trust). A folder of run folders is a campaign: every run's final
+weights and snapshots into --out, resumable after a kill; that --out as SOURCE rewrites its
+summary. The episodes run through sac_utils/eval_rounds.py, the training runs' own evaluation.
+docs/evaluate.md has the details.
 """
 
 from __future__ import annotations
@@ -108,7 +95,7 @@ class Args:
 
 
 def parse_args(argv: list[str] | None = None) -> Args:
-    """The flags; tyro's parse errors (a bad type, an unknown choice or flag) on one line."""
+    """The flags; tyro's parse errors on one line."""
     captured = io.StringIO()
     try:
         with contextlib.redirect_stderr(captured):
@@ -120,7 +107,7 @@ def parse_args(argv: list[str] | None = None) -> Args:
 
 
 def one_line(box: str) -> str:
-    """The message of tyro's error box: its lines up to the first rule, borders dropped."""
+    """The message of tyro's error box, borders dropped."""
     lines = []
     for line in box.splitlines()[1:]:
         text = line.strip().strip("│").strip()
@@ -131,7 +118,7 @@ def one_line(box: str) -> str:
 
 
 def check_args(args: Args) -> None:
-    """Every flag's valid range, checked before anything is loaded, run or written."""
+    """Before anything is loaded, run or written."""
     rules = (
         ("episodes", args.episodes >= 1, "at least 1"),
         ("seed", args.seed >= 0, "a non-negative integer"),
@@ -155,8 +142,7 @@ def check_args(args: Args) -> None:
 
 # ----------------------------------------------------------------------------- load
 class SB3Actor(nn.Module):
-    """A Stable-Baselines3 SAC actor behind our Actor's interface: mu and log sigma before the
-    tanh, and SB3's own map from (-1, 1) to the env's bounds (`policy.unscale_action`)."""
+    """SB3's SAC actor as our Actor: mu and log sigma, and SB3's `unscale_action` as scale."""
 
     def __init__(self, model) -> None:
         super().__init__()
@@ -177,8 +163,8 @@ class SB3Actor(nn.Module):
 
 
 class SB3Critic(nn.Module):
-    """A Stable-Baselines3 SAC critic behind our TwinQ's interface: env actions in (SB3's critic
-    takes them scaled to [-1, 1], as `policy.scale_action` does), (n_critics, batch) out."""
+    """SB3's SAC critic as our TwinQ: env actions in (scaled as SB3's `scale_action` does),
+    (n_critics, batch) out."""
 
     def __init__(self, policy) -> None:
         super().__init__()
@@ -192,8 +178,7 @@ class SB3Critic(nn.Module):
 
 
 def load_policy(args: Args) -> tuple[nn.Module, nn.Module | None, str, dict]:
-    """The actor, the critic (only when an action needs it, else None), the env id and a
-    description of where they came from."""
+    """The actor, the critic (None unless q_best needs it), the env id and their source."""
     source, need_critic = args.source, "q_best" in args.selectors
     if source.suffix == ".zip":
         actor, env_id, info = load_sb3(source, args.env_id)
@@ -227,8 +212,8 @@ def read_config(run_dir: Path) -> dict:
 
 
 def load_weights(path: Path) -> dict:
-    """One of our weight files, loaded so that it cannot run code (weights_only=True); mmap
-    reads only what is used of a checkpoint.pt (its replay buffer stays on disk)."""
+    """weights_only: a file cannot run code; mmap: a checkpoint.pt's replay buffer stays on
+    disk."""
     try:
         state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
     except Exception as error:  # not a torch file, truncated, or holding more than weights
@@ -255,13 +240,11 @@ def tensors(weights: object) -> bool:
 
 
 def non_finite(weights: dict) -> str | None:
-    """The first floating-point tensor holding NaN/inf."""
     return next((k for k, v in weights.items()
                  if v.is_floating_point() and not v.isfinite().all()), None)
 
 
 def layers(weights: dict, prefix: str) -> list[torch.Tensor]:
-    """The weight matrices of the MLP under prefix, in layer order."""
     keys = [k for k in weights if k.startswith(prefix) and k.endswith(".weight")]
     return [weights[k] for k in sorted(keys, key=lambda k: int(k.split(".")[1]))]
 
@@ -275,7 +258,6 @@ def load_into(module: nn.Module, weights: dict, path: Path, what: str, fix: str 
 
 
 def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Actor:
-    """Our Actor, its layer widths read off its weights and checked against the env."""
     env = sac.make_env(env_id)
     obs_dim, action_dim = env.observation_space.shape[0], int(np.prod(env.action_space.shape))
     trunk = layers(weights, "trunk.")
@@ -295,7 +277,6 @@ def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Act
 
 
 def build_critic(state: dict, actor: sac.Actor, path: Path) -> sac.TwinQ:
-    """Our TwinQ from the file's "qf", its widths read off it and checked against the actor."""
     weights, drop = state.get("qf"), ", or drop q_best from --selectors"
     if not tensors(weights) or not weights:
         fail(f"{path} holds no critic weights ('qf'), which q_best needs; give a "
@@ -349,8 +330,6 @@ def load_sb3(path: Path, env_id: str | None) -> tuple[nn.Module, str, dict]:
 # ----------------------------------------------------------------------------- evaluate
 def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: list[int],
               actions: list[str], args: Args, label: str = "") -> list[Round]:
-    """The episodes as rounds of JOB_EPISODES, each with every action (eval.csv prefix =
-    action name); the first one films each action's first episode."""
     shift_of = "mode" if "mode" in actions else actions[0]
     jobs = []
     for start in range(0, len(seeds), JOB_EPISODES):
@@ -366,8 +345,7 @@ def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: li
 
 def run_jobs(jobs: list[Round], workers: int | None, progress: Callable[[int], None],
              keep: Callable[[dict], None] | None = None) -> list[dict]:
-    """Every job's result, in job order, the progress bar advanced as each one comes back;
-    `keep`, if given, is handed each result as it comes back (in job order too)."""
+    """Every job's result, in job order, each also handed to `keep` as it comes back."""
     results: list[dict] = []
 
     def done(job: Round, result: dict) -> None:
@@ -395,15 +373,13 @@ def run_jobs(jobs: list[Round], workers: int | None, progress: Callable[[int], N
 
 
 def merge(results: list[dict], actions: list[str]) -> tuple[dict, dict]:
-    """The jobs' episodes concatenated per action, q_best's choice shares pooled over its
-    states; and the shift statistics pooled over the jobs' visited states (each is a mean over
-    states, so a job weighs as many states as it visited)."""
+    """The jobs' episodes per action, and their shares and shift statistics pooled: each is a
+    mean over states, so a job weighs as many states as it visited."""
     merged = {s: {k: [x for r in results for x in r[s][k]]
                   for k in ("returns", "lengths", "successes", "unstable", "ends")}
               for s in actions}
     for s in actions:
         if "shares" in results[0][s]:
-            # q_best chose once per step of each of its episodes: a job's steps are its states.
             weights = np.array([sum(r[s]["lengths"]) for r in results], float)
             merged[s]["shares"] = {c: float(np.average([r[s]["shares"][c] for r in results],
                                                        weights=weights))
@@ -415,8 +391,7 @@ def merge(results: list[dict], actions: list[str]) -> tuple[dict, dict]:
 
 
 def progress_bar(label: str, total: int) -> Callable[[int], None]:
-    """Episodes done out of total on stderr: redrawn in place on a terminal, else a line at
-    every tenth (a log file keeps ten lines at most, not one per job)."""
+    """Redrawn in place on a terminal, else a line at every tenth (not one per job in a log)."""
     start, shown, tty = time.perf_counter(), [0], sys.stderr.isatty()
 
     def update(done: int) -> None:
@@ -436,14 +411,13 @@ def progress_bar(label: str, total: int) -> Callable[[int], None]:
 
 
 def mean_with_ci(values: np.ndarray, reps: int, seed: int) -> tuple[float, float, float]:
-    """The mean over episodes with its percentile bootstrap CI (seeds below 2**32, as NumPy's
-    legacy generator takes them)."""
+    """The percentile bootstrap; NumPy's legacy generator takes seeds below 2**32."""
     point, low, high = stats.bootstrap_mean(values, reps, np.random.RandomState(seed % 2**32))
     return float(point), float(low), float(high)
 
 
 def distinct_starts(env_id: str, seeds: list[int], reset_noise: float | None) -> int | None:
-    """How many distinct start states these reset seeds give (None: the env cannot tell)."""
+    """None where the env cannot tell."""
     env = sac.make_env(env_id)
     options = None if reset_noise is None else {"qpos_noise": reset_noise}
     keys = set()
@@ -481,7 +455,6 @@ def summarise(results: dict, shift: dict, args: Args, info: dict, env_id: str,
 
 
 def paired_difference(returns: list[float], baseline: list[float], args: Args) -> dict:
-    """Episode by episode (the same start state), returns minus the baseline's, with its CI."""
     diffs = stats.paired_difference(returns, baseline)
     mean, low, high = mean_with_ci(diffs, args.reps, args.seed)
     return {"mean": mean, "ci_low": low, "ci_high": high,
@@ -542,15 +515,12 @@ def write_outputs(out: Path, results: dict, seeds: list[int], summary: dict) -> 
         fail(f"--out {out}: cannot write there ({error.strerror}); give a writable folder")
 
 
-# physics_unstable (1: a physics blow-up ended the episode), then end (why the episode ended:
-# eval_rounds.episode_end) came last, after the others: a reader that picks columns by name
-# reads the files from before them and after alike.
+# physics_unstable, then end, were added last: a reader by name reads older files alike.
 EPISODE_COLUMNS = ["selector", "episode", "reset_seed", "return", "length", "success",
                    "physics_unstable", "end"]
 
 
 def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
-    """episodes.csv's rows (EPISODE_COLUMNS) of merged results, episode k from reset seed k."""
     for action, episodes in results.items():
         for k, seed in enumerate(seeds):
             success = episodes["successes"][k]
@@ -561,15 +531,12 @@ def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
 
 # ----------------------------------------------------------------------------- a campaign
 CAMPAIGN_FILE = "evaluation.json"
-# The per-seed precision asked of a campaign's evaluation: the paired difference's standard
-# error below this share of tanh(mu)'s mean return.
+# Asked of each seed: the paired difference's standard error below this share of tanh(mu)'s.
 PRECISION = 0.10
 
 
 @dataclass
 class Policy:
-    """One weights file of a campaign: a run's snapshot or its final weights."""
-
     run: str
     seed: int
     env_id: str
@@ -579,14 +546,12 @@ class Policy:
 
 
 def is_campaign(source: Path) -> bool:
-    """A folder that is no run itself but holds run folders (config.json below it)."""
     return source.is_dir() and not (source / "config.json").exists() \
         and next(source.rglob("config.json"), None) is not None
 
 
 def campaign_policies(root: Path, steps: tuple[int, ...]) -> list[Policy]:
-    """Every run's snapshots and final weights under root (at --steps only, if given); the final
-    weights stand for a snapshot at the same step."""
+    """The final weights stand for a snapshot at their step."""
     run_dirs = sorted(p.parent for p in root.rglob("config.json"))
     if len({d.name for d in run_dirs}) < len(run_dirs):  # the output is one folder per name
         fail(f"{root}: two run folders share a name; evaluate them separately")
@@ -614,10 +579,8 @@ def campaign_policies(root: Path, steps: tuple[int, ...]) -> list[Policy]:
 
 
 def evaluate_campaign(args: Args) -> None:
-    """Every policy of the campaign from the same --episodes starts of its run's seed, all jobs
-    in one pool; one episodes.csv and shift.csv per run under --out, then the summary. Each
-    policy's rows are written as soon as its last job is back, so a killed evaluation keeps the
-    policies it finished, and the same command again evaluates only the others."""
+    """All jobs in one pool; each policy's rows are written as soon as its last job is back,
+    so the same command again, after a kill, evaluates only the others."""
     if args.out is None or args.video is not None:
         fail(f"{args.source} is a folder of runs: give --out (where each run's episodes.csv and "
              "the summary go), and no --video")
@@ -657,8 +620,7 @@ def evaluate_campaign(args: Args) -> None:
 
 def plan_policy(policy: Policy, actions: list[str], args: Args) -> tuple[Policy, list[int],
                                                                            list[Round]]:
-    """A policy, its reset seeds (its run's seed: a run's steps start from the same states)
-    and its jobs."""
+    """Reset seeds from the run's seed: a run's steps start from the same states."""
     state = load_weights(policy.path)
     actor = build_actor(state["actor"], policy.env_id, policy.config, policy.path).eval()
     critic = build_critic(state, actor, policy.path) if "q_best" in actions else None
@@ -670,9 +632,7 @@ def plan_policy(policy: Policy, actions: list[str], args: Args) -> tuple[Policy,
 def evaluate_policies(args: Args, settings: dict,
                       planned: list[tuple[Policy, list[int], list[Round]]],
                       finished: dict[tuple[str, int], PolicyRows], seconds: float) -> float:
-    """Runs the planned policies' jobs in one pool. As a policy's last job comes back, its
-    run's files are rewritten with it, and the marker with the seconds so far (`seconds`
-    before this attempt, plus this attempt's); returns the seconds at the end."""
+    """The seconds of all attempts at the end (`seconds`: of the earlier ones)."""
     write_text_atomically(args.out / PARTIAL_FILE, json.dumps(settings | {"seconds": seconds},
                                                          indent=2) + "\n")
     if not planned:  # all finished by an attempt killed before it wrote evaluation.json
@@ -681,7 +641,7 @@ def evaluate_policies(args: Args, settings: dict,
     start, waiting, results = time.perf_counter(), list(planned), []
 
     def keep(result: dict) -> None:
-        # run_jobs hands the results back in job order: the first waiting policy's come first.
+        # in job order: the first waiting policy's come first
         results.append(result)
         policy, seeds, jobs = waiting[0]
         if len(results) < len(jobs):
@@ -701,8 +661,7 @@ def evaluate_policies(args: Args, settings: dict,
 
 def write_campaign(out: Path, settings: dict, policies: list[Policy], seconds: float,
                    workers: int | None) -> None:
-    """evaluation.json, which marks out complete (written last, in one step); then the marker
-    of an evaluation under way goes."""
+    """evaluation.json marks out complete: written last, in one step."""
     complete = {k: v for k, v in settings.items() if k != "steps"} | {
         "seconds": round(seconds, 1), "workers": workers,
         "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
@@ -712,23 +671,21 @@ def write_campaign(out: Path, settings: dict, policies: list[Policy], seconds: f
 
 # ----------------------------------------------------------------------- resuming a campaign
 # While a campaign is evaluated, --out holds PARTIAL_FILE (the settings, the command and the
-# seconds so far) and every finished policy's rows; evaluation.json comes only at the end.
+# seconds so far) and every finished policy's rows.
 PARTIAL_FILE = "evaluation.partial.json"
 # The settings that decide a policy's rows: a resumed evaluation must be given the same.
 RESUME_SETTINGS = ("source", "episodes", "eval_round", "reset_noise", "selectors", "solver",
                    "steps")
 EPISODES_HEADER = ["step", *EPISODE_COLUMNS]
-# A run's episodes.csv as evaluate.py wrote it before physics_unstable or end: its rows are
-# resumed with those cells empty ("not recorded": the episodes are not run again to learn it), so
-# that the rewritten file has one header, and a summary tells such policies from others.
+# Before physics_unstable or end (results/*/robust*/): resumed with those cells empty ("not
+# recorded"; the episodes are not run again), so that the rewritten file has one header.
 OLD_EPISODES_HEADERS = (EPISODES_HEADER[:-2], EPISODES_HEADER[:-1])
 SHIFT_HEADER = ["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}" for c in Q_BEST_CANDIDATES)]
-# One policy's rows: its episodes.csv rows and its shift.csv row, each starting with its step.
+# One policy's episodes.csv rows and shift.csv row, each starting with its step.
 PolicyRows = tuple[list[list], list]
 
 
 def campaign_settings(args: Args, actions: list[str]) -> dict:
-    """What the marker records: the command, and the settings a resume must repeat."""
     return {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
             "episodes": args.episodes, "eval_round": args.eval_round,
             "reset_noise": args.reset_noise, "selectors": actions, "solver": args.solver,
@@ -736,8 +693,7 @@ def campaign_settings(args: Args, actions: list[str]) -> dict:
 
 
 def recorded_settings(out: Path) -> dict | None:
-    """The settings out was evaluated with: its evaluation.json if complete, else the marker of
-    an evaluation under way, else None (a new evaluation)."""
+    """evaluation.json, else the marker, else None (a new evaluation)."""
     for path in (out / CAMPAIGN_FILE, out / PARTIAL_FILE):
         if path.is_file():
             try:
@@ -748,8 +704,7 @@ def recorded_settings(out: Path) -> dict | None:
 
 
 def check_same_settings(out: Path, recorded: dict, settings: dict) -> None:
-    """One line naming every setting that differs from out's (evaluation.json has no steps:
-    those go unchecked against a complete out)."""
+    """evaluation.json has no steps: those go unchecked against a complete out."""
     def same(key: str) -> bool:
         if key == "source":  # the same folder, however it is written
             return Path(recorded[key]).resolve() == Path(settings[key]).resolve()
@@ -771,8 +726,7 @@ def check_same_settings(out: Path, recorded: dict, settings: dict) -> None:
 
 def finished_policies(out: Path, policies: list[Policy], actions: list[str],
                       args: Args) -> dict[tuple[str, int], PolicyRows]:
-    """The policies whose rows in out are complete (every action's every episode, from the
-    reset seeds this command gives it, and its shift row), by (run, step)."""
+    """By (run, step), the policies whose rows in out are all there, from these reset seeds."""
     finished = {}
     for run, group in itertools.groupby(policies, key=lambda p: p.run):
         episodes = rows_by_step(out / run / "episodes.csv", EPISODES_HEADER,
@@ -789,9 +743,8 @@ def finished_policies(out: Path, policies: list[Policy], actions: list[str],
 
 def rows_by_step(path: Path, header: list[str], older: tuple[list[str], ...] = ()
                  ) -> dict[int, list[list[str]]] | None:
-    """A run file's whole rows by their step, as text (rewritten, they are the same bytes);
-    None if the file is missing or has another header. Rows under an `older` header (header's
-    first columns) get empty cells for the columns it lacks."""
+    """As text (rewritten, they are the same bytes); rows under an `older` header (header's
+    first columns) padded with empty cells. None: no file, or another header."""
     rows = list(csv.reader(complete_lines(path))) if path.is_file() else []
     if not rows or (rows[0] != header and rows[0] not in older):
         return None
@@ -802,7 +755,6 @@ def rows_by_step(path: Path, header: list[str], older: tuple[list[str], ...] = (
 
 
 def policy_rows(policy: Policy, seeds: list[int], merged: dict, shift: dict) -> PolicyRows:
-    """A freshly evaluated policy's episodes.csv rows and shift.csv row."""
     shares = merged.get("q_best", {}).get("shares", {})
     return ([[policy.step, *row] for row in episode_rows(merged, seeds)],
             [policy.step, *(repr(shift[c]) for c in SHIFT_COLUMNS),
@@ -810,7 +762,6 @@ def policy_rows(policy: Policy, seeds: list[int], merged: dict, shift: dict) -> 
 
 
 def write_run_files(out: Path, run: str, finished: dict[tuple[str, int], PolicyRows]) -> None:
-    """The run's episodes.csv and shift.csv: every finished policy of it, by step."""
     steps = sorted(step for name, step in finished if name == run)
     (out / run).mkdir(exist_ok=True)
     write_text_atomically(out / run / "episodes.csv", csv_text(
@@ -826,7 +777,7 @@ def csv_text(rows: list[list]) -> str:
 
 
 def read_campaign(out: Path) -> tuple[dict, dict[tuple[str, int, str], list[list[str]]]]:
-    """evaluation.json, and the episodes.csv rows by (run, step, action) in episode order."""
+    """evaluation.json, and episodes.csv's rows by (run, step, action)."""
     settings = json.loads((out / CAMPAIGN_FILE).read_text())
     episodes: dict[tuple[str, int, str], list[list[str]]] = {}
     for run in settings["runs"]:
@@ -844,11 +795,8 @@ def read_campaign(out: Path) -> tuple[dict, dict[tuple[str, int, str], list[list
 
 def per_seed_rows(settings: dict, episodes: dict[tuple[str, int, str], list[list[str]]]
                   ) -> list[dict]:
-    """Per run, step and action: the mean return and its standard error over the episodes,
-    the paired difference against tanh(mu) from the same starts with its standard error and,
-    where any episode of the campaign records it, unstable_ends: the episodes a physics blow-up
-    ended, and end_<why>: the episodes that ended each way (eval_rounds.episode_end; None where
-    not recorded). A folder of older files only keeps its summary as it was."""
+    """unstable_ends and end_<why> only where some episode records them: a folder of older
+    files keeps its summary as it was."""
     column = {c: EPISODES_HEADER.index(c) for c in ("return", "physics_unstable", "end")}
 
     def recorded(rows: list[list[str]], name: str) -> list[str] | None:
@@ -892,9 +840,7 @@ def write_rows(path: Path, rows: list[dict]) -> None:
 
 
 def summarize_campaign(out: Path) -> None:
-    """From the CSVs under out: per_seed.csv and summary.md (printed). Everything across seeds
-    is analyze.py's (`analyze.py RUNS --robust OUT`). The precision check: each seed's paired
-    difference should have a standard error below PRECISION of tanh(mu)'s mean return."""
+    """per_seed.csv and summary.md from the CSVs; across seeds is analyze.py's (--robust)."""
     settings, episodes = read_campaign(out)
     per_seed = per_seed_rows(settings, episodes)
     write_rows(out / "per_seed.csv", per_seed)
@@ -924,8 +870,6 @@ def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
              f"from the run's seed, round {settings['eval_round']}; reset noise on qpos: "
              f"{'the task' + chr(39) + 's own' if noise is None else f'+-{noise}'}). "
              f"{settings['seconds']:.0f} s of evaluation. Across seeds: analyze.py --robust.", ""]
-    # Blow-up counts only where some episodes.csv records them: an older folder's summary
-    # stays as it was.
     ends = {(r["run"], r["step"], r["selector"]): r["unstable_ends"] for r in per_seed
             if "unstable_ends" in r}
     lines += ["## Per seed", "",
