@@ -446,19 +446,16 @@ def summarise(results: dict, shift: dict, args: Args, info: dict, env_id: str,
             "ends": dict(collections.Counter(episodes["ends"]))}
         if "shares" in episodes:
             summary["selectors"][action]["choice_shares"] = episodes["shares"]
-    if "tanh_mu" in results:
-        summary["paired_difference_minus_tanh_mu"] = {
-            s: paired_difference(results[s]["returns"], results["tanh_mu"]["returns"], args)
-            for s in results if s != "tanh_mu"}
+    if "tanh_mu" in results:  # episode by episode: from the same start state
+        paired = summary["paired_difference_minus_tanh_mu"] = {}
+        for s in (s for s in results if s != "tanh_mu"):
+            diffs = stats.paired_difference(results[s]["returns"], results["tanh_mu"]["returns"])
+            mean, low, high = mean_with_ci(diffs, args.reps, args.seed)
+            paired[s] = {"mean": mean, "ci_low": low, "ci_high": high,
+                         "share_better": float(np.mean(diffs > 0)),
+                         "share_equal": float(np.mean(diffs == 0))}
     summary["shift_at_visited_states"] = shift
     return summary
-
-
-def paired_difference(returns: list[float], baseline: list[float], args: Args) -> dict:
-    diffs = stats.paired_difference(returns, baseline)
-    mean, low, high = mean_with_ci(diffs, args.reps, args.seed)
-    return {"mean": mean, "ci_low": low, "ci_high": high,
-            "share_better": float(np.mean(diffs > 0)), "share_equal": float(np.mean(diffs == 0))}
 
 
 def print_summary(summary: dict) -> None:
@@ -503,16 +500,6 @@ def print_summary(summary: dict) -> None:
           f"{shift['mode_shift_abs_mean']:.4f} per dimension, {shift['mode_shift_abs_sum']:.3f} "
           f"summed over dimensions; sigma {shift['sigma_mean']:.3f}; bimodal dimensions "
           f"{100 * shift['bimodal_fraction']:.1f}%")
-
-
-def write_outputs(out: Path, results: dict, seeds: list[int], summary: dict) -> None:
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "episodes.csv").write_text(
-            csv_text([EPISODE_COLUMNS, *episode_rows(results, seeds)]), newline="")
-        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    except OSError as error:
-        fail(f"--out {out}: cannot write there ({error.strerror}); give a writable folder")
 
 
 # physics_unstable, then end, were added last: a reader by name reads older files alike.
@@ -588,7 +575,10 @@ def evaluate_campaign(args: Args) -> None:
     for env_id in sorted({p.env_id for p in policies}):
         check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
     actions = list(dict.fromkeys(args.selectors))
-    settings = campaign_settings(args, actions)
+    settings = {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
+                "episodes": args.episodes, "eval_round": args.eval_round,
+                "reset_noise": args.reset_noise, "selectors": actions, "solver": args.solver,
+                "steps": list(args.steps)}
     recorded = recorded_settings(args.out)
     if recorded is not None:
         check_same_settings(args.out, recorded, settings)
@@ -612,7 +602,12 @@ def evaluate_campaign(args: Args) -> None:
                                     recorded.get("seconds", 0.0) if recorded else 0.0)
         for run in dict.fromkeys(p.run for p in policies):  # as one attempt would leave them:
             write_run_files(args.out, run, finished)  # rows of policies now gone, dropped
-        write_campaign(args.out, settings, policies, seconds, args.workers)
+        # evaluation.json marks --out complete: written last, in one step.
+        complete = {k: v for k, v in settings.items() if k != "steps"} | {
+            "seconds": round(seconds, 1), "workers": args.workers,
+            "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
+        write_text_atomically(args.out / CAMPAIGN_FILE, json.dumps(complete, indent=2) + "\n")
+        (args.out / PARTIAL_FILE).unlink(missing_ok=True)
     except OSError as error:
         fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable folder")
     summarize_campaign(args.out)
@@ -646,8 +641,12 @@ def evaluate_policies(args: Args, settings: dict,
         policy, seeds, jobs = waiting[0]
         if len(results) < len(jobs):
             return
-        finished[policy.run, policy.step] = policy_rows(policy, seeds,
-                                                        *merge(results, actions))
+        merged, shift = merge(results, actions)
+        shares = merged.get("q_best", {}).get("shares", {})
+        finished[policy.run, policy.step] = (
+            [[policy.step, *row] for row in episode_rows(merged, seeds)],
+            [policy.step, *(repr(shift[c]) for c in SHIFT_COLUMNS),
+             *(repr(shares[c]) if shares else "" for c in Q_BEST_CANDIDATES)])
         waiting.pop(0)
         results.clear()
         write_run_files(args.out, policy.run, finished)
@@ -657,16 +656,6 @@ def evaluate_policies(args: Args, settings: dict,
     run_jobs([job for *_, jobs in planned for job in jobs], args.workers, progress_bar(
         f"{len(planned)} policies x {' '.join(actions)}", len(planned) * args.episodes), keep)
     return seconds + time.perf_counter() - start
-
-
-def write_campaign(out: Path, settings: dict, policies: list[Policy], seconds: float,
-                   workers: int | None) -> None:
-    """evaluation.json marks out complete: written last, in one step."""
-    complete = {k: v for k, v in settings.items() if k != "steps"} | {
-        "seconds": round(seconds, 1), "workers": workers,
-        "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
-    write_text_atomically(out / CAMPAIGN_FILE, json.dumps(complete, indent=2) + "\n")
-    (out / PARTIAL_FILE).unlink(missing_ok=True)
 
 
 # ----------------------------------------------------------------------- resuming a campaign
@@ -683,13 +672,6 @@ OLD_EPISODES_HEADERS = (EPISODES_HEADER[:-2], EPISODES_HEADER[:-1])
 SHIFT_HEADER = ["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}" for c in Q_BEST_CANDIDATES)]
 # One policy's episodes.csv rows and shift.csv row, each starting with its step.
 PolicyRows = tuple[list[list], list]
-
-
-def campaign_settings(args: Args, actions: list[str]) -> dict:
-    return {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
-            "episodes": args.episodes, "eval_round": args.eval_round,
-            "reset_noise": args.reset_noise, "selectors": actions, "solver": args.solver,
-            "steps": list(args.steps)}
 
 
 def recorded_settings(out: Path) -> dict | None:
@@ -752,13 +734,6 @@ def rows_by_step(path: Path, header: list[str], older: tuple[list[str], ...] = (
     for row in rows[1:]:
         grouped.setdefault(int(row[0]), []).append(row + [""] * (len(header) - len(rows[0])))
     return grouped
-
-
-def policy_rows(policy: Policy, seeds: list[int], merged: dict, shift: dict) -> PolicyRows:
-    shares = merged.get("q_best", {}).get("shares", {})
-    return ([[policy.step, *row] for row in episode_rows(merged, seeds)],
-            [policy.step, *(repr(shift[c]) for c in SHIFT_COLUMNS),
-             *(repr(shares[c]) if shares else "" for c in Q_BEST_CANDIDATES)])
 
 
 def write_run_files(out: Path, run: str, finished: dict[tuple[str, int], PolicyRows]) -> None:
@@ -851,10 +826,6 @@ def summarize_campaign(out: Path) -> None:
           f"--robust {out}")
 
 
-def _num(x: float, digits: int = 1) -> str:
-    return "n/a" if x is None or math.isnan(x) else f"{x:+.{digits}f}"
-
-
 def _count(ends: dict, row: dict, action: str) -> str:
     count = ends.get((row["run"], row["step"], action))
     return "n/r" if count is None else str(count)
@@ -886,13 +857,14 @@ def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
     for r in per_seed:
         if "difference_mean" not in r:
             continue
+        d = r["difference_mean"]
         share = r["difference_se"] / abs(r["tanh_mu_return_mean"]) \
             if r["tanh_mu_return_mean"] else math.inf
         if not share < PRECISION:
             failed.append(f"seed {r['seed']} step {r['step']} {r['selector']}")
         lines.append(f"| {r['env_id']} | {r['seed']} | {r['step']} | {r['selector']} | "
                      f"{r['return_mean']:.1f} | {r['tanh_mu_return_mean']:.1f} | "
-                     f"{_num(r['difference_mean'])} | {r['difference_se']:.1f} | "
+                     f"{'n/a' if math.isnan(d) else f'{d:+.1f}'} | {r['difference_se']:.1f} | "
                      f"{stats.verdict(r['difference_mean'], r['difference_se'])} | "
                      f"{share:.1%} | {r['share_better']:.0%} |"
                      + (f" {_count(ends, r, r['selector'])} / {_count(ends, r, 'tanh_mu')} |"
@@ -935,7 +907,14 @@ def main(argv: list[str] | None = None) -> None:
                         distinct_starts(env_id, seeds, args.reset_noise))
     print_summary(summary)
     if args.out:
-        write_outputs(args.out, results, seeds, summary)
+        try:
+            args.out.mkdir(parents=True, exist_ok=True)
+            (args.out / "episodes.csv").write_text(
+                csv_text([EPISODE_COLUMNS, *episode_rows(results, seeds)]), newline="")
+            (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        except OSError as error:
+            fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable "
+                 "folder")
         print(f"\nwrote {args.out / 'episodes.csv'} and {args.out / 'summary.json'}")
 
 
