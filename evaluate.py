@@ -343,10 +343,11 @@ def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: li
     return jobs
 
 
-def run_jobs(jobs: list[Round], workers: int | None, progress: Callable[[int], None],
+def run_jobs(jobs: list[Round], workers: int | None, label: str,
              keep: Callable[[dict], None] | None = None) -> list[dict]:
     """Every job's result, in job order, each also handed to `keep` as it comes back."""
     results: list[dict] = []
+    progress = progress_bar(label, sum(len(j.seeds) for j in jobs))
 
     def done(job: Round, result: dict) -> None:
         results.append(result)
@@ -653,8 +654,8 @@ def evaluate_policies(args: Args, settings: dict,
         write_text_atomically(args.out / PARTIAL_FILE, json.dumps(
             settings | {"seconds": seconds + time.perf_counter() - start}, indent=2) + "\n")
 
-    run_jobs([job for *_, jobs in planned for job in jobs], args.workers, progress_bar(
-        f"{len(planned)} policies x {' '.join(actions)}", len(planned) * args.episodes), keep)
+    run_jobs([job for *_, jobs in planned for job in jobs], args.workers,
+             f"{len(planned)} policies x {' '.join(actions)}", keep)
     return seconds + time.perf_counter() - start
 
 
@@ -901,8 +902,7 @@ def main(argv: list[str] | None = None) -> None:
     check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
     actions = list(dict.fromkeys(args.selectors))
     jobs = make_jobs(actor, critic, env_id, seeds, actions, args)
-    results, shift = merge(run_jobs(jobs, args.workers, progress_bar(" ".join(actions),
-                                                                     len(seeds))), actions)
+    results, shift = merge(run_jobs(jobs, args.workers, " ".join(actions)), actions)
     summary = summarise(results, shift, args, info, env_id,
                         distinct_starts(env_id, seeds, args.reset_noise))
     print_summary(summary)
