@@ -808,11 +808,9 @@ def per_seed_rows(settings: dict, episodes: dict[tuple[str, int, str], list[list
 
 def write_rows(path: Path, rows: list[dict]) -> None:
     columns = list(dict.fromkeys(k for row in rows for k in row))
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, columns)
-        writer.writeheader()
-        writer.writerows({k: repr(float(v)) if isinstance(v, float) else v for k, v in row.items()}
-                         for row in rows)
+    write_text_atomically(path, csv_text([columns, *(
+        [repr(float(v)) if isinstance(v, float) else v for v in map(row.get, columns)]
+        for row in rows)]))
 
 
 def summarize_campaign(out: Path) -> None:
@@ -821,7 +819,7 @@ def summarize_campaign(out: Path) -> None:
     per_seed = per_seed_rows(settings, episodes)
     write_rows(out / "per_seed.csv", per_seed)
     text = campaign_markdown(settings, per_seed)
-    (out / "summary.md").write_text(text)
+    write_text_atomically(out / "summary.md", text)
     print(text, end="")
     print(f"wrote {out / 'summary.md'} and per_seed.csv; across seeds: analyze.py RUNS "
           f"--robust {out}")
@@ -909,9 +907,9 @@ def main(argv: list[str] | None = None) -> None:
     if args.out:
         try:
             args.out.mkdir(parents=True, exist_ok=True)
-            (args.out / "episodes.csv").write_text(
-                csv_text([EPISODE_COLUMNS, *episode_rows(results, seeds)]), newline="")
-            (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+            write_text_atomically(args.out / "episodes.csv", csv_text(
+                [EPISODE_COLUMNS, *episode_rows(results, seeds)]))
+            write_text_atomically(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
         except OSError as error:
             fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable "
                  "folder")
