@@ -688,17 +688,14 @@ def recorded_settings(out: Path) -> dict | None:
 
 def check_same_settings(out: Path, recorded: dict, settings: dict) -> None:
     """evaluation.json has no steps: those go unchecked against a complete out."""
-    def same(key: str) -> bool:
-        if key == "source":  # the same folder, however it is written
-            return Path(recorded[key]).resolve() == Path(settings[key]).resolve()
-        return recorded[key] == settings[key]
-
     def shown(value: object) -> str:
         if isinstance(value, list):
             return " ".join(map(str, value)) or "(not given)"
         return "(not given)" if value is None else str(value)
 
-    differing = [k for k in RESUME_SETTINGS if k in recorded and not same(k)]
+    differing = [k for k in RESUME_SETTINGS if k in recorded and (  # source: the same folder
+        Path(recorded[k]).resolve() != Path(settings[k]).resolve() if k == "source"
+        else recorded[k] != settings[k])]
     if differing:
         fail(f"--out {out} holds an evaluation with other settings ("
              + "; ".join(f"{'source' if k == 'source' else '--' + k.replace('_', '-')} "
