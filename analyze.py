@@ -60,6 +60,7 @@ from rliable import metrics, plot_utils
 
 from sac_utils import dimension_study as dimensions
 from sac_utils import stats
+from sac_utils.cli import broken_rule
 from sac_utils.dimension_study import SHIFT_COLUMNS, Dimension, training_fraction_steps
 from sac_utils.report import Report, counted, format_ci, format_step, markdown_table, seed_cells
 from sac_utils.stats import CONFIDENCE, seed_mean_estimates, t_interval, welch_interval
@@ -2391,11 +2392,8 @@ def validate(args: Args) -> None:
         ("seed", 0 <= args.seed < 2**32, "in [0, 2**32) (NumPy's seed range)"),
         ("format", len(args.format) >= 1, "one or more of png, pdf"),
     )
-    for name, ok, allowed in rules:
-        if not ok:
-            value = getattr(args, name)
-            shown = " ".join(value) if isinstance(value, tuple) else value
-            raise AnalysisError(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
+    if message := broken_rule(args, rules):
+        raise AnalysisError(message)
 
 
 def analyze(args: Args) -> Report:

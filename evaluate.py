@@ -7,25 +7,12 @@ actions, paired: every action starts its episode k from the same state.
     python evaluate.py campaign/ --out robust/ --reset-noise 0.01 --episodes 100 \
         --selectors mode tanh_mu mean q_best          # every run of a campaign, every snapshot
 
-SOURCE is a run folder of ours (its final_model.pt, else its checkpoint.pt), one of our
-final_model.pt or checkpoint.pt files, or a Stable-Baselines3 SAC .zip (gSDE ones too). Our
-weight files are loaded with torch.load(weights_only=True): they cannot run code. An SB3 .zip
-is unpickled by SB3 itself and must come from a source you trust. `q_best` also needs the
-critic: our files' "qf", or the critic inside the SB3 .zip.
-
-SOURCE may also be a folder of run folders (a campaign): then every run's final_model.pt and
-snapshots/step<N>.pt (or those at --steps) are evaluated, each from the same --episodes starts
-of its run's seed, and --out receives one episodes.csv per run and, per seed, per_seed.csv and
-summary.md (`summarize_campaign`); across seeds is analyze.py's (`--robust OUT`). Given that
---out folder as SOURCE, the summary is rewritten from its CSVs without running an episode. Each
-policy's rows are written to --out as soon as it is evaluated: the same command again, after a
-kill, evaluates only the policies not there yet.
-
-The episodes run through sac_utils/eval_rounds.py, the training runs' own evaluation: split into
-jobs of JOB_EPISODES episodes, each job stepping all its episodes of every action in lockstep, the
-jobs spread over --workers processes. A job is the same whatever runs it, so the numbers do not
-depend on --workers; with a run's seed and --eval-round N they are those of the run's N-th
-evaluation.
+SOURCE: a run folder of ours (its final_model.pt, else checkpoint.pt), one of our weight files
+(loaded with weights_only=True: they cannot run code), or a Stable-Baselines3 SAC .zip (unpickled
+by SB3: only from a source you trust). A folder of run folders is a campaign: every run's final
+weights and snapshots into --out, resumable after a kill; that --out as SOURCE rewrites its
+summary. The episodes run through sac_utils/eval_rounds.py, the training runs' own evaluation.
+docs/evaluate.md has the details.
 """
 
 from __future__ import annotations
@@ -53,7 +40,7 @@ import tyro
 
 import sac_corrected as sac
 from sac_utils import stats
-from sac_utils.cli import check_reset_noise, fail, read_config_json
+from sac_utils.cli import broken_rule, check_reset_noise, fail, read_config_json
 from sac_utils.eval_rounds import (
     ACTIONS,
     Q_BEST_CANDIDATES,
@@ -63,7 +50,7 @@ from sac_utils.eval_rounds import (
     eval_seeds,
     start_key,
 )
-from sac_utils.files import write_text_atomically
+from sac_utils.files import complete_lines, write_text_atomically
 
 # Episodes per job. Fixed, not derived from --workers: a job's episodes share one batch per
 # actor call, and the numbers must not depend on how many processes ran the jobs.
@@ -108,7 +95,7 @@ class Args:
 
 
 def parse_args(argv: list[str] | None = None) -> Args:
-    """The flags; tyro's parse errors (a bad type, an unknown choice or flag) on one line."""
+    """The flags; tyro's parse errors on one line."""
     captured = io.StringIO()
     try:
         with contextlib.redirect_stderr(captured):
@@ -120,7 +107,7 @@ def parse_args(argv: list[str] | None = None) -> Args:
 
 
 def one_line(box: str) -> str:
-    """The message of tyro's error box: its lines up to the first rule, borders dropped."""
+    """The message of tyro's error box, borders dropped."""
     lines = []
     for line in box.splitlines()[1:]:
         text = line.strip().strip("│").strip()
@@ -131,7 +118,7 @@ def one_line(box: str) -> str:
 
 
 def check_args(args: Args) -> None:
-    """Every flag's valid range, checked before anything is loaded, run or written."""
+    """Before anything is loaded, run or written."""
     rules = (
         ("episodes", args.episodes >= 1, "at least 1"),
         ("seed", args.seed >= 0, "a non-negative integer"),
@@ -144,11 +131,8 @@ def check_args(args: Args) -> None:
         ("steps", all(s >= 0 for s in args.steps), "steps of the runs' snapshots (>= 0)"),
         ("workers", args.workers is None or args.workers >= 0, "0 (in-process) or more"),
     )
-    for name, ok, allowed in rules:
-        if not ok:
-            value = getattr(args, name)
-            shown = " ".join(value) if isinstance(value, tuple) else value
-            fail(f"--{name.replace('_', '-')} {shown}: must be {allowed}")
+    if message := broken_rule(args, rules):
+        fail(message)
     if not args.source.exists():
         fail(f"{args.source} does not exist; give a run folder, a final_model.pt or an SB3 "
              "SAC .zip")
@@ -159,8 +143,7 @@ def check_args(args: Args) -> None:
 
 # ----------------------------------------------------------------------------- load
 class SB3Actor(nn.Module):
-    """A Stable-Baselines3 SAC actor behind our Actor's interface: mu and log sigma before the
-    tanh, and SB3's own map from (-1, 1) to the env's bounds (`policy.unscale_action`)."""
+    """SB3's SAC actor as our Actor: mu and log sigma, and SB3's `unscale_action` as scale."""
 
     def __init__(self, model) -> None:
         super().__init__()
@@ -181,8 +164,8 @@ class SB3Actor(nn.Module):
 
 
 class SB3Critic(nn.Module):
-    """A Stable-Baselines3 SAC critic behind our TwinQ's interface: env actions in (SB3's critic
-    takes them scaled to [-1, 1], as `policy.scale_action` does), (n_critics, batch) out."""
+    """SB3's SAC critic as our TwinQ: env actions in (scaled as SB3's `scale_action` does),
+    (n_critics, batch) out."""
 
     def __init__(self, policy) -> None:
         super().__init__()
@@ -196,34 +179,31 @@ class SB3Critic(nn.Module):
 
 
 def load_policy(args: Args) -> tuple[nn.Module, nn.Module | None, str, dict]:
-    """The actor, the critic (only when an action needs it, else None), the env id and a
-    description of where they came from."""
+    """The actor, the critic (None unless q_best needs it), the env id and their source."""
     source, need_critic = args.source, "q_best" in args.selectors
     if source.suffix == ".zip":
         actor, env_id, info = load_sb3(source, args.env_id)
         return actor, SB3Critic(actor.policy) if need_critic else None, env_id, info
     if source.is_dir():
         config = read_config(source)
-        weights = next((source / n for n in ("final_model.pt", "checkpoint.pt")
-                        if (source / n).is_file()), None)
-        if weights is None:
+        path = next((source / n for n in ("final_model.pt", "checkpoint.pt")
+                     if (source / n).is_file()), None)
+        if path is None:
             fail(f"{source} holds no final_model.pt or checkpoint.pt yet: nothing to evaluate")
-        state = load_weights(weights)
-        env_id = args.env_id or config.get("env_id")
+        state, env_id = load_weights(path), args.env_id or config.get("env_id")
         if not isinstance(env_id, str):
             fail(f"{source / 'config.json'} names no env_id; restore it, or pass --env-id")
-        actor = build_actor(state["actor"], env_id, config, weights)
-        return actor, build_critic(state, actor, weights) if need_critic else None, env_id, \
-            {"source": str(weights), "kind": "run", "run_seed": config.get("seed")}
-    state = load_weights(source)
-    # final_model.pt keeps the fields that rebuild the actor; checkpoint.pt keeps all arguments.
-    config = state.get("config") or state.get("args") or {}
-    env_id = args.env_id or (config.get("env_id") if isinstance(config, dict) else None)
-    if not isinstance(env_id, str):
-        fail(f"{source} does not say which env it was trained on; pass --env-id")
-    actor = build_actor(state["actor"], env_id, config, source)
-    return actor, build_critic(state, actor, source) if need_critic else None, env_id, \
-        {"source": str(source), "kind": "weights"}
+        info = {"source": str(path), "kind": "run", "run_seed": config.get("seed")}
+    else:
+        path, state = source, load_weights(source)
+        # final_model.pt keeps the fields that rebuild the actor; checkpoint.pt keeps all arguments.
+        config = state.get("config") or state.get("args") or {}
+        env_id = args.env_id or (config.get("env_id") if isinstance(config, dict) else None)
+        if not isinstance(env_id, str):
+            fail(f"{source} does not say which env it was trained on; pass --env-id")
+        info = {"source": str(path), "kind": "weights"}
+    actor = build_actor(state["actor"], env_id, config, path)
+    return actor, build_critic(state, actor, path) if need_critic else None, env_id, info
 
 
 def read_config(run_dir: Path) -> dict:
@@ -233,45 +213,55 @@ def read_config(run_dir: Path) -> dict:
 
 
 def load_weights(path: Path) -> dict:
-    """One of our weight files, loaded so that it cannot run code (weights_only=True); mmap
-    reads only what is used of a checkpoint.pt (its replay buffer stays on disk)."""
+    """weights_only: a file cannot run code; mmap: a checkpoint.pt's replay buffer stays on
+    disk."""
     try:
         state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
     except Exception as error:  # not a torch file, truncated, or holding more than weights
         fail(f"{path} is not a weights file of ours ({type(error).__name__}: "
              f"{str(error).splitlines()[0][:120]}); give a final_model.pt or a run folder")
-    actor = state.get("actor") if isinstance(state, dict) else None
-    if not isinstance(actor, dict) or not all(torch.is_tensor(v) for v in actor.values()):
+    if not isinstance(state, dict) or not tensors(state.get("actor")):
         fail(f"{path} holds no 'actor' weights; give a final_model.pt or a run folder")
-    broken = [k for k, v in actor.items() if v.is_floating_point() and not v.isfinite().all()]
-    if broken:
-        fail(f"{path}: the actor's {broken[0]} holds NaN/inf (training diverged); evaluate "
+    if broken := non_finite(state["actor"]):
+        fail(f"{path}: the actor's {broken} holds NaN/inf (training diverged); evaluate "
              "an earlier model")
-    return without_seed_axis(state)
-
-
-def without_seed_axis(state: dict) -> dict:
-    """The file's actor and critic in the scripts' layout: (in, out) weights, (out,) biases.
-    Files written with --num-seeds (results/*-1M's) hold them with a leading seed axis of 1:
-    (1, in, out) and (1, 1, out)."""
+    # Files written with --num-seeds (results/*-1M's) hold the actor and critic with a leading
+    # seed axis of 1: (1, in, out) weights and (1, 1, out) biases, not (in, out) and (out,).
     def fit(key: str, value: torch.Tensor) -> torch.Tensor:
-        if value.dim() == 3:
-            return value[0] if key.endswith(".weight") else value[0, 0]
-        return value
+        if value.dim() != 3:
+            return value
+        return value[0] if key.endswith(".weight") else value[0, 0]
 
-    parts = [p for p in ("actor", "qf") if isinstance(state.get(p), dict)
-             and all(torch.is_tensor(v) for v in state[p].values())]
-    return state | {part: {k: fit(k, v) for k, v in state[part].items()} for part in parts}
+    return state | {part: {k: fit(k, v) for k, v in state[part].items()}
+                    for part in ("actor", "qf") if tensors(state.get(part))}
+
+
+def tensors(weights: object) -> bool:
+    return isinstance(weights, dict) and all(torch.is_tensor(v) for v in weights.values())
+
+
+def non_finite(weights: dict) -> str | None:
+    return next((k for k, v in weights.items()
+                 if v.is_floating_point() and not v.isfinite().all()), None)
+
+
+def layers(weights: dict, prefix: str) -> list[torch.Tensor]:
+    keys = [k for k in weights if k.startswith(prefix) and k.endswith(".weight")]
+    return [weights[k] for k in sorted(keys, key=lambda k: int(k.split(".")[1]))]
+
+
+def load_into(module: nn.Module, weights: dict, path: Path, what: str, fix: str = "") -> None:
+    try:
+        module.load_state_dict(weights)
+    except RuntimeError as error:  # layers missing, extra or of the wrong shape
+        fail(f"{path}: its {what} ({' '.join(str(error).split())[:200]}); give a final_model.pt "
+             f"of sac_standard.py or sac_corrected.py{fix}")
 
 
 def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Actor:
-    """Our Actor with the layer widths read off its weights (without_seed_axis), checked against
-    the env."""
     env = sac.make_env(env_id)
     obs_dim, action_dim = env.observation_space.shape[0], int(np.prod(env.action_space.shape))
-    trunk = [weights[k] for k in sorted((k for k in weights if k.startswith("trunk.")
-                                         and k.endswith(".weight")),
-                                        key=lambda k: int(k.split(".")[1]))]
+    trunk = layers(weights, "trunk.")
     if not trunk or trunk[0].dim() != 2 or "fc_mean.weight" not in weights:
         fail(f"{path} holds no actor of sac_standard.py or sac_corrected.py (no trunk or "
              "fc_mean layers); give a final_model.pt or a run folder")
@@ -283,42 +273,27 @@ def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Act
     actor = sac.Actor(obs_dim, tuple(w.shape[1] for w in trunk), env.action_space,
                       config.get("log_std_min", sac.Args.log_std_min),
                       config.get("log_std_max", sac.Args.log_std_max))
-    try:
-        actor.load_state_dict(weights)
-    except RuntimeError as error:  # layers missing, extra or of the wrong shape
-        fail(f"{path}: its actor does not fit our Actor ({' '.join(str(error).split())[:200]})"
-             "; give a final_model.pt of sac_standard.py or sac_corrected.py")
+    load_into(actor, weights, path, "actor does not fit our Actor")
     return actor
 
 
 def build_critic(state: dict, actor: sac.Actor, path: Path) -> sac.TwinQ:
-    """Our TwinQ from the file's "qf" weights, its widths read off them and checked against the
-    actor's observation and action sizes."""
-    weights = state.get("qf")
-    if not isinstance(weights, dict) or not weights or \
-            not all(torch.is_tensor(v) for v in weights.values()):
+    weights, drop = state.get("qf"), ", or drop q_best from --selectors"
+    if not tensors(weights) or not weights:
         fail(f"{path} holds no critic weights ('qf'), which q_best needs; give a "
-             "final_model.pt or checkpoint.pt that holds them, or drop q_best from --selectors")
-    layers = [weights[k] for k in sorted((k for k in weights if k.startswith("qf1.")
-                                          and k.endswith(".weight")),
-                                         key=lambda k: int(k.split(".")[1]))]
+             f"final_model.pt or checkpoint.pt that holds them{drop}")
+    qf1 = layers(weights, "qf1.")
     obs_dim, action_dim = actor.trunk[0].weight.shape[0], actor.fc_mean.weight.shape[1]
-    if not layers or any(w.dim() != 2 for w in layers) or layers[-1].shape[1] != 1 \
-            or layers[0].shape[0] != obs_dim + action_dim:
+    if not qf1 or any(w.dim() != 2 for w in qf1) or qf1[-1].shape[1] != 1 \
+            or qf1[0].shape[0] != obs_dim + action_dim:
         fail(f"{path}: its 'qf' is not a critic of sac_standard.py or sac_corrected.py for "
              f"{obs_dim}-dim observations and {action_dim}-dim actions; give the run's own "
-             "final_model.pt, or drop q_best from --selectors")
-    critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[1] for w in layers[:-1]))
-    try:
-        critic.load_state_dict(weights)
-    except RuntimeError as error:  # the second critic missing, or of other widths
-        fail(f"{path}: its critic does not fit our TwinQ "
-             f"({' '.join(str(error).split())[:200]}); give a final_model.pt of "
-             "sac_standard.py or sac_corrected.py, or drop q_best from --selectors")
-    broken = [k for k, v in weights.items() if v.is_floating_point() and not v.isfinite().all()]
-    if broken:
-        fail(f"{path}: the critic's {broken[0]} holds NaN/inf (training diverged); evaluate "
-             "an earlier model, or drop q_best from --selectors")
+             f"final_model.pt{drop}")
+    critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[1] for w in qf1[:-1]))
+    load_into(critic, weights, path, "critic does not fit our TwinQ", drop)
+    if broken := non_finite(weights):
+        fail(f"{path}: the critic's {broken} holds NaN/inf (training diverged); evaluate "
+             f"an earlier model{drop}")
     return critic.eval()
 
 
@@ -356,8 +331,6 @@ def load_sb3(path: Path, env_id: str | None) -> tuple[nn.Module, str, dict]:
 # ----------------------------------------------------------------------------- evaluate
 def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: list[int],
               actions: list[str], args: Args, label: str = "") -> list[Round]:
-    """The episodes as rounds of JOB_EPISODES, each with every action (eval.csv prefix =
-    action name); the first one films each action's first episode."""
     shift_of = "mode" if "mode" in actions else actions[0]
     jobs = []
     for start in range(0, len(seeds), JOB_EPISODES):
@@ -371,11 +344,11 @@ def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: li
     return jobs
 
 
-def run_jobs(jobs: list[Round], workers: int, progress: Callable[[int], None],
+def run_jobs(jobs: list[Round], workers: int | None, label: str,
              keep: Callable[[dict], None] | None = None) -> list[dict]:
-    """Every job's result, in job order, the progress bar advanced as each one comes back;
-    `keep`, if given, is handed each result as it comes back (in job order too)."""
+    """Every job's result, in job order, each also handed to `keep` as it comes back."""
     results: list[dict] = []
+    progress = progress_bar(label, sum(len(j.seeds) for j in jobs))
 
     def done(job: Round, result: dict) -> None:
         results.append(result)
@@ -383,6 +356,7 @@ def run_jobs(jobs: list[Round], workers: int, progress: Callable[[int], None],
             keep(result)
         progress(sum(len(j.seeds) for j in jobs[:len(results)]))
 
+    workers = len(os.sched_getaffinity(0)) if workers is None else workers
     # More processes than jobs would only cost their start-up.
     pool = EvalPool(min(workers, len(jobs)), done)
     try:
@@ -401,15 +375,13 @@ def run_jobs(jobs: list[Round], workers: int, progress: Callable[[int], None],
 
 
 def merge(results: list[dict], actions: list[str]) -> tuple[dict, dict]:
-    """The jobs' episodes concatenated per action, q_best's choice shares pooled over its
-    states; and the shift statistics pooled over the jobs' visited states (each is a mean over
-    states, so a job weighs as many states as it visited)."""
+    """The jobs' episodes per action, and their shares and shift statistics pooled: each is a
+    mean over states, so a job weighs as many states as it visited."""
     merged = {s: {k: [x for r in results for x in r[s][k]]
                   for k in ("returns", "lengths", "successes", "unstable", "ends")}
               for s in actions}
     for s in actions:
         if "shares" in results[0][s]:
-            # q_best chose once per step of each of its episodes: a job's steps are its states.
             weights = np.array([sum(r[s]["lengths"]) for r in results], float)
             merged[s]["shares"] = {c: float(np.average([r[s]["shares"][c] for r in results],
                                                        weights=weights))
@@ -421,8 +393,7 @@ def merge(results: list[dict], actions: list[str]) -> tuple[dict, dict]:
 
 
 def progress_bar(label: str, total: int) -> Callable[[int], None]:
-    """Episodes done out of total on stderr: redrawn in place on a terminal, else a line at
-    every tenth (a log file keeps ten lines at most, not one per job)."""
+    """Redrawn in place on a terminal, else a line at every tenth (not one per job in a log)."""
     start, shown, tty = time.perf_counter(), [0], sys.stderr.isatty()
 
     def update(done: int) -> None:
@@ -442,14 +413,13 @@ def progress_bar(label: str, total: int) -> Callable[[int], None]:
 
 
 def mean_with_ci(values: np.ndarray, reps: int, seed: int) -> tuple[float, float, float]:
-    """The mean over episodes with its percentile bootstrap CI (seeds below 2**32, as NumPy's
-    legacy generator takes them)."""
+    """The percentile bootstrap; NumPy's legacy generator takes seeds below 2**32."""
     point, low, high = stats.bootstrap_mean(values, reps, np.random.RandomState(seed % 2**32))
     return float(point), float(low), float(high)
 
 
 def distinct_starts(env_id: str, seeds: list[int], reset_noise: float | None) -> int | None:
-    """How many distinct start states these reset seeds give (None: the env cannot tell)."""
+    """None where the env cannot tell."""
     env = sac.make_env(env_id)
     options = None if reset_noise is None else {"qpos_noise": reset_noise}
     keys = set()
@@ -478,20 +448,16 @@ def summarise(results: dict, shift: dict, args: Args, info: dict, env_id: str,
             "ends": dict(collections.Counter(episodes["ends"]))}
         if "shares" in episodes:
             summary["selectors"][action]["choice_shares"] = episodes["shares"]
-    if "tanh_mu" in results:
-        summary["paired_difference_minus_tanh_mu"] = {
-            s: paired_difference(results[s]["returns"], results["tanh_mu"]["returns"], args)
-            for s in results if s != "tanh_mu"}
+    if "tanh_mu" in results:  # episode by episode: from the same start state
+        paired = summary["paired_difference_minus_tanh_mu"] = {}
+        for s in (s for s in results if s != "tanh_mu"):
+            diffs = stats.paired_difference(results[s]["returns"], results["tanh_mu"]["returns"])
+            mean, low, high = mean_with_ci(diffs, args.reps, args.seed)
+            paired[s] = {"mean": mean, "ci_low": low, "ci_high": high,
+                         "share_better": float(np.mean(diffs > 0)),
+                         "share_equal": float(np.mean(diffs == 0))}
     summary["shift_at_visited_states"] = shift
     return summary
-
-
-def paired_difference(returns: list[float], baseline: list[float], args: Args) -> dict:
-    """Episode by episode (the same start state), returns minus the baseline's, with its CI."""
-    diffs = stats.paired_difference(returns, baseline)
-    mean, low, high = mean_with_ci(diffs, args.reps, args.seed)
-    return {"mean": mean, "ci_low": low, "ci_high": high,
-            "share_better": float(np.mean(diffs > 0)), "share_equal": float(np.mean(diffs == 0))}
 
 
 def print_summary(summary: dict) -> None:
@@ -538,23 +504,12 @@ def print_summary(summary: dict) -> None:
           f"{100 * shift['bimodal_fraction']:.1f}%")
 
 
-def write_outputs(out: Path, results: dict, seeds: list[int], summary: dict) -> None:
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        write_files(out, results, seeds, summary)
-    except OSError as error:
-        fail(f"--out {out}: cannot write there ({error.strerror}); give a writable folder")
-
-
-# physics_unstable (1: a physics blow-up ended the episode), then end (why the episode ended:
-# eval_rounds.episode_end) came last, after the others: a reader that picks columns by name
-# reads the files from before them and after alike.
+# physics_unstable, then end, were added last: a reader by name reads older files alike.
 EPISODE_COLUMNS = ["selector", "episode", "reset_seed", "return", "length", "success",
                    "physics_unstable", "end"]
 
 
 def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
-    """episodes.csv's rows (EPISODE_COLUMNS) of merged results, episode k from reset seed k."""
     for action, episodes in results.items():
         for k, seed in enumerate(seeds):
             success = episodes["successes"][k]
@@ -563,25 +518,14 @@ def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
                    episodes["ends"][k]]
 
 
-def write_files(out: Path, results: dict, seeds: list[int], summary: dict) -> None:
-    with open(out / "episodes.csv", "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(EPISODE_COLUMNS)
-        writer.writerows(episode_rows(results, seeds))
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-
-
 # ----------------------------------------------------------------------------- a campaign
 CAMPAIGN_FILE = "evaluation.json"
-# The per-seed precision asked of a campaign's evaluation: the paired difference's standard
-# error below this share of tanh(mu)'s mean return.
+# Asked of each seed: the paired difference's standard error below this share of tanh(mu)'s.
 PRECISION = 0.10
 
 
 @dataclass
 class Policy:
-    """One weights file of a campaign: a run's snapshot or its final weights."""
-
     run: str
     seed: int
     env_id: str
@@ -591,14 +535,12 @@ class Policy:
 
 
 def is_campaign(source: Path) -> bool:
-    """A folder that is no run itself but holds run folders (config.json below it)."""
     return source.is_dir() and not (source / "config.json").exists() \
         and next(source.rglob("config.json"), None) is not None
 
 
 def campaign_policies(root: Path, steps: tuple[int, ...]) -> list[Policy]:
-    """Every run's snapshots and final weights under root (at --steps only, if given); the final
-    weights stand for a snapshot at the same step."""
+    """The final weights stand for a snapshot at their step."""
     run_dirs = sorted(p.parent for p in root.rglob("config.json"))
     if len({d.name for d in run_dirs}) < len(run_dirs):  # the output is one folder per name
         fail(f"{root}: two run folders share a name; evaluate them separately")
@@ -626,10 +568,8 @@ def campaign_policies(root: Path, steps: tuple[int, ...]) -> list[Policy]:
 
 
 def evaluate_campaign(args: Args) -> None:
-    """Every policy of the campaign from the same --episodes starts of its run's seed, all jobs
-    in one pool; one episodes.csv and shift.csv per run under --out, then the summary. Each
-    policy's rows are written as soon as its last job is back, so a killed evaluation keeps the
-    policies it finished, and the same command again evaluates only the others."""
+    """All jobs in one pool; each policy's rows are written as soon as its last job is back,
+    so the same command again, after a kill, evaluates only the others."""
     if args.out is None or args.video is not None:
         fail(f"{args.source} is a folder of runs: give --out (where each run's episodes.csv and "
              "the summary go), and no --video")
@@ -637,7 +577,10 @@ def evaluate_campaign(args: Args) -> None:
     for env_id in sorted({p.env_id for p in policies}):
         check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
     actions = list(dict.fromkeys(args.selectors))
-    settings = campaign_settings(args, actions)
+    settings = {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
+                "episodes": args.episodes, "eval_round": args.eval_round,
+                "reset_noise": args.reset_noise, "selectors": actions, "solver": args.solver,
+                "steps": list(args.steps)}
     recorded = recorded_settings(args.out)
     if recorded is not None:
         check_same_settings(args.out, recorded, settings)
@@ -661,7 +604,12 @@ def evaluate_campaign(args: Args) -> None:
                                     recorded.get("seconds", 0.0) if recorded else 0.0)
         for run in dict.fromkeys(p.run for p in policies):  # as one attempt would leave them:
             write_run_files(args.out, run, finished)  # rows of policies now gone, dropped
-        write_campaign(args, actions, policies, seconds)
+        # evaluation.json marks --out complete: written last, in one step.
+        complete = {k: v for k, v in settings.items() if k != "steps"} | {
+            "seconds": round(seconds, 1), "workers": args.workers,
+            "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
+        write_text_atomically(args.out / CAMPAIGN_FILE, json.dumps(complete, indent=2) + "\n")
+        (args.out / PARTIAL_FILE).unlink(missing_ok=True)
     except OSError as error:
         fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable folder")
     summarize_campaign(args.out)
@@ -669,8 +617,7 @@ def evaluate_campaign(args: Args) -> None:
 
 def plan_policy(policy: Policy, actions: list[str], args: Args) -> tuple[Policy, list[int],
                                                                            list[Round]]:
-    """A policy, its reset seeds (its run's seed: a run's steps start from the same states)
-    and its jobs."""
+    """Reset seeds from the run's seed: a run's steps start from the same states."""
     state = load_weights(policy.path)
     actor = build_actor(state["actor"], policy.env_id, policy.config, policy.path).eval()
     critic = build_critic(state, actor, policy.path) if "q_best" in actions else None
@@ -682,9 +629,7 @@ def plan_policy(policy: Policy, actions: list[str], args: Args) -> tuple[Policy,
 def evaluate_policies(args: Args, settings: dict,
                       planned: list[tuple[Policy, list[int], list[Round]]],
                       finished: dict[tuple[str, int], PolicyRows], seconds: float) -> float:
-    """Runs the planned policies' jobs in one pool. As a policy's last job comes back, its
-    run's files are rewritten with it, and the marker with the seconds so far (`seconds`
-    before this attempt, plus this attempt's); returns the seconds at the end."""
+    """The seconds of all attempts at the end (`seconds`: of the earlier ones)."""
     write_text_atomically(args.out / PARTIAL_FILE, json.dumps(settings | {"seconds": seconds},
                                                          indent=2) + "\n")
     if not planned:  # all finished by an attempt killed before it wrote evaluation.json
@@ -693,66 +638,46 @@ def evaluate_policies(args: Args, settings: dict,
     start, waiting, results = time.perf_counter(), list(planned), []
 
     def keep(result: dict) -> None:
-        # run_jobs hands the results back in job order: the first waiting policy's come first.
+        # in job order: the first waiting policy's come first
         results.append(result)
         policy, seeds, jobs = waiting[0]
         if len(results) < len(jobs):
             return
-        finished[policy.run, policy.step] = policy_rows(policy, seeds,
-                                                        *merge(results, actions))
+        merged, shift = merge(results, actions)
+        shares = merged.get("q_best", {}).get("shares", {})
+        finished[policy.run, policy.step] = (
+            [[policy.step, *row] for row in episode_rows(merged, seeds)],
+            [policy.step, *(repr(shift[c]) for c in SHIFT_COLUMNS),
+             *(repr(shares[c]) if shares else "" for c in Q_BEST_CANDIDATES)])
         waiting.pop(0)
         results.clear()
         write_run_files(args.out, policy.run, finished)
         write_text_atomically(args.out / PARTIAL_FILE, json.dumps(
             settings | {"seconds": seconds + time.perf_counter() - start}, indent=2) + "\n")
 
-    workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
-    run_jobs([job for *_, jobs in planned for job in jobs], workers, progress_bar(
-        f"{len(planned)} policies x {' '.join(actions)}", len(planned) * args.episodes), keep)
+    run_jobs([job for *_, jobs in planned for job in jobs], args.workers,
+             f"{len(planned)} policies x {' '.join(actions)}", keep)
     return seconds + time.perf_counter() - start
-
-
-def write_campaign(args: Args, actions: list[str], policies: list[Policy],
-                   seconds: float) -> None:
-    """evaluation.json, which marks --out complete (written last, in one step); then the marker
-    of an evaluation under way goes."""
-    settings = {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
-                "episodes": args.episodes, "eval_round": args.eval_round,
-                "reset_noise": args.reset_noise, "selectors": actions, "solver": args.solver,
-                "seconds": round(seconds, 1), "workers": args.workers,
-                "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
-    write_text_atomically(args.out / CAMPAIGN_FILE, json.dumps(settings, indent=2) + "\n")
-    (args.out / PARTIAL_FILE).unlink(missing_ok=True)
 
 
 # ----------------------------------------------------------------------- resuming a campaign
 # While a campaign is evaluated, --out holds PARTIAL_FILE (the settings, the command and the
-# seconds so far) and every finished policy's rows; evaluation.json comes only at the end.
+# seconds so far) and every finished policy's rows.
 PARTIAL_FILE = "evaluation.partial.json"
 # The settings that decide a policy's rows: a resumed evaluation must be given the same.
 RESUME_SETTINGS = ("source", "episodes", "eval_round", "reset_noise", "selectors", "solver",
                    "steps")
 EPISODES_HEADER = ["step", *EPISODE_COLUMNS]
-# A run's episodes.csv as evaluate.py wrote it before physics_unstable or end: its rows are
-# resumed with those cells empty ("not recorded": the episodes are not run again to learn it), so
-# that the rewritten file has one header, and a summary tells such policies from others.
+# Before physics_unstable or end (results/*/robust*/): resumed with those cells empty ("not
+# recorded"; the episodes are not run again), so that the rewritten file has one header.
 OLD_EPISODES_HEADERS = (EPISODES_HEADER[:-2], EPISODES_HEADER[:-1])
 SHIFT_HEADER = ["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}" for c in Q_BEST_CANDIDATES)]
-# One policy's rows: its episodes.csv rows and its shift.csv row, each starting with its step.
+# One policy's episodes.csv rows and shift.csv row, each starting with its step.
 PolicyRows = tuple[list[list], list]
 
 
-def campaign_settings(args: Args, actions: list[str]) -> dict:
-    """What the marker records: the command, and the settings a resume must repeat."""
-    return {"command": ["evaluate.py", *sys.argv[1:]], "source": str(args.source),
-            "episodes": args.episodes, "eval_round": args.eval_round,
-            "reset_noise": args.reset_noise, "selectors": actions, "solver": args.solver,
-            "steps": list(args.steps)}
-
-
 def recorded_settings(out: Path) -> dict | None:
-    """The settings out was evaluated with: its evaluation.json if complete, else the marker of
-    an evaluation under way, else None (a new evaluation)."""
+    """evaluation.json, else the marker, else None (a new evaluation)."""
     for path in (out / CAMPAIGN_FILE, out / PARTIAL_FILE):
         if path.is_file():
             try:
@@ -763,19 +688,15 @@ def recorded_settings(out: Path) -> dict | None:
 
 
 def check_same_settings(out: Path, recorded: dict, settings: dict) -> None:
-    """One line naming every setting that differs from out's (evaluation.json has no steps:
-    those go unchecked against a complete out)."""
-    def same(key: str) -> bool:
-        if key == "source":  # the same folder, however it is written
-            return Path(recorded[key]).resolve() == Path(settings[key]).resolve()
-        return recorded[key] == settings[key]
-
+    """evaluation.json has no steps: those go unchecked against a complete out."""
     def shown(value: object) -> str:
         if isinstance(value, list):
             return " ".join(map(str, value)) or "(not given)"
         return "(not given)" if value is None else str(value)
 
-    differing = [k for k in RESUME_SETTINGS if k in recorded and not same(k)]
+    differing = [k for k in RESUME_SETTINGS if k in recorded and (  # source: the same folder
+        Path(recorded[k]).resolve() != Path(settings[k]).resolve() if k == "source"
+        else recorded[k] != settings[k])]
     if differing:
         fail(f"--out {out} holds an evaluation with other settings ("
              + "; ".join(f"{'source' if k == 'source' else '--' + k.replace('_', '-')} "
@@ -786,13 +707,12 @@ def check_same_settings(out: Path, recorded: dict, settings: dict) -> None:
 
 def finished_policies(out: Path, policies: list[Policy], actions: list[str],
                       args: Args) -> dict[tuple[str, int], PolicyRows]:
-    """The policies whose rows in out are complete (every action's every episode, from the
-    reset seeds this command gives it, and its shift row), by (run, step)."""
+    """By (run, step), the policies whose rows in out are all there, from these reset seeds."""
     finished = {}
     for run, group in itertools.groupby(policies, key=lambda p: p.run):
         episodes = rows_by_step(out / run / "episodes.csv", EPISODES_HEADER,
-                                older=OLD_EPISODES_HEADERS)
-        shifts = rows_by_step(out / run / "shift.csv", SHIFT_HEADER)
+                                OLD_EPISODES_HEADERS) or {}
+        shifts = rows_by_step(out / run / "shift.csv", SHIFT_HEADER) or {}
         for policy in group:
             seeds = eval_seeds(policy.seed, args.eval_round, args.episodes)
             expected = [[s, str(k), str(seed)] for s in actions for k, seed in enumerate(seeds)]
@@ -803,34 +723,19 @@ def finished_policies(out: Path, policies: list[Policy], actions: list[str],
 
 
 def rows_by_step(path: Path, header: list[str], older: tuple[list[str], ...] = ()
-                 ) -> dict[int, list[list[str]]]:
-    """A run file's rows by their step, as text (rewritten, they are the same bytes); none if
-    the file is missing or has another header. Rows under an `older` header (header's first
-    columns) get empty cells for the columns it lacks."""
-    if not path.is_file():
-        return {}
-    with open(path, newline="") as f:
-        reader = csv.reader(f)
-        found = next(reader, None)
-        if found != header and found not in older:
-            return {}
-        padding = [""] * (len(header) - len(found))
-        grouped: dict[int, list[list[str]]] = {}
-        for row in reader:
-            grouped.setdefault(int(row[0]), []).append(row + padding)
+                 ) -> dict[int, list[list[str]]] | None:
+    """As text (rewritten, they are the same bytes); rows under an `older` header (header's
+    first columns) padded with empty cells. None: no file, or another header."""
+    rows = list(csv.reader(complete_lines(path))) if path.is_file() else []
+    if not rows or (rows[0] != header and rows[0] not in older):
+        return None
+    grouped: dict[int, list[list[str]]] = {}
+    for row in rows[1:]:
+        grouped.setdefault(int(row[0]), []).append(row + [""] * (len(header) - len(rows[0])))
     return grouped
 
 
-def policy_rows(policy: Policy, seeds: list[int], merged: dict, shift: dict) -> PolicyRows:
-    """A freshly evaluated policy's episodes.csv rows and shift.csv row."""
-    shares = merged.get("q_best", {}).get("shares", {})
-    return ([[policy.step, *row] for row in episode_rows(merged, seeds)],
-            [policy.step, *(repr(shift[c]) for c in SHIFT_COLUMNS),
-             *(repr(shares[c]) if shares else "" for c in Q_BEST_CANDIDATES)])
-
-
 def write_run_files(out: Path, run: str, finished: dict[tuple[str, int], PolicyRows]) -> None:
-    """The run's episodes.csv and shift.csv: every finished policy of it, by step."""
     steps = sorted(step for name, step in finished if name == run)
     (out / run).mkdir(exist_ok=True)
     write_text_atomically(out / run / "episodes.csv", csv_text(
@@ -845,45 +750,40 @@ def csv_text(rows: list[list]) -> str:
     return text.getvalue()
 
 
-def read_campaign(out: Path) -> tuple[dict, dict, dict, dict]:
-    """evaluation.json, the returns by (run, step, action) in episode order, and by the same
-    keys the episodes a physics blow-up ended (None where episodes.csv does not record it: an
-    older file, or rows kept from one) and the count of each way an episode ended (None where
-    not recorded)."""
+def read_campaign(out: Path) -> tuple[dict, dict[tuple[str, int, str], list[list[str]]]]:
+    """evaluation.json, and episodes.csv's rows by (run, step, action)."""
     settings = json.loads((out / CAMPAIGN_FILE).read_text())
-    returns: dict[tuple[str, int, str], list[float]] = {}
-    unstable: dict[tuple[str, int, str], int | None] = {}
-    ends: dict[tuple[str, int, str], collections.Counter | None] = {}
+    episodes: dict[tuple[str, int, str], list[list[str]]] = {}
     for run in settings["runs"]:
         path = out / run / "episodes.csv"
         if not path.is_file():
             fail(f"{path} is missing: {out} is incomplete; evaluate the campaign again")
-        with open(path, newline="") as f:
-            for row in csv.DictReader(f):
-                key = (run, int(row["step"]), row["selector"])
-                returns.setdefault(key, []).append(float(row["return"]))
-                flag, count = row.get("physics_unstable"), unstable.get(key, 0)
-                unstable[key] = None if not flag or count is None else count + int(flag)
-                end, counts = row.get("end"), ends.setdefault(key, collections.Counter())
-                if not end or counts is None:
-                    ends[key] = None
-                else:
-                    counts[end] += 1
-    return settings, returns, unstable, ends
+        by_step = rows_by_step(path, EPISODES_HEADER, OLD_EPISODES_HEADERS)
+        if by_step is None:
+            fail(f"{path} does not start with a header evaluate.py writes; restore it")
+        for step, rows in by_step.items():
+            for row in rows:
+                episodes.setdefault((run, step, row[1]), []).append(row)
+    return settings, episodes
 
 
-def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> list[dict]:
-    """Per run, step and action: the mean return and its standard error over the episodes,
-    the paired difference against tanh(mu) from the same starts with its standard error and,
-    where any episode of the campaign records it, unstable_ends: the episodes a physics blow-up
-    ended, and end_<why>: the episodes that ended each way (eval_rounds.episode_end; None where
-    not recorded). A folder of older files only keeps its summary as it was."""
-    recorded = any(v is not None for v in unstable.values())
-    reasons = sorted({why for counts in ends.values() if counts for why in counts})
+def per_seed_rows(settings: dict, episodes: dict[tuple[str, int, str], list[list[str]]]
+                  ) -> list[dict]:
+    """unstable_ends and end_<why> only where some episode records them: a folder of older
+    files keeps its summary as it was."""
+    column = {c: EPISODES_HEADER.index(c) for c in ("return", "physics_unstable", "end")}
+
+    def recorded(rows: list[list[str]], name: str) -> list[str] | None:
+        cells = [row[column[name]] for row in rows]
+        return cells if all(cells) else None  # an empty cell: not recorded
+
+    returns = {key: np.array([float(row[column["return"]]) for row in rows])
+               for key, rows in episodes.items()}
+    any_unstable = any(recorded(rows, "physics_unstable") for rows in episodes.values())
+    reasons = sorted({why for rows in episodes.values() for why in recorded(rows, "end") or ()})
     rows, order = [], {s: i for i, s in enumerate(settings["selectors"])}
     for (run, step, action), values in sorted(returns.items(),
                                                 key=lambda kv: (*kv[0][:2], order[kv[0][2]])):
-        values = np.array(values)
         row = {"env_id": settings["runs"][run]["env_id"], "run": run,
                "seed": settings["runs"][run]["seed"], "step": step, "selector": action,
                "episodes": len(values), "return_mean": values.mean(),
@@ -894,9 +794,11 @@ def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> 
             row |= {"tanh_mu_return_mean": float(np.mean(baseline)),
                     "difference_mean": diffs.mean(), "difference_se": stats.standard_error(diffs),
                     "share_better": float(np.mean(diffs > 0))}
-        if recorded:
-            row["unstable_ends"] = unstable.get((run, step, action))
-        counts = ends.get((run, step, action))
+        flags, ends = (recorded(episodes[run, step, action], c)
+                       for c in ("physics_unstable", "end"))
+        if any_unstable:
+            row["unstable_ends"] = None if flags is None else sum(map(int, flags))
+        counts = None if ends is None else collections.Counter(ends)
         row |= {f"end_{why}": None if counts is None else counts[why] for why in reasons}
         rows.append(row)
     return rows
@@ -904,29 +806,21 @@ def per_seed_rows(settings: dict, returns: dict, unstable: dict, ends: dict) -> 
 
 def write_rows(path: Path, rows: list[dict]) -> None:
     columns = list(dict.fromkeys(k for row in rows for k in row))
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, columns)
-        writer.writeheader()
-        writer.writerows({k: repr(float(v)) if isinstance(v, float) else v for k, v in row.items()}
-                         for row in rows)
+    write_text_atomically(path, csv_text([columns, *(
+        [repr(float(v)) if isinstance(v, float) else v for v in map(row.get, columns)]
+        for row in rows)]))
 
 
 def summarize_campaign(out: Path) -> None:
-    """From the CSVs under out: per_seed.csv and summary.md (printed). Everything across seeds
-    is analyze.py's (`analyze.py RUNS --robust OUT`). The precision check: each seed's paired
-    difference should have a standard error below PRECISION of tanh(mu)'s mean return."""
-    settings, returns, unstable, ends = read_campaign(out)
-    per_seed = per_seed_rows(settings, returns, unstable, ends)
+    """per_seed.csv and summary.md from the CSVs; across seeds is analyze.py's (--robust)."""
+    settings, episodes = read_campaign(out)
+    per_seed = per_seed_rows(settings, episodes)
     write_rows(out / "per_seed.csv", per_seed)
     text = campaign_markdown(settings, per_seed)
-    (out / "summary.md").write_text(text)
+    write_text_atomically(out / "summary.md", text)
     print(text, end="")
     print(f"wrote {out / 'summary.md'} and per_seed.csv; across seeds: analyze.py RUNS "
           f"--robust {out}")
-
-
-def _num(x: float, digits: int = 1) -> str:
-    return "n/a" if x is None or math.isnan(x) else f"{x:+.{digits}f}"
 
 
 def _count(ends: dict, row: dict, action: str) -> str:
@@ -944,8 +838,6 @@ def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
              f"from the run's seed, round {settings['eval_round']}; reset noise on qpos: "
              f"{'the task' + chr(39) + 's own' if noise is None else f'+-{noise}'}). "
              f"{settings['seconds']:.0f} s of evaluation. Across seeds: analyze.py --robust.", ""]
-    # Blow-up counts only where some episodes.csv records them: an older folder's summary
-    # stays as it was.
     ends = {(r["run"], r["step"], r["selector"]): r["unstable_ends"] for r in per_seed
             if "unstable_ends" in r}
     lines += ["## Per seed", "",
@@ -962,13 +854,14 @@ def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
     for r in per_seed:
         if "difference_mean" not in r:
             continue
+        d = r["difference_mean"]
         share = r["difference_se"] / abs(r["tanh_mu_return_mean"]) \
             if r["tanh_mu_return_mean"] else math.inf
         if not share < PRECISION:
             failed.append(f"seed {r['seed']} step {r['step']} {r['selector']}")
         lines.append(f"| {r['env_id']} | {r['seed']} | {r['step']} | {r['selector']} | "
                      f"{r['return_mean']:.1f} | {r['tanh_mu_return_mean']:.1f} | "
-                     f"{_num(r['difference_mean'])} | {r['difference_se']:.1f} | "
+                     f"{'n/a' if math.isnan(d) else f'{d:+.1f}'} | {r['difference_se']:.1f} | "
                      f"{stats.verdict(r['difference_mean'], r['difference_se'])} | "
                      f"{share:.1%} | {r['share_better']:.0%} |"
                      + (f" {_count(ends, r, r['selector'])} / {_count(ends, r, 'tanh_mu')} |"
@@ -1004,15 +897,20 @@ def main(argv: list[str] | None = None) -> None:
     seeds = eval_seeds(args.seed, args.eval_round, args.episodes)
     check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
     actions = list(dict.fromkeys(args.selectors))
-    workers = len(os.sched_getaffinity(0)) if args.workers is None else args.workers
     jobs = make_jobs(actor, critic, env_id, seeds, actions, args)
-    results, shift = merge(run_jobs(jobs, workers, progress_bar(" ".join(actions), len(seeds))),
-                           actions)
+    results, shift = merge(run_jobs(jobs, args.workers, " ".join(actions)), actions)
     summary = summarise(results, shift, args, info, env_id,
                         distinct_starts(env_id, seeds, args.reset_noise))
     print_summary(summary)
     if args.out:
-        write_outputs(args.out, results, seeds, summary)
+        try:
+            args.out.mkdir(parents=True, exist_ok=True)
+            write_text_atomically(args.out / "episodes.csv", csv_text(
+                [EPISODE_COLUMNS, *episode_rows(results, seeds)]))
+            write_text_atomically(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
+        except OSError as error:
+            fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable "
+                 "folder")
         print(f"\nwrote {args.out / 'episodes.csv'} and {args.out / 'summary.json'}")
 
 
