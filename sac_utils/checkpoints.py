@@ -212,7 +212,8 @@ def restart_from_snapshot(run_dir: Path, refill: int) -> dict:
              "(a restart from a snapshot is for a run whose checkpoint is lost)")
     config = read_config_json(run_dir, "give a run folder made by sac_standard.py or "
                               "sac_corrected.py", "restore it from a copy")
-    snapshots = sorted(run_dir.glob("snapshots/step*.pt"), key=lambda p: int(p.stem[4:]))
+    snapshots = sorted((p for p in run_dir.glob("snapshots/step*.pt")
+                        if p.stem.removeprefix("step").isdigit()), key=lambda p: int(p.stem[4:]))
     if not snapshots:
         fail(f"{run_dir} has no snapshots/step<N>.pt to restart from; --resume {run_dir} "
              "restarts it from step 0")
