@@ -161,17 +161,23 @@ def _plot_action_bias(plt):
                 "tanh($\\mu$) (Standard SAC)",
             ),
         ]
-        for x, p, color, label in points:
+        # Each value where no curve passes: the Gaussian's mode below and outward, the mode of y
+        # outward of its peak, tanh(mu) inward, where y's density has already fallen.
+        offsets = ((10, -14), (9, -3), (-9, -3))
+        for (x, p, color, label), (dx, dy) in zip(points, offsets, strict=True):
             ax.plot(x, p, "o", color=color, ms=8, mec="k", zorder=3, label=label if first else None)
-            outward = 1 if x > 0 else -1
+            side = (1 if x > 0 else -1) * (1 if dx > 0 else -1)
             ax.annotate(
                 f"{x:.3f}",
                 (x, p),
-                xytext=(9 * outward, -3),
+                xytext=(abs(dx) * side, dy),
                 textcoords="offset points",
-                ha="left" if x > 0 else "right",
+                ha="left" if side > 0 else "right",
+                va="center",
                 fontsize=8,
                 color=color,
+                bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.85),
+                zorder=4,
             )
     _style_density_axes(ax, "Action bias at $\\mu$ = $\\pm$1, $\\sigma$ = 0.5")
     ax.set_ylim(0, 3.3)
