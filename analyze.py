@@ -1418,8 +1418,8 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
                               values.size, rounds, *seed_cells(values, estimate, 1),
                               f"{won} of {values.size}"])
     lines += ["", "Per seed, the difference averaged over the last "
-              + " / ".join(map(str, LAST_ROUNDS)) + " shared rounds up to the scored step "
-              "(one round is one draw of the evaluation noise), then over seeds as above; "
+              + " and the last ".join(map(str, LAST_ROUNDS)) + " shared rounds up to the scored "
+              "step (one round is one draw of the evaluation noise), then over seeds as above; "
               "beside it the scored step's own.", "",
               markdown_table(["task", "algorithm", "action", "seeds", "rounds",
                               "return difference (bootstrap CI)", "t-interval", "won"], table)]
@@ -1700,7 +1700,8 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
              "Each policy (final weights or a snapshot) played every action from the same noisy "
              "starts, episode by episode. Per seed, the mean over its episodes of the action's "
              "return minus tanh(mu)'s; over seeds, the mean with its 95% t-interval and rliable's "
-             f"bootstrap ({args.reps:,} replications). 'won': seeds above zero; 'ahead / level / "
+             f"bootstrap ({args.reps:,} replications). 'return': the mean over seeds of each "
+             "seed's mean return; 'won': seeds above zero; 'ahead / level / "
              f"behind': seeds more than {stats.VERDICT_SE:g} standard errors of their paired "
              "episodes above zero, within, or below."]
     seeds = [d.size for steps in by_task.values() for at in steps.values()
