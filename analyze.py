@@ -3,36 +3,20 @@
     python analyze.py runs/ --out report/
     python analyze.py runs/ --out report/ --robust robust/   # with evaluate.py's campaign
 
-Finds every run folder (a `config.json` next to an `eval.csv`, at any depth), groups the runs by
-task, algorithm and seed, aligns them on the evaluation steps they share, normalises the scores
-per task and hands them to rliable: stratified-bootstrap interval estimates of the aggregate
-IQM / median / mean / optimality gap, performance profiles, sample-efficiency curves and the
-probability of improvement. Runs of sac_corrected.py also carry the paired evaluation of the
-same actor with tanh(mu) on the same start states; the two scripts make the same training
-decisions for a seed, so that evaluation is the standard run of the seed: where a task has no
-sac_standard.py runs, it stands in for them ("Standard SAC (tanh(mu), paired)"), and where it
-has both, they are checked to agree. Runs made with `--eval-selectors` carry further paired
-evaluations of the same actor: the mean of the squashed policy, the critic's pick (q_best), and
-for a standard run the mode. The headline is the paired analysis: per seed, each evaluation
-action minus tanh(mu) of the same actor, per task and over tasks.
+Every run folder (config.json beside eval.csv, at any depth) is grouped by task, (algorithm,
+action) and seed, aligned on the evaluation steps its task's runs share and scored per task.
+The headline is paired: per seed, each evaluation action (the mode, the mean, q_best) minus
+tanh(mu) of the same actor from the same start states. A sac_corrected.py run's tanh(mu)
+evaluation is the standard run of its seed (both scripts make the same training decisions), so
+it stands in for missing sac_standard.py runs and is checked against present ones. Then the
+paper's unpaired rliable statistics: IQM / median / mean / optimality gap, performance
+profiles, sample efficiency, probability of improvement.
 
-The file, top to bottom (docs/analyze.md maps each figure to its section and function):
-
-- What to edit: SUCCESS_BARS (a task's success bar) and ACTIONS (an action the same
-  actor is also evaluated with). Adding either is one entry there; every report follows.
-- The data layer: load -> pair -> align -> paired differences -> normalise, run folders in,
-  arrays out; and --robust's evaluate.py folders, read into episodes and per-seed paired
-  differences. It writes no report.
-- Shared tools: the rliable estimators (and the Student-t interval beside them), the report
-  writer (summary.csv rows, summary.md sections, figures, group labels and colours) and the
-  paper's Figures 6-8 as rliable draws them (from the protocol and the robust evaluation).
-- One section per report, in the order summary.md prints them, each with its computation, its
-  figure and its table: the header and where the standard numbers come from; the paired
-  difference (the headline); the robust evaluation (--robust: the headline from evaluate.py's
-  many noisy starts per seed); over training; q_best's choices; reward curves and final returns;
-  aggregate metrics; performance profiles; sample efficiency; probability of improvement; the
-  dimension study. A section calls the data layer and the shared tools, never another section.
-- The pipeline: analyze() runs the data layer once and then REPORT_SECTIONS in order.
+Top to bottom (docs/analyze.md maps each figure to its code): what to edit (SUCCESS_BARS,
+ACTIONS, COLORS); the data layer (load -> pair -> align -> paired differences -> normalise; the
+--robust folders), which writes no report; the shared tools (estimators, labels and colours,
+the paper's figures, the headline figure); one section per report, in summary.md's order, each
+calling the data layer and the shared tools, never another section; the pipeline.
 """
 
 from __future__ import annotations
@@ -1433,11 +1417,10 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
                 table.append([task, labels.algorithm(group[0]), group[1],
                               values.size, rounds, *seed_cells(values, estimate, 1),
                               f"{won} of {values.size}"])
-    lines += ["", "Averaged over the last rounds: per seed, the difference averaged over the "
-              "last " + " and the last ".join(map(str, LAST_ROUNDS)) + " shared evaluation "
-              "rounds up to the scored step, then the mean over seeds (bootstrap CI and "
-              "t-interval as above); 'won': seeds whose average is positive. Beside it, the "
-              "scored step's own difference.", "",
+    lines += ["", "Per seed, the difference averaged over the last "
+              + " and the last ".join(map(str, LAST_ROUNDS)) + " shared rounds up to the scored "
+              "step (one round is one draw of the evaluation noise), then over seeds as above; "
+              "beside it the scored step's own.", "",
               markdown_table(["task", "algorithm", "action", "seeds", "rounds",
                               "return difference (bootstrap CI)", "t-interval", "won"], table)]
     k = LAST_ROUNDS[0]
@@ -1488,23 +1471,17 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
                           group[1], n, *seed_cells(diffs, values, 1),
                           seed_cells(diffs / scale, scaled)[0], f"{won} of {n}"])
     seeds = [d.size for by_group in differences.values() for d in by_group.values()]
-    lines = ["Per seed, at each task's scored step: the return of an evaluation action minus "
-             "that of tanh(mu), same actor, same start states: the mode (Corrected SAC's own "
-             "action; a standard run's `mode_` columns), the mean of the squashed policy, and "
-             "q_best, the one of mode / tanh(mu) / mean the critic prefers. Mean over seeds with "
-             "rliable's 95% bootstrap CI and, beside it, the 95% t-interval (mean +- "
-             "t_{n-1, 0.975} sd / sqrt(n)); with two seeds, the two values. 'won': seeds where "
-             "the difference is positive. A CI that includes zero does not tell the actions "
-             "apart."]
+    lines = ["Per seed, at each task's scored step: an action's return minus tanh(mu)'s, same "
+             "actor, same start states (q_best: the critic's pick of mode / tanh(mu) / mean). "
+             "Mean over seeds with rliable's 95% bootstrap CI and the 95% t-interval (two "
+             "seeds: the two values); 'won': seeds above zero."]
     if min(seeds) <= FEW_SEEDS:
         lines += ["", f"With {FEW_SEEDS} seeds or fewer a percentile bootstrap CI is narrower "
-                  "than the data allow (it resamples only the few values seen): read the "
-                  "t-interval (with two seeds, the two values)."]
+                  "than the data allow: read the t-interval."]
     for task in one_episode:
         lines += ["", f"{task}: each seed's evaluation at "
-                  f"{format_step(tasks[task].scored_step)} is one episode (eval.csv's "
-                  "`distinct_episodes` = 1: the task resets without noise), so each seed's "
-                  "difference is one draw of that episode's noise."]
+                  f"{format_step(tasks[task].scored_step)} is one episode (`distinct_episodes` "
+                  "= 1: no reset noise), one draw of that episode's noise."]
     lines += ["", markdown_table(["task", "step", "algorithm", "action", "seeds",
                                   "return difference (bootstrap CI)", "t-interval",
                                   "score difference (bootstrap CI)", "won"], table)]
@@ -1649,13 +1626,10 @@ def robust_over_tasks(report: Report, analysis: Analysis,
     actions = [a for a in by_task[tasks[0]][step].returns
                if all(a in by_task[t][step].returns for t in tasks)]
     seeds = min(by_task[t][step].returns[a].size for t in tasks for a in actions)
-    lines = [f"Over {counted(len(tasks), 'task')} at {format_step(step)}, "
-             "each divided by its success "
-             f"bar ({', '.join(f'{t} {SUCCESS_BARS[t]:g}' for t in tasks)}); {seeds} seeds per "
-             "task (the lowest, where tasks have more). Difference: mean over tasks of the mean "
-             "over seeds, rliable's stratified bootstrap CI (seeds resampled within each task) "
-             "and Welch's t-interval; returns: the paper's aggregate metrics, stratified "
-             "bootstrap CIs.", ""]
+    lines = [f"Over {counted(len(tasks), 'task')} at {format_step(step)}, each divided by its "
+             f"success bar ({', '.join(f'{t} {SUCCESS_BARS[t]:g}' for t in tasks)}), {seeds} "
+             "seeds per task: the difference's mean over tasks with rliable's stratified "
+             "bootstrap CI and Welch's t-interval; the returns' aggregate metrics.", ""]
     scores = {a: np.stack([by_task[t][step].returns[a][:seeds] / SUCCESS_BARS[t]
                            for t in tasks], axis=1) for a in actions}
     over = RobustOverTasks(step, tasks, {}, {}, {}, scores, interval_estimates(
@@ -1723,26 +1697,22 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     print(f"robust evaluation ({args.reps:,} reps) ...")
     table, estimates = robust_per_task(report, analysis, by_task)
     lines = ["From evaluate.py's campaign folders:", *robust_settings_lines(robust), "",
-             "Each policy (a run's final weights or a snapshot) played every action from the same "
-             "noisy starts: episode k of each action starts from the same state. Per seed: the "
-             "mean over its episodes of the action's return minus tanh(mu)'s (paired episode by "
-             "episode); then the mean over seeds with Student's 95% t-interval and, beside it, "
-             f"rliable's 95% percentile bootstrap over seeds ({args.reps:,} replications). "
-             "'return': the mean over seeds of each seed's mean return. 'won': seeds whose "
-             "difference is positive; 'ahead / level / behind': seeds whose difference is more "
-             f"than {stats.VERDICT_SE:g} standard errors of its paired episodes above zero, "
-             "within, or below."]
+             "Each policy (final weights or a snapshot) played every action from the same noisy "
+             "starts, episode by episode. Per seed, the mean over its episodes of the action's "
+             "return minus tanh(mu)'s; over seeds, the mean with its 95% t-interval and rliable's "
+             f"bootstrap ({args.reps:,} replications). 'return': the mean over seeds of each "
+             "seed's mean return; 'won': seeds above zero; 'ahead / level / "
+             f"behind': seeds more than {stats.VERDICT_SE:g} standard errors of their paired "
+             "episodes above zero, within, or below."]
     seeds = [d.size for steps in by_task.values() for at in steps.values()
              for d in at.differences.values()]
     if seeds and min(seeds) <= FEW_SEEDS:
         lines += ["", f"With {FEW_SEEDS} seeds or fewer the percentile bootstrap is narrower "
-                  "than the data allow (it resamples only the few values seen): read the "
-                  "t-interval (with two seeds, the two values)."]
+                  "than the data allow: read the t-interval."]
     recorded = blowups_recorded(by_task)
     if recorded:
-        lines += ["", "'blow-ups': the action's episodes, over its seeds, that a physics blow-up "
-                  "ended (MuJoCo's instability warning; the return is what was earned until "
-                  "then). n/r: not recorded (evaluated before episodes.csv had physics_unstable)."]
+        lines += ["", "'blow-ups': episodes over the seeds that a physics blow-up ended (the "
+                  "return is what was earned until then); n/r: not recorded."]
     lines += ["", markdown_table(["task", "step", "action", "seeds", "episodes per seed",
                                   "return", "minus tanh(mu) (bootstrap CI)", "t-interval",
                                   "won", "ahead / level / behind",
@@ -1976,13 +1946,10 @@ def report_over_training(report: Report, analysis: Analysis) -> None:
     shifts = shift_curves(runs, tasks)
     report.figure(plot_over_training(tasks, differences, estimates, shifts, analysis.colors,
                                      analysis.labels), "over_training")
-    lines = ["Per seed, at every step all runs of a task share: each evaluation action's return "
-             "minus tanh(mu)'s, same actor, same start states; mean over seeds with a 95% "
-             f"bootstrap CI ({args.curve_reps:,} replications) and the 95% t-interval (with two "
-             "seeds, the two values); then the measured shift over the "
-             "states the mode policy visited (mean over runs). Every step is in summary.csv "
-             "(sections `paired_over_training`, `shift_over_training`); the table shows "
-             f"{OVER_TRAINING_TABLE_STEPS} of them, evenly spaced.", ""]
+    lines = ["At every step a task's runs share: the paired difference as in the headline "
+             f"(bootstrap CI, {args.curve_reps:,} replications, and t-interval), and the shift "
+             "measured at the states the mode policy visited (mean over runs). summary.csv has "
+             f"every step; the table {OVER_TRAINING_TABLE_STEPS} of them.", ""]
     for task, by_group in differences.items():
         steps = tasks[task].steps
         shown = np.unique(np.linspace(0, steps.size - 1, OVER_TRAINING_TABLE_STEPS).round()
