@@ -93,10 +93,14 @@ def is_own(key: Key) -> bool:
     return key[1] == own_action(key[0])
 
 
+def eval_suffix(key: Key) -> str:
+    """What a group's name adds to its algorithm's: "" for its own action, " (mean eval)"."""
+    return "" if is_own(key) else f" ({ACTIONS.get(key[1], key[1])} eval)"
+
+
 def group_name(key: Key) -> str:
     """summary.csv's group: "corrected", "corrected (mean eval)"."""
-    algorithm, action = key
-    return algorithm if is_own(key) else f"{algorithm} ({ACTIONS.get(action, action)} eval)"
+    return key[0] + eval_suffix(key)
 
 
 # ------------------------------------------------------------------------- the run-folder format
@@ -957,22 +961,23 @@ class GroupLabels:
     standard: str = STANDARD_LABEL
 
     def __call__(self, key: Key) -> str:
-        algorithm, action = key
-        return self.algorithm(algorithm) + (
-            "" if is_own(key) else f" ({ACTIONS.get(action, action)} eval)")
+        return self.algorithm(key[0]) + eval_suffix(key)
 
     def algorithm(self, algorithm: str) -> str:
         return self.standard if algorithm == STANDARD else \
             ALGORITHM_LABELS.get(algorithm, algorithm)
 
+    def action_first(self, key: Key) -> str:
+        """"mean (Corrected SAC)": where the figure's series are actions."""
+        return f"{key[1]} ({self.algorithm(key[0])})"
+
 
 def group_colors(groups: list[Key]) -> dict[Key, tuple]:
     """Each group's colour: its fixed one, else a free one of the palette, else a dark one."""
     palette = sns.color_palette("colorblind", n_colors=10)
-    fixed = COLORS
-    extra = iter(c for i, c in enumerate(palette) if i not in fixed.values())
+    extra = iter(c for i, c in enumerate(palette) if i not in COLORS.values())
     cycle = iter(sns.color_palette("dark", n_colors=max(len(groups), 1)))
-    return {g: palette[fixed[g]] if g in fixed else next(extra, None) or next(cycle)
+    return {g: palette[COLORS[g]] if g in COLORS else next(extra, None) or next(cycle)
             for g in groups}
 
 
@@ -1170,6 +1175,18 @@ def draw_seed_summary(ax, x: float, width: float, cell: PairedCell, color: tuple
                     t_values[0]]], color=color, lw=1.5, capsize=3, zorder=4)
 
 
+def over_tasks_cell(matrix: np.ndarray, boot: Sequence[float], t_values: Sequence[float],
+                    shapes: dict[str, str]) -> PairedCell:
+    """The cell of a (seeds, tasks) matrix, its tasks in `shapes`' order, each task's seeds
+    drawn with that task's marker."""
+    return PairedCell(matrix.T.ravel(), boot, t_values,
+                      markers=[m for m in shapes.values() for _ in range(matrix.shape[0])])
+
+
+def task_markers(tasks: Sequence[str]) -> dict[str, str]:
+    return dict(zip(tasks, "osD^vP*X", strict=False))
+
+
 def summary_range(cells: Sequence[PairedCell]) -> tuple[float, float]:
     """A y-range that holds the estimates' intervals, zero and the middle 90% of the seeds'
     dots: one seed's outlier does not set it."""
@@ -1341,7 +1358,7 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
     difference_over_tasks."""
     args, norms, labels = analysis.args, analysis.norms, analysis.labels
     lines, cells = [], {}
-    shapes = dict(zip(differences, "osD^vP*X", strict=False))
+    shapes = task_markers(list(differences))
     found = {group for by_group in differences.values() for group in by_group}
     for key in sorted(found, key=group_rank):
         per_task = {t: d[key] / norms[t][1] for t, d in differences.items() if key in d}
@@ -1364,8 +1381,8 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
                   f"stratified bootstrap CI), t-interval [{t_values[1]:.3f}, "
                   f"{t_values[2]:.3f}] (Welch, the tasks' seeds independent); the {action} won "
                   f"in {won} of {pairs} (task, seed) pairs."]
-        cells[0, key] = PairedCell(scores.T.ravel(), boot, t_values,
-                                   markers=[shapes[t] for t in per_task for _ in range(seeds)])
+        cells[0, key] = over_tasks_cell(scores, boot, t_values,
+                                        {t: shapes[t] for t in per_task})
     if not cells:
         return lines, None
     name = SCORE_NAMES[args.normalize].lower()
@@ -1505,7 +1522,7 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
         reference = (float(data.scored(baseline).mean()), f"at {format_step(step)}")
         rows.append(PairedRow(task, ticks, cells, "return minus tanh(mu)'s", reference))
     keys = list(dict.fromkeys(g for by_group in differences.values() for g in by_group))
-    names = {g: f"{g[1]} ({labels.algorithm(g[0])})" for g in keys}
+    names = {g: labels.action_first(g) for g in keys}
     report.figure(plot_paired(rows + ([over] if over else []), analysis.colors, names,
                               "the training log's evaluation rounds"), "paired_difference")
     report.section("Headline: paired difference, each evaluation action minus tanh(mu) of the "
@@ -1743,9 +1760,9 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
         rows.append(PairedRow(task, ticks, cells, "return minus tanh(mu)'s", reference))
     if over is not None:
         seeds = next(iter(over.values.values())).shape[0]
-        shapes = dict(zip(over.tasks, "osD^vP*X", strict=False))
-        cells = {(0, a): PairedCell(v.T.ravel(), over.bootstrap[a], over.t[a], markers=[
-            shapes[t] for t in over.tasks for _ in range(seeds)]) for a, v in over.values.items()}
+        shapes = task_markers(over.tasks)
+        cells = {(0, a): over_tasks_cell(v, over.bootstrap[a], over.t[a], shapes)
+                 for a, v in over.values.items()}
         rows.append(PairedRow(f"Over {counted(len(over.tasks), 'task')} at "
                               f"{format_step(over.step)}, each divided by its success bar",
                               [f"{seeds} seeds per task"], cells, "difference / success bar",
@@ -1889,7 +1906,7 @@ def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dic
         for group, diffs in differences.get(task, {}).items():
             mean, (low, high) = estimates[task][group]
             seeds.add(diffs.shape[0])
-            name = f"{group[1]} ({labels.algorithm(group[0])})"
+            name = labels.action_first(group)
             if rolling:  # a round is one draw of the evaluation noise: the trend needs a window
                 ax.plot(x, mean, color=colors[group], lw=0.7, alpha=0.45)
                 window = np.convolve(mean, np.ones(ROLLING_ROUNDS) / ROLLING_ROUNDS, "valid")
