@@ -761,9 +761,10 @@ def read_campaign(out: Path) -> tuple[dict, dict[tuple[str, int, str], list[list
         by_step = rows_by_step(path, EPISODES_HEADER, OLD_EPISODES_HEADERS)
         if by_step is None:
             fail(f"{path} does not start with a header evaluate.py writes; restore it")
+        selector = EPISODES_HEADER.index("selector")
         for step, rows in by_step.items():
             for row in rows:
-                episodes.setdefault((run, step, row[1]), []).append(row)
+                episodes.setdefault((run, step, row[selector]), []).append(row)
     return settings, episodes
 
 
@@ -779,8 +780,10 @@ def per_seed_rows(settings: dict, episodes: dict[tuple[str, int, str], list[list
 
     returns = {key: np.array([float(row[column["return"]]) for row in rows])
                for key, rows in episodes.items()}
-    any_unstable = any(recorded(rows, "physics_unstable") for rows in episodes.values())
-    reasons = sorted({why for rows in episodes.values() for why in recorded(rows, "end") or ()})
+    flags = {key: recorded(rows, "physics_unstable") for key, rows in episodes.items()}
+    ends = {key: recorded(rows, "end") for key, rows in episodes.items()}
+    any_unstable = any(cells is not None for cells in flags.values())
+    reasons = sorted({why for cells in ends.values() for why in cells or ()})
     rows, order = [], {s: i for i, s in enumerate(settings["selectors"])}
     for (run, step, action), values in sorted(returns.items(),
                                                 key=lambda kv: (*kv[0][:2], order[kv[0][2]])):
@@ -794,11 +797,10 @@ def per_seed_rows(settings: dict, episodes: dict[tuple[str, int, str], list[list
             row |= {"tanh_mu_return_mean": float(np.mean(baseline)),
                     "difference_mean": diffs.mean(), "difference_se": stats.standard_error(diffs),
                     "share_better": float(np.mean(diffs > 0))}
-        flags, ends = (recorded(episodes[run, step, action], c)
-                       for c in ("physics_unstable", "end"))
+        key = (run, step, action)
         if any_unstable:
-            row["unstable_ends"] = None if flags is None else sum(map(int, flags))
-        counts = None if ends is None else collections.Counter(ends)
+            row["unstable_ends"] = None if flags[key] is None else sum(map(int, flags[key]))
+        counts = None if ends[key] is None else collections.Counter(ends[key])
         row |= {f"end_{why}": None if counts is None else counts[why] for why in reasons}
         rows.append(row)
     return rows
