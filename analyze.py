@@ -33,19 +33,32 @@ from pathlib import Path
 from typing import Literal
 
 import matplotlib
-import matplotlib.pyplot as plt
 import numpy as np
+import pandas as pd
 import scipy.stats
 import seaborn as sns
 import tyro
-from matplotlib.patches import Patch
 from rliable import library as rly
-from rliable import metrics, plot_utils
+from rliable import metrics
 
 from sac_utils import dimension_study as dimensions
 from sac_utils import stats
 from sac_utils.cli import broken_rule
 from sac_utils.dimension_study import SHIFT_COLUMNS, Dimension, training_fraction_steps
+from sac_utils.figures import (
+    PairedCell,
+    PairedRow,
+    over_tasks_cell,
+    plot_aggregate_metrics,
+    plot_over_training,
+    plot_paired,
+    plot_performance_profiles,
+    plot_probability_of_improvement,
+    plot_reward_curves,
+    plot_sample_efficiency,
+    profile_thresholds,
+    task_markers,
+)
 from sac_utils.report import Report, counted, format_ci, format_step, markdown_table, seed_cells
 from sac_utils.stats import CONFIDENCE, seed_mean_estimates, t_interval, welch_interval
 
@@ -580,36 +593,31 @@ def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
 
 
 # ------------------------------------------------------------- robust evaluation (evaluate.py)
-# evaluate.py's campaign folders (--robust): every policy (a run's final weights or snapshot)
-# played with each selector from the same many noisy starts, one row per episode. Episode k of
-# every selector starts from the same state, so the pairing is episode by episode.
+# evaluate.py's campaign folders (--robust): every policy (a run's final weights or a snapshot)
+# played each action from the same many noisy starts, and its per_seed.csv holds, per policy and
+# action, the mean return over the episodes and the mean and standard error of the paired
+# difference against tanh(mu) from the same starts. Everything across seeds is computed here.
 ROBUST_SETTINGS_FILE = "evaluation.json"
-ROBUST_EPISODES_FILE = "episodes.csv"
-# Read by name, the other columns passed over: folders from before evaluate.py added
-# physics_unstable (last) read as those after, their blow-ups "not recorded".
-ROBUST_COLUMNS = ("step", "selector", "episode", "return")  # of evaluate.py's EPISODE_COLUMNS
-ROBUST_UNSTABLE_COLUMN = "physics_unstable"  # 1: a physics blow-up ended the episode
-ROBUST_END_COLUMN = "end"  # why the episode ended (eval_rounds.episode_end); "" not recorded
+ROBUST_PER_SEED_FILE = "per_seed.csv"
+ROBUST_COLUMNS = ("env_id", "seed", "step", "selector", "episodes", "return_mean",
+                  "difference_mean", "difference_se")
+ROBUST_UNSTABLE_COLUMN = "unstable_ends"  # episodes a physics blow-up ended; empty: not recorded
+ROBUST_END_PREFIX = "end_"  # end_<why>: episodes that ended so (evaluate.py's `end`)
 
 
 @dataclasses.dataclass
-class RobustEpisodes:
-    """The --robust folders' episodes: (task, seed, step) -> selector -> returns in episode
-    order, and what each folder's evaluation.json says (episodes, reset noise, selectors)."""
+class Robust:
+    """The --robust folders: every per_seed.csv row, one per (task, seed, step, action), sorted
+    by task, step, action and seed; each folder's evaluation.json; the actions in the order the
+    evaluation.json files list them."""
 
-    returns: dict[tuple[str, int, int], dict[str, np.ndarray]]
-    selectors: list[str]  # every selector: the evaluation.json files' order, then any unlisted
+    rows: pd.DataFrame
     settings: dict[Path, dict]
-    # (task, seed, step) -> selector -> episodes a physics blow-up ended (None: not recorded)
-    unstable: dict[tuple[str, int, int], dict[str, int | None]] = dataclasses.field(
-        default_factory=dict)
-    # (task, seed, step) -> selector -> how its episodes ended (None: not recorded)
-    ends: dict[tuple[str, int, int], dict[str, collections.Counter | None]] = \
-        dataclasses.field(default_factory=dict)
+    actions: list[str]
 
 
-def read_robust_settings(folder: Path) -> dict:
-    """A --robust folder's evaluation.json, checked for its runs (run name -> env_id, seed)."""
+def read_robust_folder(folder: Path) -> tuple[dict, pd.DataFrame]:
+    """A --robust folder's evaluation.json and per_seed.csv, checked for what analyze.py reads."""
     path = folder / ROBUST_SETTINGS_FILE
     if not path.is_file():
         raise AnalysisError(
@@ -619,153 +627,90 @@ def read_robust_settings(folder: Path) -> dict:
         settings = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise AnalysisError(f"{path} is not valid JSON ({error}); evaluate again") from None
-    runs = settings.get("runs") if isinstance(settings, dict) else None
-    if not isinstance(runs, dict) or not all(
-            isinstance(run, dict) and isinstance(run.get("env_id"), str)
-            and isinstance(run.get("seed"), int) for run in runs.values()):
-        raise AnalysisError(f"{path}: 'runs' must map each run folder's name to its env_id "
-                            "and seed, as evaluate.py writes it")
-    return settings
-
-
-def read_episodes_csv(path: Path) -> tuple[
-        dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]],
-        dict[tuple[int, str], collections.Counter | None]]:
-    """A run's episodes.csv: step -> selector -> (episode numbers, returns, physics_unstable),
-    by episode, physics_unstable NaN where not recorded (an empty cell, or no column); and
-    (step, selector) -> how its episodes ended (None where an episode does not say)."""
+    path, again = folder / ROBUST_PER_SEED_FILE, f"`evaluate.py {folder}` writes it again"
     if not path.is_file():
-        raise AnalysisError(f"{path} is missing: {path.parent.parent} is incomplete; evaluate "
-                            "the campaign again")
-    with path.open(newline="", encoding="utf-8", errors="replace") as file:
-        rows = [row for row in csv.reader(file) if row]
-    header = [name.strip() for name in rows[0]] if rows else []
-    missing = [name for name in ROBUST_COLUMNS if name not in header]
-    if missing:
-        raise AnalysisError(f"{path}: its header {header} lacks {missing}; evaluate.py writes "
-                            f"{ROBUST_EPISODES_FILE} with at least {list(ROBUST_COLUMNS)}")
-    where = [header.index(name) for name in ROBUST_COLUMNS]
-    unstable_at = header.index(ROBUST_UNSTABLE_COLUMN) if ROBUST_UNSTABLE_COLUMN in header \
-        else None
-    end_at = header.index(ROBUST_END_COLUMN) if ROBUST_END_COLUMN in header else None
-    ends: dict[tuple[int, str], collections.Counter | None] = {}
-    found: dict[tuple[int, str], list[tuple[float, float, float]]] = {}
-    for i, row in enumerate(rows[1:], start=2):
-        if len(row) != len(header):
-            raise AnalysisError(f"{path}, row {i}: {len(row)} fields where the header has "
-                                f"{len(header)}; evaluate the campaign again")
-        step, selector, episode, value = (row[j].strip() for j in where)
-        number = functools.partial(_parse_number, path=path, row=i, optional=False)
-        flag = math.nan if unstable_at is None else _parse_number(
-            row[unstable_at], path, i, ROBUST_UNSTABLE_COLUMN, optional=True)
-        key = (int(number(step, column="step")), selector)
-        found.setdefault(key, []).append(
-            (number(episode, column="episode"), number(value, column="return"), flag))
-        end = "" if end_at is None else row[end_at].strip()
-        counts = ends.setdefault(key, collections.Counter())
-        if counts is not None:
-            ends[key] = counts + collections.Counter([end]) if end else None
-    by_step: dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
-    for (step, selector), rows_found in found.items():
-        episodes, returns, flags = np.array(sorted(rows_found)).T
-        by_step.setdefault(step, {})[selector] = (episodes, returns, flags)
-    return by_step, ends
-
-
-def load_robust(folders: Sequence[Path]) -> RobustEpisodes:
-    """Every --robust folder's episodes by task, seed, step and selector. Each selector must have
-    played the episodes tanh(mu) played (its baseline), and a (task, seed, step) may come from
-    one folder only."""
-    robust = RobustEpisodes({}, [], {})
-    sources: dict[tuple[str, int, int], Path] = {}
-    for folder in folders:
-        settings = read_robust_settings(folder)
-        robust.settings[folder] = settings
-        listed = settings.get("selectors")
-        robust.selectors += [s for s in listed if s not in robust.selectors] \
-            if isinstance(listed, list) else []
-        for run, info in settings["runs"].items():
-            path = folder / run / ROBUST_EPISODES_FILE
-            by_step, ends = read_episodes_csv(path)
-            if not by_step:
-                raise AnalysisError(f"{path} holds no episode; evaluate the campaign again")
-            for step, selectors in sorted(by_step.items()):
-                key = (info["env_id"], info["seed"], step)
-                if key in sources:
-                    raise AnalysisError(
-                        f"{key[0]}, seed {key[1]}, step {format_step(step)} is in two --robust "
-                        f"folders ({sources[key]} and {path}); pass each evaluation once")
-                sources[key] = path
-                robust.returns[key] = robust_selectors(path, step, selectors)
-                robust.unstable[key] = {s: None if np.isnan(flags).any() else int(flags.sum())
-                                        for s, (_, _, flags) in selectors.items()}
-                robust.ends[key] = {s: ends[step, s] for s in selectors}
-                robust.selectors += [s for s in selectors if s not in robust.selectors]
-    return robust
-
-
-def robust_selectors(path: Path, step: int,
-                     selectors: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
-                     ) -> dict[str, np.ndarray]:
-    """One policy's returns by selector, checked to be paired with its tanh(mu) episodes."""
-    if BASELINE not in selectors:
-        raise AnalysisError(
-            f"{path}: no {BASELINE} episodes at step {format_step(step)}; every action is "
-            f"compared with tanh(mu) of the same actor, so evaluate with --selectors ... "
-            f"{BASELINE}")
-    baseline = selectors[BASELINE][0]
-    for selector, (episodes, _, _) in selectors.items():
-        if not np.array_equal(episodes, baseline):
+        raise AnalysisError(f"{path} is missing: {again} from the runs' episodes.csv")
+    try:  # round_trip: the floats evaluate.py wrote, to the last bit
+        rows = pd.read_csv(path, float_precision="round_trip")
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as error:
+        raise AnalysisError(f"{path} is not a CSV ({str(error).splitlines()[0]}); "
+                            f"{again}") from None
+    missing = [name for name in ROBUST_COLUMNS if name not in rows.columns]
+    if missing or not isinstance(settings, dict):
+        raise AnalysisError(f"{path}: its header {list(rows.columns)} lacks {missing}; {again}")
+    for name in ("seed", "step", "episodes", "return_mean"):
+        if not pd.api.types.is_numeric_dtype(rows[name]) or rows[name].isna().any():
+            raise AnalysisError(f"{path}: column {name} holds something that is not a number; "
+                                f"{again}")
+    for (task, seed, step), policy in rows.groupby(["env_id", "seed", "step"]):
+        if BASELINE not in set(policy.selector):
             raise AnalysisError(
-                f"{path}, step {format_step(step)}: {selector} and {BASELINE} played "
-                "different episodes, so they are not paired; evaluate the campaign again")
-    return {selector: returns for selector, (_, returns, _) in selectors.items()}
+                f"{path}: no {BASELINE} episodes at step {format_step(step)} ({task}, seed "
+                f"{seed}); every action is compared with tanh(mu) of the same actor, so "
+                f"evaluate with --selectors ... {BASELINE}")
+    return settings, rows.assign(source=str(path))
+
+
+def load_robust(folders: Sequence[Path]) -> Robust:
+    """Every --robust folder's per-seed rows; a (task, seed, step) may come from one folder."""
+    settings, frames = {}, []
+    for folder in folders:
+        settings[folder], rows = read_robust_folder(folder)
+        frames.append(rows)
+    rows = pd.concat(frames, ignore_index=True)
+    twice = rows[rows.duplicated(["env_id", "seed", "step", "selector"], keep=False)]
+    if len(twice):
+        task, seed, step = twice.iloc[0][["env_id", "seed", "step"]]
+        sources = " and ".join(twice[(twice.env_id == task) & (twice.seed == seed)
+                                     & (twice.step == step)].source.unique())
+        raise AnalysisError(f"{task}, seed {seed}, step {format_step(step)} is in two --robust "
+                            f"folders ({sources}); pass each evaluation once")
+    listed = [a for s in settings.values() if isinstance(s.get("selectors"), list)
+              for a in s["selectors"]]
+    actions = list(dict.fromkeys([*listed, *rows.selector]))
+    rows = rows.assign(order=rows.selector.map(actions.index)).sort_values(
+        ["env_id", "step", "order", "seed"], ignore_index=True)
+    return Robust(rows, settings, actions)
 
 
 @dataclasses.dataclass
 class RobustStep:
-    """One task's robust evaluation at one step, one value per seed (in seed order)."""
+    """One task's robust evaluation at one step: per action, one value per seed (seed order)."""
 
-    seeds: dict[str, list[int]]  # selector -> the seeds that played it
-    returns: dict[str, np.ndarray]  # selector -> mean return over each seed's episodes
-    differences: dict[str, np.ndarray]  # selector but tanh_mu -> mean of (it - tanh_mu) per seed
+    returns: dict[str, np.ndarray]  # mean return over each seed's episodes
+    differences: dict[str, np.ndarray]  # all but tanh_mu: mean of (it - tanh_mu) per episode
+    errors: dict[str, np.ndarray]  # the standard errors of those paired episodes
+    verdicts: dict[str, list[str]]  # stats.verdict per seed
     episodes: np.ndarray  # episodes per seed (of tanh_mu, which every seed played)
-    # selector -> episodes a physics blow-up ended, over its seeds (None: a seed did not record),
-    # and the episodes it played over its seeds
-    unstable: dict[str, int | None] = dataclasses.field(default_factory=dict)
-    played: dict[str, int] = dataclasses.field(default_factory=dict)
-    # selector -> stats.verdict per seed, and how its episodes ended over its seeds (None: a
-    # seed did not record it)
-    verdicts: dict[str, list[str]] = dataclasses.field(default_factory=dict)
-    errors: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # per seed, its SE
-    ends: dict[str, collections.Counter | None] = dataclasses.field(default_factory=dict)
+    played: dict[str, int]  # episodes over the seeds
+    unstable: dict[str, int | None]  # of those, ended by a physics blow-up (None: not recorded)
+    ends: dict[str, collections.Counter | None]  # how they ended (None: not recorded)
 
 
-def robust_paired_differences(robust: RobustEpisodes) -> dict[str, dict[int, RobustStep]]:
-    """task -> step -> RobustStep: per seed, the mean over its episodes of each selector's
-    return minus tanh(mu)'s from the same start (evaluate.py's difference_mean)."""
+def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]]:
+    """task -> step -> RobustStep, from the per-seed rows."""
     by_task: dict[str, dict[int, RobustStep]] = {}
-    for (task, seed, step), selectors in sorted(robust.returns.items()):
-        at = by_task.setdefault(task, {}).setdefault(step, RobustStep({}, {}, {}, np.empty(0)))
-        baseline = selectors[BASELINE]
-        at.episodes = np.append(at.episodes, baseline.size)
-        for selector in (s for s in robust.selectors if s in selectors):
-            at.seeds.setdefault(selector, []).append(seed)
-            ends, so_far = robust.unstable[task, seed, step][selector], at.unstable.get(selector, 0)
-            at.unstable[selector] = None if ends is None or so_far is None else so_far + ends
-            at.played[selector] = at.played.get(selector, 0) + baseline.size
-            at.returns[selector] = np.append(at.returns.get(selector, []),
-                                             selectors[selector].mean())
-            ended = robust.ends[task, seed, step][selector]
-            so_far = at.ends.get(selector, collections.Counter())
-            at.ends[selector] = None if ended is None or so_far is None else so_far + ended
-            if selector != BASELINE:
-                diffs = stats.paired_difference(selectors[selector], baseline)
-                at.differences[selector] = np.append(at.differences.get(selector, []),
-                                                     diffs.mean())
-                se = stats.standard_error(diffs)
-                at.errors[selector] = np.append(at.errors.get(selector, []), se)
-                at.verdicts.setdefault(selector, []).append(stats.verdict(diffs.mean(), se))
+    reasons = [c for c in robust.rows.columns if c.startswith(ROBUST_END_PREFIX)]
+    for (task, step), rows in robust.rows.groupby(["env_id", "step"], sort=False):
+        at = RobustStep({}, {}, {}, {}, rows[rows.selector == BASELINE].episodes.to_numpy(),
+                        {}, {}, {})
+        for action, seeds in rows.groupby("selector", sort=False):
+            at.returns[action] = seeds.return_mean.to_numpy()
+            at.played[action] = int(seeds.episodes.sum())
+            unstable = seeds.get(ROBUST_UNSTABLE_COLUMN)
+            at.unstable[action] = None if unstable is None or unstable.isna().any() \
+                else int(unstable.sum())
+            ends = seeds[reasons]
+            at.ends[action] = None if not reasons or ends.isna().any(axis=None) else \
+                collections.Counter({r.removeprefix(ROBUST_END_PREFIX): int(n)
+                                     for r, n in ends.sum().items() if n > 0})
+            if action != BASELINE:
+                at.differences[action] = seeds.difference_mean.to_numpy()
+                at.errors[action] = seeds.difference_se.to_numpy()
+                at.verdicts[action] = [stats.verdict(m, se) for m, se in
+                                       zip(at.differences[action], at.errors[action],
+                                           strict=True)]
+        by_task.setdefault(task, {})[int(step)] = at
     return by_task
 
 
@@ -952,7 +897,43 @@ def iqm_per_step(scores: np.ndarray) -> np.ndarray:
     return scipy.stats.trim_mean(scores.reshape(-1, scores.shape[-1]), 0.25, axis=0)
 
 
-# ------------------------------------------------------------------------- the report writer
+# ----------------------------------------------------- the paper's Figures 6-8, from any scores
+# The training log's final scores (7.-9.) and the robust evaluation's (3.) go through these.
+def figure_6(report: Report, scores: dict, names: Sequence[str], labels: Callable, colors: dict,
+             xlabel: str, note: str, name: str, args: Args) -> tuple[dict, dict]:
+    """Each group's `names` (AGGREGATE_METRICS, or its first three) of its (runs, tasks) scores
+    with rliable's stratified-bootstrap CIs (--reps), drawn as Figure 6."""
+    gap = len(names) == len(AGGREGATE_METRICS)
+    point, interval = interval_estimates(scores, functools.partial(aggregate_metrics, gap=gap),
+                                         args.reps, args.seed)
+    report.figure(plot_aggregate_metrics(point, interval, names, colors, xlabel, labels, note),
+                  name)
+    return point, interval
+
+
+def figure_7(report: Report, scores: dict, labels: Callable, colors: dict, xlabel: str,
+             title: str, name: str, args: Args) -> None:
+    """Performance profiles of each group's (runs, tasks) scores with rliable's CIs
+    (--curve-reps), drawn as Figure 7."""
+    taus = profile_thresholds(scores)
+    seed_bootstrap(args.seed)
+    profiles, cis = rly.create_performance_profile(scores, taus, reps=args.curve_reps)
+    report.figure(plot_performance_profiles(taus, profiles, cis, colors, xlabel, labels, title),
+                  name)
+
+
+def figure_8(report: Report, frames: np.ndarray, scores: dict, labels: Callable, colors: dict,
+             ylabel: str, title: str, name: str, args: Args, by_fraction: bool = False
+             ) -> tuple[dict, dict]:
+    """The IQM of each group's (runs, tasks, frames) scores at every frame with rliable's CIs
+    (--curve-reps), drawn as Figure 8."""
+    point, interval = interval_estimates(scores, iqm_per_step, args.curve_reps, args.seed)
+    report.figure(plot_sample_efficiency(frames, point, interval, colors, ylabel, labels, title,
+                                         by_fraction), name)
+    return point, interval
+
+
+# ------------------------------------------------------------------------- labels and colours
 @dataclasses.dataclass(frozen=True)
 class GroupLabels:
     """A group's name in figures and tables, "Corrected SAC (mean eval)"; `standard` says where
@@ -981,15 +962,6 @@ def group_colors(groups: list[Key]) -> dict[Key, tuple]:
             for g in groups}
 
 
-def steps_axis(max_step: float) -> tuple[float, str]:
-    """A figure's step axis: the unit steps are divided by, and its label."""
-    if max_step >= 1e6:
-        return 1e6, "Environment steps (millions)"
-    if max_step >= 1e3:
-        return 1e3, "Environment steps (thousands)"
-    return 1.0, "Environment steps"
-
-
 @dataclasses.dataclass(frozen=True)
 class Analysis:
     """The data layer's output and the flags: what every report section reads (none changes
@@ -1004,102 +976,12 @@ class Analysis:
     aggregate: Aggregate | None  # the normalised scores of the groups compared across tasks
     labels: GroupLabels
     colors: dict[str, tuple]
-    robust: RobustEpisodes | None = None  # the --robust folders' episodes, if given
+    robust: Robust | None = None  # the --robust folders' per-seed rows, if given
 
     @property
     def derived(self) -> list[str]:
         """Tasks whose standard group is the corrected runs' paired tanh(mu) evaluation."""
         return self.pairing.derived
-
-
-# ------------------------------------------------------- the paper's figures (rliable's plots)
-# Figures 6-8, drawn from the paper's protocol (7.-9.) and from the robust evaluation (3.).
-def plot_aggregate_metrics(point: dict, interval: dict, names: Sequence[str], colors: dict,
-                           xlabel: str, labels: Callable[[str], str], note: str = ""
-                           ) -> plt.Figure:
-    """Figure 6: aggregate metrics with their stratified-bootstrap CIs (rliable's own plot), and
-    `note` under it."""
-    # rliable's defaults (4 ticks at xx-large on 3.4-inch panels, its x label a fixed share of
-    # the height below) make tick labels collide with each other and, with two groups, with the
-    # label: wider panels, smaller ticks, a figure at least 2.2 inches high, the label placed
-    # in inches.
-    height = max(0.55 * len(point), 2.2)
-    fig, axes = plot_utils.plot_interval_estimates(
-        {labels(g): v for g, v in point.items()},
-        {labels(g): v for g, v in interval.items()},
-        metric_names=list(names),
-        algorithms=[labels(g) for g in point],
-        colors={labels(g): colors[g] for g in point},
-        xlabel=xlabel,
-        row_height=height / len(point),
-        xlabel_y_coordinate=-0.6 / height,
-        max_ticks=4,
-        subfigure_width=4.0,
-        wspace=0.2,
-    )
-    for ax in np.atleast_1d(axes):
-        ax.tick_params(axis="x", labelsize="x-large")
-    if note:
-        fig.text(0.4, -1.0 / height, note, ha="center", va="top", fontsize="x-large",
-                 color="0.3")
-    return fig
-
-
-def profile_thresholds(final: dict[str, np.ndarray]) -> np.ndarray:
-    """The profile's 101 values of tau: the scores' own range (from 0 where all are positive),
-    not the bar's, since scores that are a fraction of the bar would otherwise crowd the left of
-    the axis."""
-    everything = np.concatenate([s.ravel() for s in final.values()])
-    low, high = min(everything.min(), 0.0), everything.max()
-    return np.linspace(low, high + (0.05 * (high - low) or 0.05), 101)
-
-
-def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, colors: dict,
-                              xlabel: str, labels: Callable[[str], str], title: str
-                              ) -> plt.Figure:
-    """Figure 7: performance profiles (share of runs scoring above tau) with CIs."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    ax.set_title(title, fontsize="medium")
-    plot_utils.plot_performance_profiles(
-        {labels(g): v for g, v in profiles.items()},
-        taus,
-        performance_profile_cis={labels(g): v for g, v in cis.items()},
-        colors={labels(g): colors[g] for g in profiles},
-        xlabel=rf"{xlabel} ($\tau$)",
-        ax=ax,
-        legend=True,
-        legendsize="large",
-        labelsize="large",
-        ticklabelsize="large",
-    )
-    return fig
-
-
-def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colors: dict,
-                           ylabel: str, labels: Callable[[str], str], title: str,
-                           by_fraction: bool = False) -> plt.Figure:
-    """Figure 8: aggregate IQM against environment steps (or fractions of each task's budget)
-    with CIs."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    ax.set_title(title, fontsize="medium")
-    unit, xlabel = steps_axis(frames[-1])
-    if by_fraction:
-        unit, xlabel = 1.0, "Fraction of each task's budget (total_timesteps)"
-    plot_utils.plot_sample_efficiency_curve(
-        frames / unit,
-        {labels(g): v for g, v in point.items()},
-        {labels(g): v for g, v in interval.items()},
-        colors={labels(g): colors[g] for g in point},
-        xlabel=xlabel,
-        ylabel=ylabel,
-        ax=ax,
-        labelsize="large",
-        ticklabelsize="large",
-        legend=True,
-        legendsize="large",
-        marker=".",
-    )
-    return fig
 
 
 def one_episode_per_seed(curves: Sequence[Curve], steps: np.ndarray) -> bool:
@@ -1117,126 +999,6 @@ def aggregate_title(agg: Aggregate) -> str:
     """Figures 7 and 8 name what they aggregate: the tasks and the runs per task."""
     runs = sorted({scores.shape[0] for scores in agg.final.values()})
     return f"{', '.join(agg.tasks)}: {' or '.join(map(str, runs))} runs per task and group"
-
-
-# ------------------------------------------------ the headline figure (paired differences)
-@dataclasses.dataclass
-class PairedCell:
-    """One series' paired difference at one x of the headline figure: per seed the value (and,
-    from the robust evaluation, its standard error), the mean over seeds' bootstrap and t
-    (mean, low, high), and per value a marker where they come from several tasks."""
-
-    values: np.ndarray
-    boot: Sequence[float]
-    t: Sequence[float]
-    errors: np.ndarray | None = None
-    markers: Sequence[str] | None = None
-
-
-@dataclasses.dataclass
-class PairedRow:
-    """A panel of the headline figure: a task, or the tasks together; (x, series) -> cell."""
-
-    title: str
-    ticks: list[str]
-    cells: dict[tuple[int, object], PairedCell]
-    ylabel: str
-    reference: tuple[float, str] | None = None  # tanh(mu)'s return: a right axis in % of it
-    shapes: dict[str, str] = dataclasses.field(default_factory=dict)  # task -> its marker
-
-
-def draw_seed_summary(ax, x: float, width: float, cell: PairedCell, color: tuple) -> None:
-    """Within x +- width: the seeds (dots, left; whiskers: +-VERDICT_SE standard errors of each
-    seed's paired episodes, where given), their mean (tick) with its t-interval (whisker) and,
-    right, the bootstrap CI (bar). Dots beyond the axis's range sit on its edge as triangles,
-    the farthest one's value written beside it."""
-    values, errors, boot, t_values = cell.values, cell.errors, cell.boot, cell.t
-    xs = x - 0.6 * width + np.linspace(-0.15, 0.15, values.size) * width
-    low, high = ax.get_ylim()
-    outside = [i for i, v in enumerate(values) if not low <= v <= high]
-    farthest = max(outside, key=lambda i: abs(values[i]), default=None)
-    for i, (xi, value) in enumerate(zip(xs, values, strict=True)):
-        inside = i not in outside
-        marker = (cell.markers[i] if cell.markers else "o") if inside else \
-            ("v" if value < low else "^")
-        ax.scatter(xi, min(max(value, low), high), s=16, marker=marker, color=color, alpha=0.7,
-                   lw=0, zorder=3, clip_on=False)
-        if i == farthest:
-            ax.annotate(f"{value:.3g}", (xi, min(max(value, low), high)), xytext=(-3, 0),
-                        textcoords="offset points", ha="right", va="center", fontsize=6)
-        elif inside and errors is not None and np.isfinite(errors[i]):
-            ax.errorbar(xi, value, yerr=stats.VERDICT_SE * errors[i], color=color, lw=0.7,
-                        alpha=0.7, zorder=3)
-    ax.bar(x + 0.6 * width, boot[2] - boot[1], bottom=boot[1], width=0.4 * width, color=color,
-           alpha=0.4)
-    ax.hlines(t_values[0], x - 0.35 * width, x + 0.35 * width, color="k", lw=1.5, zorder=4)
-    if np.isfinite(t_values[1]):
-        ax.errorbar(x, t_values[0], yerr=[[t_values[0] - t_values[1]], [t_values[2] -
-                    t_values[0]]], color=color, lw=1.5, capsize=3, zorder=4)
-
-
-def over_tasks_cell(matrix: np.ndarray, boot: Sequence[float], t_values: Sequence[float],
-                    shapes: dict[str, str]) -> PairedCell:
-    """The cell of a (seeds, tasks) matrix, its tasks in `shapes`' order, each task's seeds
-    drawn with that task's marker."""
-    return PairedCell(matrix.T.ravel(), boot, t_values,
-                      markers=[m for m in shapes.values() for _ in range(matrix.shape[0])])
-
-
-def task_markers(tasks: Sequence[str]) -> dict[str, str]:
-    return dict(zip(tasks, "osD^vP*X", strict=False))
-
-
-def summary_range(cells: Sequence[PairedCell]) -> tuple[float, float]:
-    """A y-range that holds the estimates' intervals, zero and the middle 90% of the seeds'
-    dots: one seed's outlier does not set it."""
-    bounds = [v for c in cells for v in (*c.boot, *c.t) if np.isfinite(v)] + [0.0]
-    dots = np.concatenate([c.values for c in cells])
-    low = min(min(bounds), np.percentile(dots, 5))
-    high = max(max(bounds), np.percentile(dots, 95))
-    pad = 0.12 * (high - low or 1.0)
-    return low - pad, high + pad
-
-
-def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str) -> plt.Figure:
-    """The headline figure of both the training log and the robust evaluation: a panel per task
-    (and one over tasks), in each every series' paired difference against tanh(mu) at each x,
-    the seeds beside their mean's t-interval and bootstrap CI (draw_seed_summary); a task's
-    right axis in % of tanh(mu)'s return. `how`: the protocol, under the title."""
-    series = list(dict.fromkeys(s for row in rows for _, s in row.cells))
-    slot = 0.8 / len(series)  # each series' share of an x
-    offsets = {s: (j - (len(series) - 1) / 2) * slot for j, s in enumerate(series)}
-    fig, axes = plt.subplots(len(rows), 1, figsize=(8, 3.1 * len(rows) + 1.0), squeeze=False,
-                             layout="constrained")
-    for ax, row in zip(axes[:, 0], rows, strict=True):
-        ax.set_ylim(*summary_range(list(row.cells.values())))
-        for (i, s), cell in row.cells.items():
-            draw_seed_summary(ax, i + offsets[s], slot / 2, cell, colors[s])
-        ax.set_xticks(range(len(row.ticks)), row.ticks, fontsize="small")
-        ax.set_xlim(-0.5, len(row.ticks) - 0.5)
-        ax.set_title(row.title, fontsize="medium")
-        ax.set_ylabel(row.ylabel)
-        if row.reference is not None:
-            value, where = row.reference
-            reference = abs(value) or 1.0
-            right = ax.secondary_yaxis("right", functions=(lambda y, r=reference: 100 * y / r,
-                                                           lambda p, r=reference: p * r / 100))
-            right.set_ylabel(f"% of tanh(mu)'s return ({value:.3g} {where})", fontsize="small")
-        if row.shapes:
-            ax.legend(handles=[plt.Line2D([], [], ls="", marker=m, color="0.4", label=t)
-                               for t, m in row.shapes.items()], fontsize="x-small", loc="best")
-        ax.axhline(0, color="0.4", ls=":", lw=1)
-        ax.grid(axis="y", alpha=0.25)
-    handles = [Patch(color=colors[s], label=labels[s]) for s in series]
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3),
-               fontsize="small", title="evaluation action", title_fontsize="small")
-    episodes = any(c.errors is not None for row in rows for c in row.cells.values())
-    dots = f"dots: seeds, +-{stats.VERDICT_SE:g} SE of their paired episodes" if episodes \
-        else "dots: seeds"
-    fig.suptitle(f"Each action minus tanh(mu): same actor, same start states\n{how}\n{dots} "
-                 "(triangles: beyond the axis)\ntick and whisker: mean over seeds and its 95% "
-                 "t-interval; bar: bootstrap CI", fontsize="medium")
-    return fig
 
 
 # ============================================================================== the reports
@@ -1570,7 +1332,6 @@ class RobustOverTasks:
     bootstrap: dict[str, tuple[float, float, float]]
     t: dict[str, tuple[float, float, float]]
     scores: dict[str, np.ndarray]  # each action's (seeds, tasks) returns / success bar
-    metrics: tuple[dict, dict]  # AGGREGATE_METRICS of the scores: point, interval
 
 
 def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[int, RobustStep]]
@@ -1649,8 +1410,7 @@ def robust_over_tasks(report: Report, analysis: Analysis,
              "bootstrap CI and Welch's t-interval; the returns' aggregate metrics.", ""]
     scores = {a: np.stack([by_task[t][step].returns[a][:seeds] / SUCCESS_BARS[t]
                            for t in tasks], axis=1) for a in actions}
-    over = RobustOverTasks(step, tasks, {}, {}, {}, scores, interval_estimates(
-        scores, aggregate_metrics, args.reps, args.seed))
+    over = RobustOverTasks(step, tasks, {}, {}, {}, scores)
     table = []
     for action in actions:
         if action not in by_task[tasks[0]][step].differences:
@@ -1668,25 +1428,10 @@ def robust_over_tasks(report: Report, analysis: Analysis,
                       f"{won} of {values.size}"])
     lines += [markdown_table(["action", "difference / success bar (bootstrap CI)",
                               "t-interval (Welch)", "won (task, seed)"], table), ""]
-    point, interval = over.metrics
-    rows = []
-    for action in actions:
-        for i, name in enumerate(AGGREGATE_METRICS):
-            report.row("robust_aggregate", "all", action, name, step, seeds, point[action][i],
-                       *interval[action][:, i])
-        rows.append([action, *(format_ci(point[action][i], *interval[action][:, i])
-                               for i in range(len(AGGREGATE_METRICS)))])
-    lines += [markdown_table(["action", *AGGREGATE_METRICS], rows)]
-    runs = seeds * len(tasks)
-    if seeds <= FEW_SEEDS:  # rliable's IQM trims 25% of all runs x tasks at each end
-        lines += ["", f"IQM here is the mean of the middle {runs - 2 * int(0.25 * runs)} of "
-                  f"{runs} runs ({seeds} seeds x {counted(len(tasks), 'task')})"
-                  + ("; rliable's median is the median over tasks of each task's mean, so with "
-                     "one task it is the mean" if len(tasks) == 1 else "") + "."]
     return over, lines
 
 
-def robust_settings_lines(robust: RobustEpisodes) -> list[str]:
+def robust_settings_lines(robust: Robust) -> list[str]:
     """summary.md's account of each --robust folder: where, episodes, reset noise, actions."""
     lines = []
     for folder, settings in robust.settings.items():
@@ -1747,7 +1492,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     elif step is not None:
         over, over_lines = robust_over_tasks(report, analysis, by_task, step)
         lines += ["", *over_lines]
-    colors = robust_action_colors(robust.selectors)
+    colors = robust_action_colors(robust.actions)
     rows = []
     for task, steps in by_task.items():
         ticks = [f"{format_step(s)}\n{episodes_span(at.episodes)} starts x {at.episodes.size} "
@@ -1771,7 +1516,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     report.figure(plot_paired(rows, colors, labels, "the robust evaluation: evaluate.py's noisy "
                               "starts"), "robust_evaluation")
     if over is not None:
-        report_robust_aggregate(report, analysis, over, colors)
+        lines += report_robust_aggregate(report, analysis, over, colors)
     lines += robust_sample_efficiency(report, analysis, barred, colors)
     report.section("The robust evaluation: each action minus tanh(mu) from many noisy starts "
                    "(evaluate.py)", *lines)
@@ -1797,26 +1542,36 @@ def ends_table(by_task: dict[str, dict[int, RobustStep]]) -> list[str]:
 
 
 def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOverTasks,
-                            colors: dict) -> None:
-    """Figures `robust_aggregate_metrics` and `robust_performance_profiles`: Figures 6 and 7 of
-    the paper from the robust evaluation, one entry per action of the same actors, the returns
-    at the tasks' shared last step divided by each success bar (robust_over_tasks's numbers;
-    the profiles with rliable's create_performance_profile and --curve-reps replications)."""
-    args, name = analysis.args, SCORE_NAMES["success-bar"]
-    note = f"The robust evaluation at {format_step(over.step)}, over " \
-        f"{counted(len(over.tasks), 'task')}"
-    report.figure(plot_aggregate_metrics(*over.metrics, AGGREGATE_METRICS, colors, name,
-                                         robust_action_label, note),
-                  "robust_aggregate_metrics")
+                            colors: dict) -> list[str]:
+    """Figures `robust_aggregate_metrics` and `robust_performance_profiles` (figure_6,
+    figure_7): Figures 6 and 7 of the paper from the robust evaluation, one entry per action of
+    the same actors, the returns at the tasks' shared last step divided by each success bar.
+    Writes summary.csv's `robust_aggregate` rows; returns summary.md's lines."""
+    args, name, step = analysis.args, SCORE_NAMES["success-bar"], over.step
+    seeds, tasks = next(iter(over.scores.values())).shape[0], over.tasks
+    point, interval = figure_6(
+        report, over.scores, AGGREGATE_METRICS, robust_action_label, colors, name,
+        f"The robust evaluation at {format_step(step)}, over {counted(len(tasks), 'task')}",
+        "robust_aggregate_metrics", args)
     print(f"robust performance profiles ({args.curve_reps:,} reps) ...")
-    taus = profile_thresholds(over.scores)
-    seed_bootstrap(args.seed)
-    profiles, cis = rly.create_performance_profile(over.scores, taus, reps=args.curve_reps)
-    seeds = next(iter(over.scores.values())).shape[0]
-    report.figure(plot_performance_profiles(
-        taus, profiles, cis, colors, name, robust_action_label,
-        f"Robust evaluation at {format_step(over.step)}: {', '.join(over.tasks)}, "
-        f"{seeds} seeds per task"), "robust_performance_profiles")
+    figure_7(report, over.scores, robust_action_label, colors, name, f"Robust evaluation at "
+             f"{format_step(step)}: {', '.join(tasks)}, {seeds} seeds per task",
+             "robust_performance_profiles", args)
+    rows = []
+    for action in point:
+        for i, metric in enumerate(AGGREGATE_METRICS):
+            report.row("robust_aggregate", "all", action, metric, step, seeds,
+                       point[action][i], *interval[action][:, i])
+        rows.append([action, *(format_ci(point[action][i], *interval[action][:, i])
+                               for i in range(len(AGGREGATE_METRICS)))])
+    lines = [markdown_table(["action", *AGGREGATE_METRICS], rows)]
+    runs = seeds * len(tasks)
+    if seeds <= FEW_SEEDS:  # rliable's IQM trims 25% of all runs x tasks at each end
+        lines += ["", f"IQM here is the mean of the middle {runs - 2 * int(0.25 * runs)} of "
+                  f"{runs} runs ({seeds} seeds x {counted(len(tasks), 'task')})"
+                  + ("; rliable's median is the median over tasks of each task's mean, so with "
+                     "one task it is the mean" if len(tasks) == 1 else "") + "."]
+    return lines
 
 
 def robust_sample_efficiency(report: Report, analysis: Analysis,
@@ -1842,19 +1597,17 @@ def robust_sample_efficiency(report: Report, analysis: Analysis,
                            / SUCCESS_BARS[t] for t, row in zip(tasks, at, strict=True)], axis=1)
               for a in actions}  # (seeds, tasks, steps)
     print(f"robust sample efficiency ({args.curve_reps:,} reps) ...")
-    point, interval = interval_estimates(scores, iqm_per_step, args.curve_reps, args.seed)
+    starts = ", ".join(
+        f"{format_step(step)} {episodes_span(np.concatenate([row[i].episodes for row in at]))}"
+        for i, step in enumerate(shared))
+    point, interval = figure_8(
+        report, np.array(shared, dtype=float), scores, robust_action_label, colors,
+        f"IQM {SCORE_NAMES['success-bar'].lower()}", f"Robust evaluation: {', '.join(tasks)}, "
+        f"{seeds} seeds per task\nstarts per seed: {starts}", "robust_sample_efficiency", args)
     for action in actions:
         for i, step in enumerate(shared):
             report.row("robust_sample_efficiency", "all", action, "IQM", step, seeds,
                        point[action][i], *interval[action][:, i])
-    starts = ", ".join(
-        f"{format_step(step)} {episodes_span(np.concatenate([row[i].episodes for row in at]))}"
-        for i, step in enumerate(shared))
-    report.figure(plot_sample_efficiency(
-        np.array(shared, dtype=float), point, interval, colors,
-        f"IQM {SCORE_NAMES['success-bar'].lower()}", robust_action_label,
-        f"Robust evaluation: {', '.join(tasks)}, {seeds} seeds per task\nstarts per seed: "
-        f"{starts}"), "robust_sample_efficiency")
     left_out = [t for t in barred if t not in curves]
     return ["", f"Over training (figure `robust_sample_efficiency`): each action's IQM of the "
             f"returns divided by each success bar, over {', '.join(tasks)} at "
@@ -1865,8 +1618,6 @@ def robust_sample_efficiency(report: Report, analysis: Analysis,
 
 # ------------------------------------------------------------------------- 4. over training
 OVER_TRAINING_TABLE_STEPS = 11  # rows of summary.md's over-training table; summary.csv has all
-# The over-training figure's rolling mean, over this many rounds (drawn with twice as many).
-ROLLING_ROUNDS = 10
 
 
 def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.ndarray]]:
@@ -1882,65 +1633,6 @@ def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.n
             if rows:
                 shifts.setdefault(task, {})[column] = np.stack(rows)
     return shifts
-
-
-def plot_over_training(tasks: dict[str, Task], differences: dict, estimates: dict,
-                       shifts: dict, colors: dict, labels: GroupLabels) -> plt.Figure:
-    """A row per task. Left: each evaluation action minus tanh(mu) over training; with many
-    rounds each round's mean over seeds (thin) and its rolling mean (thick), with few the mean,
-    its 95% CI and each seed. Right, each on its own axes: the measured shift, sigma and the
-    two-mode share (mean over the corrected runs, band: their range)."""
-    shown = [t for t in tasks if t in differences or t in shifts]
-    titles = ("|mode - tanh(mu)|\nmean over dimensions", "sigma\nmean over dimensions",
-              "two-mode share: dimensions\nwith 2 sigma^2 > 1")
-    fig, axes = plt.subplots(len(shown), 4, figsize=(15.0, 3.4 * len(shown) + 0.6),
-                             squeeze=False, gridspec_kw={"width_ratios": (2.3, 1, 1, 1)},
-                             layout="constrained")
-    for row, task in zip(axes, shown, strict=True):
-        data = tasks[task]
-        unit, xlabel = steps_axis(data.steps[-1])
-        x = data.steps / unit
-        ax = row[0]
-        rolling = x.size >= 2 * ROLLING_ROUNDS
-        seeds = set()
-        for group, diffs in differences.get(task, {}).items():
-            mean, (low, high) = estimates[task][group]
-            seeds.add(diffs.shape[0])
-            name = labels.action_first(group)
-            if rolling:  # a round is one draw of the evaluation noise: the trend needs a window
-                ax.plot(x, mean, color=colors[group], lw=0.7, alpha=0.45)
-                window = np.convolve(mean, np.ones(ROLLING_ROUNDS) / ROLLING_ROUNDS, "valid")
-                ax.plot(x[ROLLING_ROUNDS - 1:], window, color=colors[group], lw=2.2,
-                        label=name)
-            else:
-                ax.plot(x, mean, "o-", color=colors[group], lw=1.8, ms=4, label=name)
-                ax.fill_between(x, low, high, color=colors[group], alpha=0.2, lw=0)
-                ax.plot(x, diffs.T, color=colors[group], lw=0.5, alpha=0.35)
-        ax.axhline(0, color="0.4", ls=":", lw=1)
-        n = " or ".join(map(str, sorted(seeds)))
-        how = (f"thin: each round's mean over seeds; thick: mean of the last {ROLLING_ROUNDS} "
-               "rounds" if rolling else "mean over seeds, 95% bootstrap CI; thin: each seed")
-        ax.set_title(f"{task}, n = {counted(n, 'seed')}\n{how}", fontsize="medium")
-        ax.set_ylabel("Return minus tanh(mu)'s")
-        ax.legend(fontsize="small", frameon=False)
-        for ax, column, title in zip(row[1:], OVER_TRAINING_SHIFT_COLUMNS, titles, strict=True):
-            values = shifts.get(task, {}).get(column)
-            if values is None:
-                ax.text(0.5, 0.5, "not logged", ha="center", va="center",
-                        transform=ax.transAxes, color="0.4")
-            else:
-                ax.plot(x, values.mean(0), color="k", lw=1.4)
-                ax.fill_between(x, values.min(0), values.max(0), color="0.5", alpha=0.25, lw=0)
-                if column != "bimodal_fraction" and np.all(values > 0):
-                    ax.set_yscale("log")  # the first rounds' spike would flatten the rest
-            ax.set_title(title, fontsize="medium")
-        row[3].set_ylim(-0.02, 1.02)  # a share
-        for ax in row:
-            ax.set_xlabel(xlabel)
-            ax.grid(alpha=0.25)
-    fig.suptitle("Over training: each evaluation action minus tanh(mu) of the same actors, and "
-                 "the distribution shift (mean over the corrected runs; band: their range)")
-    return fig
 
 
 def report_over_training(report: Report, analysis: Analysis) -> None:
@@ -1961,8 +1653,11 @@ def report_over_training(report: Report, analysis: Analysis) -> None:
                                              metrics.aggregate_mean, args.curve_reps, args.seed)
         estimates[task] = {g: (point[g], interval[g]) for g in by_group}
     shifts = shift_curves(runs, tasks)
-    report.figure(plot_over_training(tasks, differences, estimates, shifts, analysis.colors,
-                                     analysis.labels), "over_training")
+    names = {g: analysis.labels.action_first(g) for by_group in differences.values()
+             for g in by_group}
+    report.figure(plot_over_training({t: data.steps for t, data in tasks.items()}, differences,
+                                     estimates, shifts, OVER_TRAINING_SHIFT_COLUMNS,
+                                     analysis.colors, names), "over_training")
     lines = ["At every step a task's runs share: the paired difference as in the headline "
              f"(bootstrap CI, {args.curve_reps:,} replications, and t-interval), and the shift "
              "measured at the states the mode policy visited (mean over runs). summary.csv has "
@@ -2044,16 +1739,6 @@ def report_choice_shares_of(report: Report, analysis: Analysis, action: str) -> 
 
 
 # ------------------------------------------------- 6. reward curves and final returns (Fig. 5)
-# A success bar further above the returns than this factor would squash them into the floor of
-# the reward-curve axes: it is then named in the title instead of drawn.
-SUCCESS_BAR_DRAWN_WITHIN = 1.5
-
-
-def success_bar_drawn(bar: float, top: float) -> bool:
-    """Whether a task's success bar is drawn on its reward-curve axes: only where it is within
-    SUCCESS_BAR_DRAWN_WITHIN of the returns' top, so that returns a fraction of it keep the
-    axes; otherwise the title names it."""
-    return top > 0 and bar <= SUCCESS_BAR_DRAWN_WITHIN * top
 
 
 def reward_curve_estimates(tasks: dict[str, Task], reps: int, seed: int) -> dict:
@@ -2073,56 +1758,6 @@ def reward_curve_estimates(tasks: dict[str, Task], reps: int, seed: int) -> dict
     return estimates
 
 
-def plot_reward_curves(
-    tasks: dict[str, Task], curves: dict, colors: dict, groups: list[str], labels: GroupLabels,
-    single: dict[tuple[str, str], bool]
-) -> plt.Figure:
-    """Figure 5: mean evaluation return per task with its 95% interval over seeds; a group
-    whose runs logged one distinct episode per evaluation (`single`) is drawn dotted."""
-    ncols = math.ceil(math.sqrt(len(tasks)))
-    nrows = math.ceil(len(tasks) / ncols)
-    # At least 9 inches wide, so that the legend below fits in a few rows beside one panel.
-    width = max(5.6 * ncols, 9.0)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(width, 4.0 * nrows + 0.9), squeeze=False)
-    for ax in axes.flat[len(tasks) :]:
-        ax.set_visible(False)
-    for ax, (task, data) in zip(axes.flat, tasks.items(), strict=False):
-        unit, xlabel = steps_axis(data.steps[-1])
-        width_line = 1.8 if data.steps.size <= 200 else 1.0  # dense curves: thin lines show CIs
-        top = -math.inf
-        for group in [g for g in groups if g in data.returns]:
-            mean, (low, high) = curves[task][group]
-            style = ":" if single[task, group] else "-" if is_own(group) else "--"
-            ax.plot(data.steps / unit, mean, style, color=colors[group], lw=width_line,
-                    label=labels(group) + (" (one episode per evaluation)"
-                                           if single[task, group] else ""))
-            ax.fill_between(data.steps / unit, low, high, color=colors[group], alpha=0.2, lw=0)
-            top = max(top, float(np.max(high)))
-        title = task
-        if task in SUCCESS_BARS:
-            bar = SUCCESS_BARS[task]
-            if success_bar_drawn(bar, top):
-                ax.axhline(bar, color="0.4", ls=":", lw=1.2, label="success bar")
-            else:
-                title += f"\nsuccess bar {bar:g} (above)"
-        ax.set_title(title)
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel("Evaluation return")
-        ax.grid(alpha=0.25)
-    handles = {h.get_label(): h for ax in axes.flat for h in ax.get_lines()}
-    ncol = max(1, min(len(handles), int(width // 3.0)))
-    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=ncol,
-               frameon=False)
-    legend_rows = math.ceil(len(handles) / ncol)
-    seeds = sorted({r.shape[0] for data in tasks.values() for r in data.returns.values()})
-    fig.suptitle(f"Mean evaluation return over {' or '.join(map(str, seeds))} seeds, 95% "
-                 + ("t-interval" if seeds[-1] <= FEW_SEEDS else "bootstrap CI"
-                    if seeds[0] > FEW_SEEDS else f"t-interval (<= {FEW_SEEDS} seeds), "
-                    "else bootstrap CI"))
-    fig.tight_layout(rect=(0, (0.27 * legend_rows + 0.05) / fig.get_figheight(), 1, 1))
-    return fig
-
-
 def report_reward_curves(report: Report, analysis: Analysis) -> None:
     """Figure 5 (`reward_curves`) and the per-task final returns. Estimators: the curves, the
     mean over seeds at every step with a bootstrap CI (reward_curve_estimates, --curve-reps);
@@ -2133,10 +1768,17 @@ def report_reward_curves(report: Report, analysis: Analysis) -> None:
     groups, colors, labels = analysis.groups, analysis.colors, analysis.labels
     print(f"per-task curves ({args.curve_reps:,} reps) and final returns ({args.reps:,}) ...")
     curves = reward_curve_estimates(tasks, args.curve_reps, args.seed)
-    single = {(t, g): one_episode_per_seed(analysis.runs[t].get(g, []), data.steps)
-              for t, data in tasks.items() for g in data.returns}
-    report.figure(plot_reward_curves(tasks, curves, colors, groups, labels, single),
-                  "reward_curves")
+    styles = {(t, g): ":" if one_episode_per_seed(analysis.runs[t].get(g, []), data.steps)
+              else "-" if is_own(g) else "--" for t, data in tasks.items() for g in data.returns}
+    seeds = sorted({r.shape[0] for data in tasks.values() for r in data.returns.values()})
+    interval = "t-interval" if seeds[-1] <= FEW_SEEDS else "bootstrap CI" \
+        if seeds[0] > FEW_SEEDS else f"t-interval (<= {FEW_SEEDS} seeds), else bootstrap CI"
+    report.figure(plot_reward_curves(
+        {t: data.steps for t, data in tasks.items()},
+        {t: {g: curves[t][g] for g in groups if g in data.returns} for t, data in tasks.items()},
+        colors, labels, styles, SUCCESS_BARS,
+        f"Mean evaluation return over {' or '.join(map(str, seeds))} seeds, 95% {interval}"),
+        "reward_curves")
     finals = seed_mean_estimates({(t, g): data.scored(g) for t, data in tasks.items()
                                   for g in data.returns}, args.reps, args.seed)
     table = []
@@ -2175,14 +1817,12 @@ def report_aggregate_metrics(report: Report, analysis: Analysis) -> None:
     if agg is None:
         return
     score_name = SCORE_NAMES[args.normalize]
+    # the optimality gap's threshold 1 needs normalised scores
     names = AGGREGATE_METRICS if args.normalize != "none" else AGGREGATE_METRICS[:3]
     print(f"aggregate metrics over {len(agg.tasks)} task(s) ({args.reps:,} reps) ...")
-    gap = args.normalize != "none"  # the optimality gap's threshold 1 needs normalised scores
-    point, interval = interval_estimates(
-        agg.final, functools.partial(aggregate_metrics, gap=gap), args.reps, args.seed)
     note = few_runs_note(agg)
-    report.figure(plot_aggregate_metrics(point, interval, names, analysis.colors, score_name,
-                                         analysis.labels, note), "aggregate_metrics")
+    point, interval = figure_6(report, agg.final, names, analysis.labels, analysis.colors,
+                               score_name, note, "aggregate_metrics", args)
     table = []
     for g in agg.groups:
         runs = agg.final[g].shape[0]
@@ -2206,12 +1846,8 @@ def report_performance_profiles(report: Report, analysis: Analysis) -> None:
     if agg is None:
         return
     print(f"performance profiles ({args.curve_reps:,} reps) ...")
-    taus = profile_thresholds(agg.final)
-    seed_bootstrap(args.seed)
-    profiles, cis = rly.create_performance_profile(agg.final, taus, reps=args.curve_reps)
-    report.figure(plot_performance_profiles(taus, profiles, cis, analysis.colors,
-                                            SCORE_NAMES[args.normalize], analysis.labels,
-                                            aggregate_title(agg)), "performance_profiles")
+    figure_7(report, agg.final, analysis.labels, analysis.colors, SCORE_NAMES[args.normalize],
+             aggregate_title(agg), "performance_profiles", args)
 
 
 # ------------------------------------------------------------ 9. sample efficiency (Fig. 8)
@@ -2231,31 +1867,12 @@ def report_sample_efficiency(report: Report, analysis: Analysis) -> None:
             f"({where}), so its axis would hold a single step")
     elif agg.frames.size:
         print(f"sample-efficiency curves ({args.curve_reps:,} reps) ...")
-        point, interval = interval_estimates(agg.curves, iqm_per_step, args.curve_reps, args.seed)
-        score_name = SCORE_NAMES[args.normalize]
-        report.figure(plot_sample_efficiency(agg.frames, point, interval, analysis.colors,
-                                             f"IQM {score_name.lower()}", analysis.labels,
-                                             aggregate_title(agg), agg.by_fraction),
-                      "sample_efficiency")
+        figure_8(report, agg.frames, agg.curves, analysis.labels, analysis.colors,
+                 f"IQM {SCORE_NAMES[args.normalize].lower()}", aggregate_title(agg),
+                 "sample_efficiency", args, agg.by_fraction)
 
 
 # -------------------------------------------------------- 10. probability of improvement
-def plot_probability_of_improvement(probability: float, ci: np.ndarray, x: str, y: str,
-                                    color: tuple, labels: GroupLabels) -> plt.Figure:
-    """Probability that a run of x beats a run of y on a random task (rliable's own plot)."""
-    fig, ax = plt.subplots(figsize=(6, 1.4))
-    pair = f"{labels(x)};{labels(y)}"
-    plot_utils.plot_probability_of_improvement(
-        {pair: probability}, {pair: ci}, pair_separator=";", ax=ax, colors=[color],
-        xticks=[0, 0.25, 0.5, 0.75, 1.0], xlabel=f"P({labels(x)} > {labels(y)})",
-        ticklabelsize="large", labelsize="large", left_ylabel="", right_ylabel="",
-    )
-    ax.set_xlim(0, 1)
-    ax.axvline(0.5, color="0.5", ls=":", lw=1)
-    ax.text(0.5, -0.72, "every run of one against every run of the other: it ignores the pairing "
-            "(paired_difference.png has it)", transform=ax.transAxes, ha="center", va="top",
-            fontsize="medium", color="0.3")
-    return fig
 
 
 def report_probability_of_improvement(report: Report, analysis: Analysis) -> None:

@@ -5,7 +5,7 @@ exact resume; the restart from a snapshot), eval_rounds (evaluation rounds as jo
 training or in evaluate.py), speedups (torch.compile at start-up, CUDA graphs, the update's
 compiled pieces), files (written whole or not at all), sweep_run (one run of a sweep.py grid),
 stats (the statistics analyze.py and evaluate.py share), report (what analyze.py's reports are
-made of), dimension_study (beyond the paper: the paired difference against the action
-dimension).
+made of), figures (every figure analyze.py draws), dimension_study (beyond the paper: the paired
+difference against the action dimension).
 docs/scripts.md describes them.
 """

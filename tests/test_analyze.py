@@ -13,6 +13,7 @@ import pytest
 import scipy.stats
 
 import analyze
+from sac_utils import figures
 
 EVAL_COLUMNS = ["global_step", "wall_time", "eval_round", "return_mean", "return_std",
                 "return_min", "return_max", "length_mean", "success_rate"]
@@ -860,9 +861,9 @@ def test_one_shared_step_leaves_the_sample_efficiency_curve_out(tmp_path):
 
 
 def test_success_bar_is_drawn_only_near_the_returns():
-    assert analyze.success_bar_drawn(800.0, 600.0)
-    assert not analyze.success_bar_drawn(2000.0, 650.0)  # bookshelf_simple at 1M: named instead
-    assert not analyze.success_bar_drawn(800.0, -5.0)
+    assert figures.success_bar_drawn(800.0, 600.0)
+    assert not figures.success_bar_drawn(2000.0, 650.0)  # bookshelf_simple at 1M: named instead
+    assert not figures.success_bar_drawn(800.0, -5.0)
 
 
 TOY_TASK, TOY_BAR = "toy-reach-v0", 50.0
@@ -1025,7 +1026,17 @@ def write_robust_folder(root: Path, tasks: list[str], seeds: int = 3, episodes: 
             (root / run).mkdir(parents=True)
             (root / run / "episodes.csv").write_text("\n".join(lines) + "\n")
     (root / "evaluation.json").write_text(json.dumps(settings))
+    write_per_seed(root)
     return written
+
+
+def write_per_seed(folder: Path) -> None:
+    """The folder's per_seed.csv from its episodes.csv files, as evaluate.py writes it (what
+    analyze.py --robust reads)."""
+    import evaluate
+
+    settings, episodes = evaluate.read_campaign(folder)
+    evaluate.write_rows(folder / "per_seed.csv", evaluate.per_seed_rows(settings, episodes))
 
 
 def write_small_runs(root: Path) -> Path:
@@ -1100,7 +1111,7 @@ def test_robust_evaluation_matches_a_hand_computation(tmp_path):
 
 def test_robust_folders_read_alike_with_and_without_physics_unstable(tmp_path):
     """evaluate.py's episodes.csv gained physics_unstable (empty where not recorded), then end:
-    folders written before them and after read to the same returns."""
+    folders written before them and after read to the same per-seed returns and differences."""
     from evaluate import EPISODES_HEADER
 
     written = write_robust_folder(tmp_path / "old", ROBUST_TASKS, seeds=2)
@@ -1112,12 +1123,17 @@ def test_robust_folders_read_alike_with_and_without_physics_unstable(tmp_path):
         path.write_text("\n".join([",".join(EPISODES_HEADER), *(
             f"{row},{('', '0', '1')[k % 3]},{('', 'fell', 'blow_up')[k % 3]}"
             for k, row in enumerate(rows))]) + "\n")
-    old, fresh = (analyze.load_robust([tmp_path / name]) for name in ("old", "new"))
-    assert old.returns.keys() == fresh.returns.keys() == written.keys()
-    for key, selectors in written.items():
+    write_per_seed(new)
+    old, fresh = (analyze.load_robust([tmp_path / name]).rows for name in ("old", "new"))
+    assert len(old) == len(fresh) == sum(map(len, written.values()))
+    for (task, seed, step), selectors in written.items():
         for selector, values in selectors.items():
-            assert np.array_equal(old.returns[key][selector], values)
-            assert np.array_equal(fresh.returns[key][selector], values)
+            for rows in (old, fresh):
+                [row] = rows[(rows.env_id == task) & (rows.seed == seed) & (rows.step == step)
+                             & (rows.selector == selector)].itertuples()
+                assert row.return_mean == values.mean()
+                if selector != "tanh_mu":
+                    assert row.difference_mean == (values - selectors["tanh_mu"]).mean()
 
 
 def mark_blowups(folder: Path, unstable: Callable[[int, str, int], str]) -> None:
@@ -1130,6 +1146,7 @@ def mark_blowups(folder: Path, unstable: Callable[[int, str, int], str]) -> None
         marked = [f"{row},{unstable(int(step), selector, int(k))}"
                   for row in rows for step, selector, k, *_ in [row.split(",")]]
         path.write_text("\n".join([",".join(EPISODES_HEADER[:-1]), *marked]) + "\n")
+    write_per_seed(folder)
 
 
 def test_robust_counts_physics_blowups_per_action_and_step(tmp_path):
@@ -1202,23 +1219,29 @@ def test_robust_curve_leaves_out_a_task_evaluated_at_one_step(tmp_path):
 
 def test_bad_robust_folders_give_one_clear_line(tmp_path, capsys):
     runs = write_small_runs(tmp_path / "runs")
-    cases = {"no_settings": "no evaluation.json there", "no_episodes": "episodes.csv is missing",
+    cases = {"no_settings": "no evaluation.json there", "no_per_seed": "per_seed.csv is missing",
              "bad_header": "lacks ['selector']", "no_tanh_mu": "no tanh_mu episodes at step 500k",
+             "not_a_number": "column return_mean holds something that is not a number",
              "twice": "step 500k is in two --robust folders"}
     for name, message in cases.items():
         folder = tmp_path / name
         write_robust_folder(folder, ROBUST_TASKS[:1], seeds=1, steps=(500_000,))
-        episodes = folder / f"{ROBUST_TASKS[0]}__corrected__seed0__0000" / "episodes.csv"
+        per_seed = folder / "per_seed.csv"
         folders = [folder]
         if name == "no_settings":
             (folder / "evaluation.json").unlink()
-        elif name == "no_episodes":
-            episodes.unlink()
+        elif name == "no_per_seed":
+            per_seed.unlink()
         elif name == "bad_header":
-            episodes.write_text(episodes.read_text().replace("selector", "action", 1))
+            per_seed.write_text(per_seed.read_text().replace("selector", "action", 1))
         elif name == "no_tanh_mu":
-            episodes.write_text("\n".join(line for line in episodes.read_text().splitlines()
+            per_seed.write_text("\n".join(line for line in per_seed.read_text().splitlines()
                                           if ",tanh_mu," not in line) + "\n")
+        elif name == "not_a_number":
+            lines = per_seed.read_text().splitlines()
+            cells = lines[1].split(",")
+            cells[6] = "lots"
+            per_seed.write_text("\n".join([lines[0], ",".join(cells), *lines[2:]]) + "\n")
         else:
             write_robust_folder(tmp_path / "again", ROBUST_TASKS[:1], seeds=1, steps=(500_000,))
             folders.append(tmp_path / "again")
@@ -1241,6 +1264,7 @@ def test_robust_tells_seeds_ahead_level_behind_and_how_episodes_ended(tmp_path):
         ends = ["fell" if row.split(",")[1:3] == ["mode", "0"] else "time_limit" for row in rows]
         path.write_text("\n".join([",".join(EPISODES_HEADER), *(
             f"{row},0,{end}" for row, end in zip(rows, ends, strict=True))]) + "\n")
+    write_per_seed(folder)
     assert run_analysis(runs, tmp_path / "out", "--robust", str(folder)) == 0
     text = (tmp_path / "out" / "summary.md").read_text()
     counts = {"ahead": 0, "level": 0, "behind": 0}

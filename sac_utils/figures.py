@@ -1,0 +1,378 @@
+"""The figures analyze.py draws: the paper's Figures 5-8 as rliable draws them, the headline
+paired-difference figure (`plot_paired`, the training log's and the robust evaluation's alike)
+and the over-training figure. Plain functions from arrays, labels and colours to a figure; the
+numbers come from analyze.py's report sections, which also save the figures."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.patches import Patch
+from rliable import plot_utils
+
+from sac_utils import stats
+from sac_utils.report import counted
+
+
+def steps_axis(max_step: float) -> tuple[float, str]:
+    """A figure's step axis: the unit steps are divided by, and its label."""
+    if max_step >= 1e6:
+        return 1e6, "Environment steps (millions)"
+    if max_step >= 1e3:
+        return 1e3, "Environment steps (thousands)"
+    return 1.0, "Environment steps"
+
+
+# ------------------------------------------------------- the paper's figures (rliable's plots)
+# Figures 6-8, drawn from the paper's protocol (7.-9.) and from the robust evaluation (3.).
+def plot_aggregate_metrics(point: dict, interval: dict, names: Sequence[str], colors: dict,
+                           xlabel: str, labels: Callable[[str], str], note: str = ""
+                           ) -> plt.Figure:
+    """Figure 6: aggregate metrics with their stratified-bootstrap CIs (rliable's own plot), and
+    `note` under it."""
+    # rliable's defaults (4 ticks at xx-large on 3.4-inch panels, its x label a fixed share of
+    # the height below) make tick labels collide with each other and, with two groups, with the
+    # label: wider panels, smaller ticks, a figure at least 2.2 inches high, the label placed
+    # in inches.
+    height = max(0.55 * len(point), 2.2)
+    fig, axes = plot_utils.plot_interval_estimates(
+        {labels(g): v for g, v in point.items()},
+        {labels(g): v for g, v in interval.items()},
+        metric_names=list(names),
+        algorithms=[labels(g) for g in point],
+        colors={labels(g): colors[g] for g in point},
+        xlabel=xlabel,
+        row_height=height / len(point),
+        xlabel_y_coordinate=-0.6 / height,
+        max_ticks=4,
+        subfigure_width=4.0,
+        wspace=0.2,
+    )
+    for ax in np.atleast_1d(axes):
+        ax.tick_params(axis="x", labelsize="x-large")
+    if note:
+        fig.text(0.4, -1.0 / height, note, ha="center", va="top", fontsize="x-large",
+                 color="0.3")
+    return fig
+
+
+def profile_thresholds(final: dict[str, np.ndarray]) -> np.ndarray:
+    """The profile's 101 values of tau: the scores' own range (from 0 where all are positive),
+    not the bar's, since scores that are a fraction of the bar would otherwise crowd the left of
+    the axis."""
+    everything = np.concatenate([s.ravel() for s in final.values()])
+    low, high = min(everything.min(), 0.0), everything.max()
+    return np.linspace(low, high + (0.05 * (high - low) or 0.05), 101)
+
+
+def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, colors: dict,
+                              xlabel: str, labels: Callable[[str], str], title: str
+                              ) -> plt.Figure:
+    """Figure 7: performance profiles (share of runs scoring above tau) with CIs."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.set_title(title, fontsize="medium")
+    plot_utils.plot_performance_profiles(
+        {labels(g): v for g, v in profiles.items()},
+        taus,
+        performance_profile_cis={labels(g): v for g, v in cis.items()},
+        colors={labels(g): colors[g] for g in profiles},
+        xlabel=rf"{xlabel} ($\tau$)",
+        ax=ax,
+        legend=True,
+        legendsize="large",
+        labelsize="large",
+        ticklabelsize="large",
+    )
+    return fig
+
+
+def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colors: dict,
+                           ylabel: str, labels: Callable[[str], str], title: str,
+                           by_fraction: bool = False) -> plt.Figure:
+    """Figure 8: aggregate IQM against environment steps (or fractions of each task's budget)
+    with CIs."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.set_title(title, fontsize="medium")
+    unit, xlabel = steps_axis(frames[-1])
+    if by_fraction:
+        unit, xlabel = 1.0, "Fraction of each task's budget (total_timesteps)"
+    plot_utils.plot_sample_efficiency_curve(
+        frames / unit,
+        {labels(g): v for g, v in point.items()},
+        {labels(g): v for g, v in interval.items()},
+        colors={labels(g): colors[g] for g in point},
+        xlabel=xlabel,
+        ylabel=ylabel,
+        ax=ax,
+        labelsize="large",
+        ticklabelsize="large",
+        legend=True,
+        legendsize="large",
+        marker=".",
+    )
+    return fig
+
+
+# ------------------------------------------------ the headline figure (paired differences)
+@dataclasses.dataclass
+class PairedCell:
+    """One series' paired difference at one x of the headline figure: per seed the value (and,
+    from the robust evaluation, its standard error), the mean over seeds' bootstrap and t
+    (mean, low, high), and per value a marker where they come from several tasks."""
+
+    values: np.ndarray
+    boot: Sequence[float]
+    t: Sequence[float]
+    errors: np.ndarray | None = None
+    markers: Sequence[str] | None = None
+
+
+@dataclasses.dataclass
+class PairedRow:
+    """A panel of the headline figure: a task, or the tasks together; (x, series) -> cell."""
+
+    title: str
+    ticks: list[str]
+    cells: dict[tuple[int, object], PairedCell]
+    ylabel: str
+    reference: tuple[float, str] | None = None  # tanh(mu)'s return: a right axis in % of it
+    shapes: dict[str, str] = dataclasses.field(default_factory=dict)  # task -> its marker
+
+
+def draw_seed_summary(ax, x: float, width: float, cell: PairedCell, color: tuple) -> None:
+    """Within x +- width: the seeds (dots, left; whiskers: +-VERDICT_SE standard errors of each
+    seed's paired episodes, where given), their mean (tick) with its t-interval (whisker) and,
+    right, the bootstrap CI (bar). Dots beyond the axis's range sit on its edge as triangles,
+    the farthest one's value written beside it."""
+    values, errors, boot, t_values = cell.values, cell.errors, cell.boot, cell.t
+    xs = x - 0.6 * width + np.linspace(-0.15, 0.15, values.size) * width
+    low, high = ax.get_ylim()
+    outside = [i for i, v in enumerate(values) if not low <= v <= high]
+    farthest = max(outside, key=lambda i: abs(values[i]), default=None)
+    for i, (xi, value) in enumerate(zip(xs, values, strict=True)):
+        inside = i not in outside
+        marker = (cell.markers[i] if cell.markers else "o") if inside else \
+            ("v" if value < low else "^")
+        ax.scatter(xi, min(max(value, low), high), s=16, marker=marker, color=color, alpha=0.7,
+                   lw=0, zorder=3, clip_on=False)
+        if i == farthest:
+            ax.annotate(f"{value:.3g}", (xi, min(max(value, low), high)), xytext=(-3, 0),
+                        textcoords="offset points", ha="right", va="center", fontsize=6)
+        elif inside and errors is not None and np.isfinite(errors[i]):
+            ax.errorbar(xi, value, yerr=stats.VERDICT_SE * errors[i], color=color, lw=0.7,
+                        alpha=0.7, zorder=3)
+    ax.bar(x + 0.6 * width, boot[2] - boot[1], bottom=boot[1], width=0.4 * width, color=color,
+           alpha=0.4)
+    ax.hlines(t_values[0], x - 0.35 * width, x + 0.35 * width, color="k", lw=1.5, zorder=4)
+    if np.isfinite(t_values[1]):
+        ax.errorbar(x, t_values[0], yerr=[[t_values[0] - t_values[1]], [t_values[2] -
+                    t_values[0]]], color=color, lw=1.5, capsize=3, zorder=4)
+
+
+def over_tasks_cell(matrix: np.ndarray, boot: Sequence[float], t_values: Sequence[float],
+                    shapes: dict[str, str]) -> PairedCell:
+    """The cell of a (seeds, tasks) matrix, its tasks in `shapes`' order, each task's seeds
+    drawn with that task's marker."""
+    return PairedCell(matrix.T.ravel(), boot, t_values,
+                      markers=[m for m in shapes.values() for _ in range(matrix.shape[0])])
+
+
+def task_markers(tasks: Sequence[str]) -> dict[str, str]:
+    return dict(zip(tasks, "osD^vP*X", strict=False))
+
+
+def summary_range(cells: Sequence[PairedCell]) -> tuple[float, float]:
+    """A y-range that holds the estimates' intervals, zero and the middle 90% of the seeds'
+    dots: one seed's outlier does not set it."""
+    bounds = [v for c in cells for v in (*c.boot, *c.t) if np.isfinite(v)] + [0.0]
+    dots = np.concatenate([c.values for c in cells])
+    low = min(min(bounds), np.percentile(dots, 5))
+    high = max(max(bounds), np.percentile(dots, 95))
+    pad = 0.12 * (high - low or 1.0)
+    return low - pad, high + pad
+
+
+def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str) -> plt.Figure:
+    """The headline figure of both the training log and the robust evaluation: a panel per task
+    (and one over tasks), in each every series' paired difference against tanh(mu) at each x,
+    the seeds beside their mean's t-interval and bootstrap CI (draw_seed_summary); a task's
+    right axis in % of tanh(mu)'s return. `how`: the protocol, under the title."""
+    series = list(dict.fromkeys(s for row in rows for _, s in row.cells))
+    slot = 0.8 / len(series)  # each series' share of an x
+    offsets = {s: (j - (len(series) - 1) / 2) * slot for j, s in enumerate(series)}
+    fig, axes = plt.subplots(len(rows), 1, figsize=(8, 3.1 * len(rows) + 1.0), squeeze=False,
+                             layout="constrained")
+    for ax, row in zip(axes[:, 0], rows, strict=True):
+        ax.set_ylim(*summary_range(list(row.cells.values())))
+        for (i, s), cell in row.cells.items():
+            draw_seed_summary(ax, i + offsets[s], slot / 2, cell, colors[s])
+        ax.set_xticks(range(len(row.ticks)), row.ticks, fontsize="small")
+        ax.set_xlim(-0.5, len(row.ticks) - 0.5)
+        ax.set_title(row.title, fontsize="medium")
+        ax.set_ylabel(row.ylabel)
+        if row.reference is not None:
+            value, where = row.reference
+            reference = abs(value) or 1.0
+            right = ax.secondary_yaxis("right", functions=(lambda y, r=reference: 100 * y / r,
+                                                           lambda p, r=reference: p * r / 100))
+            right.set_ylabel(f"% of tanh(mu)'s return ({value:.3g} {where})", fontsize="small")
+        if row.shapes:
+            ax.legend(handles=[plt.Line2D([], [], ls="", marker=m, color="0.4", label=t)
+                               for t, m in row.shapes.items()], fontsize="x-small", loc="best")
+        ax.axhline(0, color="0.4", ls=":", lw=1)
+        ax.grid(axis="y", alpha=0.25)
+    handles = [Patch(color=colors[s], label=labels[s]) for s in series]
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3),
+               fontsize="small", title="evaluation action", title_fontsize="small")
+    episodes = any(c.errors is not None for row in rows for c in row.cells.values())
+    dots = f"dots: seeds, +-{stats.VERDICT_SE:g} SE of their paired episodes" if episodes \
+        else "dots: seeds"
+    fig.suptitle(f"Each action minus tanh(mu): same actor, same start states\n{how}\n{dots} "
+                 "(triangles: beyond the axis)\ntick and whisker: mean over seeds and its 95% "
+                 "t-interval; bar: bootstrap CI", fontsize="medium")
+    return fig
+
+
+# The over-training figure's rolling mean, over this many rounds (drawn with twice as many).
+ROLLING_ROUNDS = 10
+
+
+def plot_over_training(steps: dict[str, np.ndarray], differences: dict, estimates: dict,
+                       shifts: dict, shift_columns: Sequence[str], colors: dict, names: dict
+                       ) -> plt.Figure:
+    """A row per task, over its shared `steps`. Left: each evaluation action minus tanh(mu)
+    over training; with many rounds each round's mean over seeds (thin) and its rolling mean
+    (thick), with few the mean, its 95% CI and each seed. Right, each on its own axes: the
+    measured shift, sigma and the two-mode share (mean over the corrected runs, band: their
+    range), `shift_columns` in that order."""
+    shown = [t for t in steps if t in differences or t in shifts]
+    titles = ("|mode - tanh(mu)|\nmean over dimensions", "sigma\nmean over dimensions",
+              "two-mode share: dimensions\nwith 2 sigma^2 > 1")
+    fig, axes = plt.subplots(len(shown), 4, figsize=(15.0, 3.4 * len(shown) + 0.6),
+                             squeeze=False, gridspec_kw={"width_ratios": (2.3, 1, 1, 1)},
+                             layout="constrained")
+    for row, task in zip(axes, shown, strict=True):
+        unit, xlabel = steps_axis(steps[task][-1])
+        x = steps[task] / unit
+        ax = row[0]
+        rolling = x.size >= 2 * ROLLING_ROUNDS
+        seeds = set()
+        for group, diffs in differences.get(task, {}).items():
+            mean, (low, high) = estimates[task][group]
+            seeds.add(diffs.shape[0])
+            name = names[group]
+            if rolling:  # a round is one draw of the evaluation noise: the trend needs a window
+                ax.plot(x, mean, color=colors[group], lw=0.7, alpha=0.45)
+                window = np.convolve(mean, np.ones(ROLLING_ROUNDS) / ROLLING_ROUNDS, "valid")
+                ax.plot(x[ROLLING_ROUNDS - 1:], window, color=colors[group], lw=2.2,
+                        label=name)
+            else:
+                ax.plot(x, mean, "o-", color=colors[group], lw=1.8, ms=4, label=name)
+                ax.fill_between(x, low, high, color=colors[group], alpha=0.2, lw=0)
+                ax.plot(x, diffs.T, color=colors[group], lw=0.5, alpha=0.35)
+        ax.axhline(0, color="0.4", ls=":", lw=1)
+        n = " or ".join(map(str, sorted(seeds)))
+        how = (f"thin: each round's mean over seeds; thick: mean of the last {ROLLING_ROUNDS} "
+               "rounds" if rolling else "mean over seeds, 95% bootstrap CI; thin: each seed")
+        ax.set_title(f"{task}, n = {counted(n, 'seed')}\n{how}", fontsize="medium")
+        ax.set_ylabel("Return minus tanh(mu)'s")
+        ax.legend(fontsize="small", frameon=False)
+        for ax, column, title in zip(row[1:], shift_columns, titles, strict=True):
+            values = shifts.get(task, {}).get(column)
+            if values is None:
+                ax.text(0.5, 0.5, "not logged", ha="center", va="center",
+                        transform=ax.transAxes, color="0.4")
+            else:
+                ax.plot(x, values.mean(0), color="k", lw=1.4)
+                ax.fill_between(x, values.min(0), values.max(0), color="0.5", alpha=0.25, lw=0)
+                if column != "bimodal_fraction" and np.all(values > 0):
+                    ax.set_yscale("log")  # the first rounds' spike would flatten the rest
+            ax.set_title(title, fontsize="medium")
+        row[3].set_ylim(-0.02, 1.02)  # a share
+        for ax in row:
+            ax.set_xlabel(xlabel)
+            ax.grid(alpha=0.25)
+    fig.suptitle("Over training: each evaluation action minus tanh(mu) of the same actors, and "
+                 "the distribution shift (mean over the corrected runs; band: their range)")
+    return fig
+
+
+# A success bar further above the returns than this factor would squash them into the floor of
+# the reward-curve axes: it is then named in the title instead of drawn.
+SUCCESS_BAR_DRAWN_WITHIN = 1.5
+
+
+def success_bar_drawn(bar: float, top: float) -> bool:
+    """Whether a task's success bar is drawn on its reward-curve axes: only where it is within
+    SUCCESS_BAR_DRAWN_WITHIN of the returns' top, so that returns a fraction of it keep the
+    axes; otherwise the title names it."""
+    return top > 0 and bar <= SUCCESS_BAR_DRAWN_WITHIN * top
+
+
+def plot_reward_curves(steps: dict[str, np.ndarray], curves: dict, colors: dict,
+                       labels: Callable, styles: dict, bars: dict[str, float], heading: str
+                       ) -> plt.Figure:
+    """Figure 5: per task (over its shared `steps`), each group's mean evaluation return with
+    its 95% interval over seeds, `curves`: task -> group -> (mean, (low, high)), in legend
+    order; `styles`: (task, group) -> line style, ":" for one episode per evaluation; `bars`:
+    the tasks' success bars; `heading` above the panels."""
+    ncols = math.ceil(math.sqrt(len(steps)))
+    nrows = math.ceil(len(steps) / ncols)
+    # At least 9 inches wide, so that the legend below fits in a few rows beside one panel.
+    width = max(5.6 * ncols, 9.0)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(width, 4.0 * nrows + 0.9), squeeze=False)
+    for ax in axes.flat[len(steps) :]:
+        ax.set_visible(False)
+    for ax, (task, x) in zip(axes.flat, steps.items(), strict=False):
+        unit, xlabel = steps_axis(x[-1])
+        width_line = 1.8 if x.size <= 200 else 1.0  # dense curves: thin lines show CIs
+        top = -math.inf
+        for group, (mean, (low, high)) in curves[task].items():
+            style = styles[task, group]
+            ax.plot(x / unit, mean, style, color=colors[group], lw=width_line,
+                    label=labels(group) + (" (one episode per evaluation)" if style == ":"
+                                           else ""))
+            ax.fill_between(x / unit, low, high, color=colors[group], alpha=0.2, lw=0)
+            top = max(top, float(np.max(high)))
+        title = task
+        if task in bars:
+            bar = bars[task]
+            if success_bar_drawn(bar, top):
+                ax.axhline(bar, color="0.4", ls=":", lw=1.2, label="success bar")
+            else:
+                title += f"\nsuccess bar {bar:g} (above)"
+        ax.set_title(title)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("Evaluation return")
+        ax.grid(alpha=0.25)
+    handles = {h.get_label(): h for ax in axes.flat for h in ax.get_lines()}
+    ncol = max(1, min(len(handles), int(width // 3.0)))
+    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=ncol,
+               frameon=False)
+    legend_rows = math.ceil(len(handles) / ncol)
+    fig.suptitle(heading)
+    fig.tight_layout(rect=(0, (0.27 * legend_rows + 0.05) / fig.get_figheight(), 1, 1))
+    return fig
+
+
+def plot_probability_of_improvement(probability: float, ci: np.ndarray, x: object, y: object,
+                                    color: tuple, labels: Callable) -> plt.Figure:
+    """Probability that a run of x beats a run of y on a random task (rliable's own plot)."""
+    fig, ax = plt.subplots(figsize=(6, 1.4))
+    pair = f"{labels(x)};{labels(y)}"
+    plot_utils.plot_probability_of_improvement(
+        {pair: probability}, {pair: ci}, pair_separator=";", ax=ax, colors=[color],
+        xticks=[0, 0.25, 0.5, 0.75, 1.0], xlabel=f"P({labels(x)} > {labels(y)})",
+        ticklabelsize="large", labelsize="large", left_ylabel="", right_ylabel="",
+    )
+    ax.set_xlim(0, 1)
+    ax.axvline(0.5, color="0.5", ls=":", lw=1)
+    ax.text(0.5, -0.72, "every run of one against every run of the other: it ignores the pairing "
+            "(paired_difference.png has it)", transform=ax.transAxes, ha="center", va="top",
+            fontsize="medium", color="0.3")
+    return fig
+
