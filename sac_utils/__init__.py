@@ -6,6 +6,7 @@ training or in evaluate.py), speedups (torch.compile at start-up, CUDA graphs, t
 compiled pieces), files (written whole or not at all), sweep_run (one run of a sweep.py grid),
 stats (the statistics analyze.py and evaluate.py share), report (what analyze.py's reports are
 made of), figures (every figure analyze.py draws), dimension_study (beyond the paper: the paired
-difference against the action dimension).
+difference against the action dimension), policies (what evaluate.py loads: our weights or an
+SB3 SAC, as our Actor and TwinQ).
 docs/scripts.md describes them.
 """

@@ -19,6 +19,7 @@ import torch
 
 import evaluate
 from mode_search import tanh_normal_log_prob
+from sac_utils import policies
 from sac_utils.eval_rounds import Q_BEST_CANDIDATES, Round, eval_seeds, run_round
 from tests.test_sac import EAGER
 
@@ -131,7 +132,7 @@ def test_sb3_actor_is_sb3s_own_distribution(sb3_models, name):
     """mu and sigma as evaluate.py reads them are the distribution SB3 samples from: SB3's own
     sampled actions have the log-density SB3 reports, and tanh(mu), rescaled, is SB3's
     deterministic action."""
-    actor, env_id, _ = evaluate.load_sb3(sb3_models[name], "Pendulum-v1")
+    actor, env_id, _ = policies.load_sb3(sb3_models[name], "Pendulum-v1")
     policy = actor.policy
     obs = torch.as_tensor(np.stack([gym.make(env_id).reset(seed=s)[0] for s in range(8)]))
     with torch.no_grad():
@@ -216,7 +217,7 @@ def test_results_do_not_depend_on_workers_and_stay_paired(our_run, tmp_path, cap
         assert [int(r["reset_seed"]) for r in mine] == seeds
         assert [int(r["episode"]) for r in mine] == list(range(12))
     # The second job's episodes are episodes 10 and 11, in that order.
-    actor, _, env_id, _ = evaluate.load_policy(evaluate.parse_args([str(our_run)]))
+    actor, _, env_id, _ = policies.load_policy(our_run, None, False)
     second = run_round(Round(env_id, seeds[10:], {"tanh_mu": "tanh_mu"}, actor))
     assert [float(r["return"]) for r in rows if r["selector"] == "tanh_mu"][10:] == \
         second["tanh_mu"]["returns"]
@@ -233,8 +234,7 @@ def test_results_do_not_depend_on_workers_and_stay_paired(our_run, tmp_path, cap
 def test_sb3_critic_is_sb3s_own(sb3_models, tmp_path, capsys):
     """q_best on an SB3 SAC scores with SB3's critic, fed actions as SB3 scales them; the
     evaluation runs and reports its choice shares."""
-    actor, critic, _, _ = evaluate.load_policy(evaluate.parse_args(
-        [str(sb3_models["sac"]), "--env-id", "Pendulum-v1", "--selectors", "q_best"]))
+    actor, critic, _, _ = policies.load_policy(sb3_models["sac"], "Pendulum-v1", True)
     policy = actor.policy
     obs = torch.as_tensor(np.stack([gym.make("Pendulum-v1").reset(seed=s)[0] for s in range(8)]))
     env_actions = torch.linspace(-2.0, 2.0, 8)[:, None]
@@ -279,7 +279,7 @@ def test_q_best_needs_a_critic(our_run, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_nan_action_stops_with_one_line(our_run, capsys, monkeypatch):
-    build = evaluate.build_actor
+    build = policies.build_actor
 
     def damaged(*args, **kwargs):
         actor = build(*args, **kwargs)
@@ -287,7 +287,7 @@ def test_a_nan_action_stops_with_one_line(our_run, capsys, monkeypatch):
             actor.fc_mean.bias.fill_(float("nan"))
         return actor
 
-    monkeypatch.setattr(evaluate, "build_actor", damaged)
+    monkeypatch.setattr(policies, "build_actor", damaged)
     refused(capsys, "episodes 0-1: the evaluation action 'tanh_mu' is NaN/inf in episode 0",
             str(our_run), "--episodes", "2", "--selectors", "tanh_mu")
     code, _, err = run(capsys, str(our_run), "--episodes", "2", "--selectors", "tanh_mu")
