@@ -159,9 +159,12 @@ def draw_seed_summary(ax, x: float, width: float, cell: PairedCell, color: tuple
             ("v" if value < low else "^")
         ax.scatter(xi, min(max(value, low), high), s=16, marker=marker, color=color, alpha=0.7,
                    lw=0, zorder=3, clip_on=False)
-        if i == farthest:
-            ax.annotate(f"{value:.3g}", (xi, min(max(value, low), high)), xytext=(-3, 0),
-                        textcoords="offset points", ha="right", va="center", fontsize=6)
+        if i == farthest:  # inside the axes, off the spine, so that its sign stays legible
+            below = value < low
+            ax.annotate(f"{value:.3g}", (xi, min(max(value, low), high)),
+                        xytext=(0, 4 if below else -4), textcoords="offset points",
+                        ha="center", va="bottom" if below else "top", fontsize=6,
+                        bbox={"fc": "white", "ec": "none", "pad": 0.3, "alpha": 0.8})
         elif inside and errors is not None and np.isfinite(errors[i]):
             ax.errorbar(xi, value, yerr=stats.VERDICT_SE * errors[i], color=color, lw=0.7,
                         alpha=0.7, zorder=3)
