@@ -1,0 +1,35 @@
+#!/bin/bash
+# End of a session: stop the campaign's runs with a checkpoint at their current step, then copy
+# what lets each go on without this machine into the checkout (CSVs, config, a snapshot made from
+# the checkpoint: `sweep.py restart` continues from it if the checkpoint is lost).
+set -u
+OUT=/work/main/results/cube-10M/runs
+pids=$(pgrep -f "campaign/src/sac_corrected.py" || true)
+[ -n "$pids" ] && kill -TERM $pids
+for p in $pids; do while kill -0 $p 2>/dev/null; do sleep 1; done; done
+mkdir -p $OUT
+for d in ~/campaign/cube-10M/*/; do
+  r=$(basename $d); mkdir -p $OUT/$r/snapshots
+  # an earlier stop's snapshot (off the 1M grid) gives way to this stop's
+  for f in $OUT/$r/snapshots/step*.pt; do
+    [ -e "$f" ] || continue; n=$(basename $f .pt); n=${n#step}; [ $((n % 1000000)) -ne 0 ] && rm -f $f
+  done
+  cp $d/config.json $d/train.csv $d/eval.csv $d/sweep_run.json $OUT/$r/
+  [ -d $d/snapshots ] && cp $d/snapshots/*.pt $OUT/$r/snapshots/ 2>/dev/null
+  /work/main/.venv/bin/python - "$d" "$OUT/$r" <<'PY'
+import sys, torch
+from pathlib import Path
+run, out = Path(sys.argv[1]), Path(sys.argv[2])
+ckpt = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False, mmap=True)
+step = ckpt["global_step"]
+config = {k: ckpt["args"][k] for k in ("env_id", "hidden_sizes", "log_std_min", "log_std_max")}
+torch.save({"actor": ckpt["actor"], "qf": ckpt["qf"], "config": config,
+            "log_alpha": ckpt["log_alpha"]}, out / "snapshots" / f"step{step}.pt")
+print(run.name, "stopped at", step)
+PY
+done
+# The report reads the runs' CSVs, which grew: rebuild it with reports.json's flags (tests/test_results.py
+# checks it against the committed runs).
+cd /work/main && .venv/bin/python analyze.py results/cube-10M/runs --out results/cube-10M/report \
+  $(python3 -c 'import json; print(" ".join(json.load(open("results/cube-10M/reports.json"))["report"]["args"]))') \
+  > /tmp/cube-10M-report.log 2>&1 && echo "report rebuilt" || echo "report FAILED: /tmp/cube-10M-report.log"
