@@ -627,6 +627,8 @@ def read_robust_folder(folder: Path) -> tuple[dict, pd.DataFrame]:
         settings = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise AnalysisError(f"{path} is not valid JSON ({error}); evaluate again") from None
+    if not isinstance(settings, dict):
+        raise AnalysisError(f"{path} does not hold a JSON object; evaluate again")
     path, again = folder / ROBUST_PER_SEED_FILE, f"`evaluate.py {folder}` writes it again"
     if not path.is_file():
         raise AnalysisError(f"{path} is missing: {again} from the runs' episodes.csv")
@@ -636,7 +638,7 @@ def read_robust_folder(folder: Path) -> tuple[dict, pd.DataFrame]:
         raise AnalysisError(f"{path} is not a CSV ({str(error).splitlines()[0]}); "
                             f"{again}") from None
     missing = [name for name in ROBUST_COLUMNS if name not in rows.columns]
-    if missing or not isinstance(settings, dict):
+    if missing:
         raise AnalysisError(f"{path}: its header {list(rows.columns)} lacks {missing}; {again}")
     for name in ("seed", "step", "episodes", "return_mean"):
         if not pd.api.types.is_numeric_dtype(rows[name]) or rows[name].isna().any():
@@ -682,7 +684,7 @@ class RobustStep:
     errors: dict[str, np.ndarray]  # the standard errors of those paired episodes
     verdicts: dict[str, list[str]]  # stats.verdict per seed
     episodes: np.ndarray  # episodes per seed (of tanh_mu, which every seed played)
-    played: dict[str, int]  # episodes over the seeds
+    played: dict[str, int]  # each action's episodes over its seeds
     unstable: dict[str, int | None]  # of those, ended by a physics blow-up (None: not recorded)
     ends: dict[str, collections.Counter | None]  # how they ended (None: not recorded)
 
@@ -1739,8 +1741,6 @@ def report_choice_shares_of(report: Report, analysis: Analysis, action: str) -> 
 
 
 # ------------------------------------------------- 6. reward curves and final returns (Fig. 5)
-
-
 def reward_curve_estimates(tasks: dict[str, Task], reps: int, seed: int) -> dict:
     """task -> group -> (mean, (low, high)) over seeds at every shared step: with FEW_SEEDS
     seeds or fewer Student's t-interval (a percentile bootstrap of five values is too narrow),
