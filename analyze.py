@@ -12,20 +12,18 @@ it stands in for missing sac_standard.py runs and is checked against present one
 paper's unpaired rliable statistics: IQM / median / mean / optimality gap, performance
 profiles, sample efficiency, probability of improvement.
 
-Top to bottom (docs/analyze.md maps each figure to its code): what to edit (SUCCESS_BARS,
-ACTIONS, COLORS); the data layer (load -> pair -> align -> paired differences -> normalise; the
---robust folders), which writes no report; the shared tools (estimators, labels and colours,
-the paper's figures, the headline figure); one section per report, in summary.md's order, each
-calling the data layer and the shared tools, never another section; the pipeline.
+The data (load -> pair -> align -> paired differences -> normalise; the --robust folders) is
+sac_utils/scores.py's, which writes no report; a task or an evaluation action is one entry
+there. Here, top to bottom (docs/analyze.md maps each figure to its code): what to edit
+(COLORS, the labels); the shared tools (rliable's estimators, the paper's Figures 6-8, labels
+and colours); one section per report, in summary.md's order, each reading the data and the
+shared tools, never another section; the pipeline.
 """
 
 from __future__ import annotations
 
-import collections
-import csv
 import dataclasses
 import functools
-import json
 import math
 import sys
 from collections.abc import Callable, Sequence
@@ -34,7 +32,6 @@ from typing import Literal
 
 import matplotlib
 import numpy as np
-import pandas as pd
 import scipy.stats
 import seaborn as sns
 import tyro
@@ -44,7 +41,6 @@ from rliable import metrics
 from sac_utils import dimension_study as dimensions
 from sac_utils import stats
 from sac_utils.cli import broken_rule
-from sac_utils.dimension_study import SHIFT_COLUMNS, Dimension, training_fraction_steps
 from sac_utils.figures import (
     PairedCell,
     PairedRow,
@@ -60,77 +56,53 @@ from sac_utils.figures import (
     task_markers,
 )
 from sac_utils.report import Report, counted, format_ci, format_step, markdown_table, seed_cells
+from sac_utils.scores import (
+    ACTIONS,
+    BASELINE,
+    CHOICE_SHARES,
+    CORRECTED,
+    OVER_TRAINING_SHIFT_COLUMNS,
+    PAIRED_RETURN_COLUMN,
+    STANDARD,
+    SUCCESS_BARS,
+    Aggregate,
+    AnalysisError,
+    Curve,
+    Key,
+    Pairing,
+    Robust,
+    RobustStep,
+    Runs,
+    Task,
+    align,
+    build_aggregate,
+    eval_suffix,
+    group_name,
+    group_rank,
+    is_own,
+    load_robust,
+    load_runs,
+    normalize,
+    normalizers,
+    ordered_groups,
+    own_action,
+    paired_difference_curves,
+    paired_differences,
+    paired_groups,
+    resolve_normalization,
+    robust_paired_differences,
+    standard_from_paired,
+)
 from sac_utils.stats import CONFIDENCE, seed_mean_estimates, t_interval, welch_interval
 
 # ============================================================================== what to edit
-# A task with a success bar: one entry here. HumanoidBench's success bars, the return at which a
-# task counts as solved; under the default normalisation a score of 1.0 means "reached the bar",
-# and the reward curves draw the bar. A task without one is scored min-max (see NORMALIZATIONS).
-SUCCESS_BARS = {
-    "h1hand-stand-v0": 800.0,
-    "h1hand-powerlift-v0": 800.0,
-    "h1hand-cube-v0": 370.0,
-    "h1hand-bookshelf_simple-v0": 2000.0,
-    "h1hand-bookshelf_hard-v0": 2000.0,
-}
-
-STANDARD, CORRECTED = "standard", "corrected"
-# The action each script evaluates with on its own (eval.csv's unprefixed columns).
-OWN_ACTIONS = {CORRECTED: "mode", STANDARD: "tanh_mu"}
-# An evaluation action: a block of eval.csv columns NAME_return_mean, ... of the same actor
-# from the same start states (sac_corrected.py always logs tanh_mu_; --eval-selectors adds
-# mean_, q_best_ and, for sac_standard.py, mode_) -> its name in figures and tables. A new one
-# is one entry here; every report follows.
-ACTIONS = {"tanh_mu": "tanh(mu)", "mode": "mode", "mean": "mean", "q_best": "q_best"}
-# The baseline every other action is compared with: sac_corrected.py always logs it.
-BASELINE = stats.BASELINE
-# Optional: how often an action's critic picked each candidate (shares summing to 1).
-CHOICE_SHARES = {"q_best": ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_share_mean")}
+# A task's success bar and a new evaluation action: sac_utils/scores.py (SUCCESS_BARS, ACTIONS).
 # Each (algorithm, action)'s colour, an index in seaborn's colorblind palette, fixed so that
 # colours stay put between reports (an algorithm's actions get distant hues); any other gets a
 # free colour.
 COLORS = {(STANDARD, "tanh_mu"): 0, (CORRECTED, "mode"): 1, (CORRECTED, "tanh_mu"): 9,
           (STANDARD, "mode"): 3, (CORRECTED, "mean"): 2, (STANDARD, "mean"): 5,
           (CORRECTED, "q_best"): 4, (STANDARD, "q_best"): 6}
-# A group of evaluations: the runs of an algorithm, evaluated with an action.
-Key = tuple[str, str]
-
-
-def own_action(algorithm: str) -> str:
-    """The action an algorithm's runs evaluate with on their own; another algorithm's name."""
-    return OWN_ACTIONS.get(algorithm, algorithm)
-
-
-def is_own(key: Key) -> bool:
-    """The runs' own evaluation, not a paired evaluation with another action."""
-    return key[1] == own_action(key[0])
-
-
-def eval_suffix(key: Key) -> str:
-    """What a group's name adds to its algorithm's: "" for its own action, " (mean eval)"."""
-    return "" if is_own(key) else f" ({ACTIONS.get(key[1], key[1])} eval)"
-
-
-def group_name(key: Key) -> str:
-    """summary.csv's group: "corrected", "corrected (mean eval)"."""
-    return key[0] + eval_suffix(key)
-
-
-# ------------------------------------------------------------------------- the run-folder format
-# The run-folder format read here (docs/scripts.md, "The run folder", documents it, also for users
-# who bring logs from elsewhere). Everything else in a run folder is ignored.
-CONFIG_FILE = "config.json"
-EVAL_FILE = "eval.csv"
-REQUIRED_CONFIG_KEYS = ("env_id", "seed", "algorithm")
-STEP_COLUMN = "global_step"
-RETURN_COLUMN = "return_mean"  # mean return of the script's own evaluation action
-REQUIRED_EVAL_COLUMNS = (STEP_COLUMN, RETURN_COLUMN)
-PAIRED_RETURN_COLUMN = f"{BASELINE}_{RETURN_COLUMN}"
-# Over training: the shift per action dimension, which tasks of any dimension share an axis on.
-OVER_TRAINING_SHIFT_COLUMNS = ("mode_shift_abs_mean", "sigma_mean", "bimodal_fraction")
-# Optional: how many distinct episodes an evaluation round held. A task that resets without
-# noise plays one episode however many the round asks for, which the figures must say.
-EPISODES_COLUMN = "distinct_episodes"
 
 # ----------------------------------------------------------------------------- groups and settings
 # Probability of improvement of the first over the second.
@@ -138,10 +110,6 @@ COMPARISON = ((CORRECTED, "mode"), (STANDARD, BASELINE))
 STANDARD_LABEL = "Standard SAC"
 ALGORITHM_LABELS = {STANDARD: STANDARD_LABEL, CORRECTED: "Corrected SAC"}
 STANDARD_FROM_PAIRED_LABEL = "Standard SAC (tanh(mu), paired)"
-# A standard run and the paired evaluation of the corrected run of the same seed agree when
-# their returns at a shared step differ by at most this (relative): the CSVs hold the same
-# floats, so any real difference (other flags, code, or device) is far larger.
-AGREEMENT_RTOL = 1e-9
 NORMALIZATIONS = {
     "auto": "success-bar when every task has a HumanoidBench success bar, otherwise min-max",
     "success-bar": "score = return / HumanoidBench success bar (1.0 = solved)",
@@ -181,666 +149,6 @@ class Args:
     robust: tuple[Path, ...] = ()
     """folders evaluate.py wrote over a campaign (evaluation.json + one episodes.csv per run; one
     per task, or several tasks in one): adds the robust evaluation's section and figure"""
-
-
-class AnalysisError(Exception):
-    """A problem with the input that the user can fix: reported as one message, no traceback."""
-
-
-# ============================================================================== the data layer
-# Run folders in, arrays out: load -> pair -> align -> paired differences -> normalise. Nothing
-# here writes a report; the notes it returns (runs skipped, cut, left out) go to summary.md.
-# ------------------------------------------------------------------------------------- load
-@dataclasses.dataclass
-class Curve:
-    """One run's evaluation returns, at the steps it logged, for one group."""
-
-    run_dir: Path
-    seed: int
-    steps: np.ndarray
-    returns: np.ndarray
-    action_dim: int | None = None  # config.json's, where it has one
-    shift: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # SHIFT_COLUMNS
-    shares: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # CHOICE_SHARES
-    budget: int | None = None  # config.json's total_timesteps, where it has one
-    episodes: np.ndarray | None = None  # EPISODES_COLUMN per step, where the run logged it
-
-
-# task -> (algorithm, action) -> curves sorted by seed
-Runs = dict[str, dict[Key, list[Curve]]]
-
-
-def optional_columns() -> tuple[str, ...]:
-    """eval.csv's optional columns: each evaluation action's return and choice shares, the
-    shift statistics, the distinct episodes."""
-    return (*(f"{action}_{RETURN_COLUMN}" for action in ACTIONS),
-            *(column for columns in CHOICE_SHARES.values() for column in columns),
-            *dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS), EPISODES_COLUMN)
-
-
-def read_config(path: Path) -> dict:
-    """The run's config.json, checked for the keys analyze.py needs."""
-    try:
-        config = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise AnalysisError(f"{path} is not valid JSON ({error}); fix or remove that run") from None
-    if not isinstance(config, dict):
-        raise AnalysisError(f"{path} must hold a JSON object with keys {REQUIRED_CONFIG_KEYS}")
-    missing = [key for key in REQUIRED_CONFIG_KEYS if key not in config]
-    if missing:
-        raise AnalysisError(
-            f"{path} lacks key(s) {missing}; every config.json needs {list(REQUIRED_CONFIG_KEYS)}"
-        )
-    if not isinstance(config["seed"], int) or isinstance(config["seed"], bool):
-        raise AnalysisError(f"{path}: seed must be an integer, got {config['seed']!r}")
-    for key in ("env_id", "algorithm"):
-        if not isinstance(config[key], str) or not config[key]:
-            raise AnalysisError(f"{path}: {key} must be a non-empty string, got {config[key]!r}")
-    return config
-
-
-def read_eval_csv(path: Path) -> tuple[dict[str, np.ndarray], bool]:
-    """The columns analyze.py uses, as arrays, and whether an incomplete last line was dropped.
-
-    A run killed mid-write leaves a last line without its line end: it is dropped and every
-    complete row is kept.
-    """
-    lines = path.read_text(encoding="utf-8", errors="replace").splitlines(keepends=True)
-    partial = bool(lines) and not lines[-1].endswith(("\n", "\r"))
-    rows = [row for row in csv.reader(lines[:-1] if partial else lines) if row]
-    if not rows:
-        return {name: np.empty(0) for name in REQUIRED_EVAL_COLUMNS}, partial
-    header, body = [name.strip() for name in rows[0]], rows[1:]
-    missing = [name for name in REQUIRED_EVAL_COLUMNS if name not in header]
-    if missing:
-        raise AnalysisError(
-            f"{path} lacks column(s) {missing}; eval.csv needs a header row with at least "
-            f"{list(REQUIRED_EVAL_COLUMNS)} (see docs/analyze.md)"
-        )
-    optional = optional_columns()
-    wanted = [*REQUIRED_EVAL_COLUMNS, *(c for c in optional if c in header)]
-    columns = {name: np.empty(len(body)) for name in wanted}
-    for i, row in enumerate(body):
-        if len(row) != len(header):
-            raise AnalysisError(
-                f"{path}, row {i + 2}: {len(row)} fields where the header has {len(header)}; "
-                "fix or delete that row"
-            )
-        for name in wanted:
-            columns[name][i] = _parse_number(row[header.index(name)], path, i + 2, name,
-                                             name in optional)
-    _check_columns(columns, path)
-    return columns, partial
-
-
-def _parse_number(text: str, path: Path, row: int, column: str, optional: bool) -> float:
-    if not text.strip() and optional:
-        return math.nan  # optional column: an empty cell means "not measured"
-    try:
-        value = float(text)
-    except ValueError:
-        raise AnalysisError(f"{path}, row {row}: {column} = {text!r} is not a number") from None
-    if not math.isfinite(value) and not optional:
-        raise AnalysisError(f"{path}, row {row}: {column} = {text!r} is not a finite number")
-    return value
-
-
-def _check_columns(columns: dict[str, np.ndarray], path: Path) -> None:
-    steps = columns[STEP_COLUMN]
-    if np.any(steps != np.round(steps)):
-        raise AnalysisError(f"{path}: {STEP_COLUMN} must hold whole environment steps")
-    if np.any(np.diff(steps) <= 0):
-        row = int(np.argmax(np.diff(steps) <= 0)) + 3
-        raise AnalysisError(
-            f"{path}, row {row}: {STEP_COLUMN} does not increase (a resumed run whose log "
-            "was not truncated?); keep one row per evaluation step"
-        )
-
-
-def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
-    """Every run under the `roots`, grouped by task and group, and notes on what was skipped."""
-    for root in roots:
-        if not root.is_dir():
-            raise AnalysisError(
-                f"{root} is not a folder; pass the folder(s) that hold the run folders")
-    runs: Runs = {}
-    notes: list[str] = []
-    # A folder named twice (or inside another one named) is read once.
-    configs = {path.resolve(): path for root in roots for path in sorted(root.rglob(CONFIG_FILE))}
-    for config_path in configs.values():
-        run_dir = config_path.parent
-        if not (run_dir / EVAL_FILE).is_file():
-            notes.append(f"{run_dir}: no {EVAL_FILE} yet; skipped")
-            continue
-        config = read_config(config_path)
-        columns, partial = read_eval_csv(run_dir / EVAL_FILE)
-        if partial:
-            notes.append(
-                f"{run_dir / EVAL_FILE}: incomplete last line (killed mid-write?); "
-                "read up to the last complete row"
-            )
-        if columns[STEP_COLUMN].size == 0:
-            notes.append(f"{run_dir}: no complete evaluation row yet; skipped")
-            continue
-        task, algorithm, seed = config["env_id"], config["algorithm"], config["seed"]
-        steps = columns[STEP_COLUMN].astype(np.int64)
-        action_dim = config.get("action_dim") if isinstance(config.get("action_dim"), int) \
-            else None
-        budget = config.get("total_timesteps")
-        budget = budget if isinstance(budget, int) and budget > 0 else None
-        shift = {c: columns[c] for c in dict.fromkeys(SHIFT_COLUMNS + OVER_TRAINING_SHIFT_COLUMNS)
-                 if c in columns}
-        episodes = columns.get(EPISODES_COLUMN)
-        own = (algorithm, own_action(algorithm))
-        _add_curve(runs, task, own, Curve(run_dir, seed, steps, columns[RETURN_COLUMN],
-                                          action_dim, shift, budget=budget, episodes=episodes))
-        for action in ACTIONS:
-            paired = columns.get(f"{action}_{RETURN_COLUMN}")
-            if paired is None or action == own[1]:
-                continue
-            if np.isfinite(paired).all():
-                shares = {c: columns[c] for c in CHOICE_SHARES.get(action, ()) if c in columns}
-                curve = Curve(run_dir, seed, steps, paired, action_dim, shares=shares,
-                              budget=budget, episodes=episodes)
-                _add_curve(runs, task, (algorithm, action), curve)
-            else:
-                notes.append(f"{run_dir}: {action}_{RETURN_COLUMN} has empty cells; "
-                             f"its paired {action} eval left out")
-    if not runs:
-        raise AnalysisError(
-            f"no runs found under {', '.join(map(str, roots))}: a run is a folder holding "
-            f"{CONFIG_FILE} (keys "
-            f"{list(REQUIRED_CONFIG_KEYS)}) and {EVAL_FILE} (columns "
-            f"{list(REQUIRED_EVAL_COLUMNS)}); see docs/analyze.md"
-        )
-    for groups in runs.values():
-        for curves in groups.values():
-            curves.sort(key=lambda curve: curve.seed)
-    return runs, notes
-
-
-def _add_curve(runs: Runs, task: str, key: Key, curve: Curve) -> None:
-    curves = runs.setdefault(task, {}).setdefault(key, [])
-    twin = next((other for other in curves if other.seed == curve.seed), None)
-    if twin is not None:
-        raise AnalysisError(
-            f"two runs of {task}, {group_name(key)}, seed {curve.seed}: {twin.run_dir} and "
-            f"{curve.run_dir}; move one out of the folder"
-        )
-    curves.append(curve)
-
-
-def group_order() -> list[Key]:
-    """The paper's groups in a fixed order (so that tables and colours stay put): the two
-    algorithms, corrected's tanh(mu), then each algorithm's other evaluation actions."""
-    others = [(algorithm, action) for algorithm in (CORRECTED, STANDARD) for action in ACTIONS
-              if action not in (BASELINE, own_action(algorithm))]
-    return [(STANDARD, BASELINE), (CORRECTED, "mode"), (CORRECTED, BASELINE), *others]
-
-
-def group_rank(key: Key) -> tuple[int, str]:
-    """Sort key: the paper's groups first, in a fixed order, then the others by name."""
-    order = group_order()
-    return (order.index(key) if key in order else len(order), group_name(key))
-
-
-def ordered_groups(runs: Runs) -> list[Key]:
-    """Every group in the folder: the paper's first, in a fixed order (so colours stay put)."""
-    return sorted({key for groups in runs.values() for key in groups}, key=group_rank)
-
-
-# ------------------------------------------------------------------------------------- pair
-@dataclasses.dataclass
-class Pairing:
-    """How the corrected runs' paired tanh(mu) evaluation relates to the standard runs."""
-
-    derived: list[str]  # tasks whose standard group is the corrected runs' paired evaluation
-    agreeing: dict[str, int]  # task -> (seed, step) points where standard and paired agree
-    disagreeing: list[str]  # one line per standard run that disagrees with its paired twin
-
-
-def standard_from_paired(runs: Runs) -> Pairing:
-    """A corrected run's tanh(mu) evaluation is the standard run of its seed (same training
-    decisions, same start states, same actor). A task without sac_standard.py runs gets them
-    from it; a task with both is checked point by point (same seed, same step)."""
-    pairing = Pairing([], {}, [])
-    paired_key, standard_key = (CORRECTED, BASELINE), (STANDARD, BASELINE)
-    for task, groups in sorted(runs.items()):
-        if paired_key not in groups:
-            continue
-        if standard_key not in groups:
-            groups[standard_key] = groups.pop(paired_key)
-            pairing.derived.append(task)
-            continue
-        paired = {curve.seed: curve for curve in groups[paired_key]}
-        for standard in groups[standard_key]:
-            twin = paired.get(standard.seed)
-            if twin is None:
-                continue
-            steps, i, j = np.intersect1d(standard.steps, twin.steps, return_indices=True)
-            a, b = standard.returns[i], twin.returns[j]
-            differ = ~np.isclose(a, b, rtol=AGREEMENT_RTOL, atol=0.0)
-            if differ.any():
-                k = int(np.argmax(differ))
-                pairing.disagreeing.append(
-                    f"{task}, seed {standard.seed}: {standard.run_dir} and the paired evaluation "
-                    f"of {twin.run_dir} differ at {int(differ.sum())} of {steps.size} shared "
-                    f"steps (step {format_step(steps[k])}: {a[k]:.6g} vs {b[k]:.6g}); made with "
-                    "other flags or code? Kept apart")
-            else:
-                pairing.agreeing[task] = pairing.agreeing.get(task, 0) + steps.size
-    return pairing
-
-
-def standard_label(pairing: Pairing, tasks: Sequence[str]) -> str:
-    """What the standard group is: sac_standard.py runs, the paired evaluation, or a mix."""
-    if not pairing.derived:
-        return STANDARD_LABEL
-    if len(pairing.derived) == len(tasks):
-        return STANDARD_FROM_PAIRED_LABEL
-    return STANDARD_FROM_PAIRED_LABEL.replace("paired", "paired on some tasks")
-
-
-# ------------------------------------------------------------------------------------- align
-@dataclasses.dataclass
-class Task:
-    """A task's runs aligned on the evaluation steps all of them share."""
-
-    steps: np.ndarray  # (steps,) shared by every run of the task
-    returns: dict[Key, np.ndarray]  # (seeds, steps)
-    seeds: dict[Key, list[int]]
-    scored_step: int  # the step final scores are taken at
-    budget: int  # the runs' total_timesteps where they agree, else the last shared step
-
-    def at(self, group: Key, steps: np.ndarray) -> np.ndarray:
-        """The group's returns at some of the shared steps, (seeds, steps)."""
-        return self.returns[group][:, np.searchsorted(self.steps, steps)]
-
-    def scored(self, group: Key) -> np.ndarray:
-        """The group's returns at the scored step, one per seed."""
-        return self.at(group, np.array([self.scored_step]))[:, 0]
-
-
-def align(runs: Runs, at_step: int | None) -> tuple[dict[str, Task], list[str]]:
-    """Each task's runs on their shared steps, and notes on the runs that were cut."""
-    tasks, notes = {}, []
-    for task, groups in sorted(runs.items()):
-        curves = [curve for group in groups.values() for curve in group]
-        steps = functools.reduce(np.intersect1d, [curve.steps for curve in curves])
-        if steps.size == 0:
-            raise AnalysisError(
-                f"the runs of {task} share no evaluation step (different eval intervals or "
-                "step ranges); analyse runs logged on a common step grid"
-            )
-        scored_step = _scored_step(task, curves, steps, at_step)
-        notes += _alignment_notes(task, curves, steps, scored_step)
-        tasks[task] = Task(
-            steps=steps,
-            returns={g: np.stack([returns_at(c, steps) for c in cs]) for g, cs in groups.items()},
-            seeds={g: [c.seed for c in cs] for g, cs in groups.items()},
-            scored_step=scored_step,
-            budget=task_budget(curves, steps),
-        )
-    return tasks, notes
-
-
-def task_budget(curves: list[Curve], steps: np.ndarray) -> int:
-    """The task's training budget: its runs' total_timesteps where all give the same one,
-    else the last step its runs share."""
-    budgets = {curve.budget for curve in curves}
-    return budgets.pop() if len(budgets) == 1 and None not in budgets else int(steps[-1])
-
-
-def _scored_step(task: str, curves: list[Curve], steps: np.ndarray, at_step: int | None) -> int:
-    if at_step is None:
-        return int(steps[-1])
-    if at_step not in steps:
-        lacking = [c for c in curves if at_step not in c.steps]
-        example = f" (e.g. {lacking[0].run_dir}, which stops at {lacking[0].steps[-1]})"
-        raise AnalysisError(
-            f"--at-step {at_step}: not every run of {task} was evaluated at that step"
-            f"{example if lacking else ''}; steps all its runs share: "
-            f"{format_step(steps[0])} .. {format_step(steps[-1])}, {steps.size} in all"
-        )
-    return at_step
-
-
-def _alignment_notes(
-    task: str, curves: list[Curve], steps: np.ndarray, scored_step: int
-) -> list[str]:
-    notes = []
-    # A paired evaluation shares its run with its algorithm's curve: name each run once.
-    cut = {c.run_dir: c.steps[-1] for c in curves if c.steps[-1] > steps[-1]}
-    if cut:
-        shortest = min(curves, key=lambda c: c.steps[-1])
-        notes.append(
-            f"{task}: its runs share steps up to {format_step(steps[-1])} (shortest run: "
-            f"{shortest.run_dir}, to {format_step(shortest.steps[-1])}); curves and scores stop "
-            "there. Cut: "
-            + ", ".join(f"{d} (reached {format_step(last)})" for d, last in cut.items())
-        )
-    unshared = {c.run_dir for c in curves
-                if np.setdiff1d(c.steps[c.steps <= steps[-1]], steps).size}
-    if unshared:
-        notes.append(
-            f"{task}: evaluation steps differ between runs ({len(unshared)} run(s) have steps "
-            f"others lack); curves and scores use the {steps.size} steps all runs share"
-        )
-    if scored_step != steps[-1]:
-        notes.append(f"{task}: final scores taken at --at-step {format_step(scored_step)}")
-    return notes
-
-
-def returns_at(curve: Curve, steps: np.ndarray) -> np.ndarray:
-    return curve.returns[np.searchsorted(curve.steps, steps)]
-
-
-# ----------------------------------------------------------------------- paired differences
-# Each evaluation action minus tanh(mu) of the same actors, per seed: the paired difference
-# report, over training and the dimension study read these arrays.
-def baseline_of(keys: Sequence[Key], algorithm: str, derived: bool) -> Key | None:
-    """The group holding the tanh(mu) evaluation of an algorithm's actors, if the task has one."""
-    if (algorithm, BASELINE) in keys:
-        return (algorithm, BASELINE)
-    if algorithm == CORRECTED and derived and (STANDARD, BASELINE) in keys:
-        return (STANDARD, BASELINE)  # the standard group is the corrected runs' paired evaluation
-    return None
-
-
-def paired_groups(data: Task, derived: bool) -> list[tuple[Key, Key]]:
-    """(group of some evaluation action, group of tanh(mu) of the same actors) pairs present in
-    a task: the corrected runs' mode, each run's mean, q_best and (standard runs) mode."""
-    pairs = []
-    for key in sorted(data.returns, key=group_rank):
-        baseline = baseline_of(list(data.returns), key[0], derived)
-        if baseline is not None and key[1] != BASELINE:
-            pairs.append((key, baseline))
-    return pairs
-
-
-def paired_values(data: Task, group: Key, baseline: Key, steps: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """(group, baseline) returns at `steps`, (seeds, steps) each, on the seeds both have: a run
-    made without some evaluation action has no partner there."""
-    seeds = sorted(set(data.seeds[group]) & set(data.seeds[baseline]))
-    rows = [[data.seeds[g].index(seed) for seed in seeds] for g in (group, baseline)]
-    return data.at(group, steps)[rows[0]], data.at(baseline, steps)[rows[1]]
-
-
-def paired_differences(tasks: dict[str, Task], derived: Sequence[str] = ()
-                       ) -> dict[str, dict[str, np.ndarray]]:
-    """task -> group -> per-seed (that group's eval minus tanh(mu) eval of the same actors) at
-    the scored step; the group is the algorithm itself for its own action (the corrected mode)."""
-    differences: dict[str, dict[str, np.ndarray]] = {}
-    for task, data in tasks.items():
-        for group, baseline in paired_groups(data, task in derived):
-            own, paired = paired_values(data, group, baseline, np.array([data.scored_step]))
-            differences.setdefault(task, {})[group] = stats.paired_difference(own[:, 0],
-                                                                              paired[:, 0])
-    return differences
-
-
-def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
-                             ) -> dict[str, dict[str, np.ndarray]]:
-    """task -> group -> per-seed difference (group minus tanh(mu) of the same actors) at every
-    shared step, (seeds, steps): the headline's paired difference over the whole of training."""
-    curves: dict[str, dict[str, np.ndarray]] = {}
-    for task, data in tasks.items():
-        for group, baseline in paired_groups(data, task in derived):
-            own, paired = paired_values(data, group, baseline, data.steps)
-            curves.setdefault(task, {})[group] = stats.paired_difference(own, paired)
-    return curves
-
-
-# ------------------------------------------------------------- robust evaluation (evaluate.py)
-# evaluate.py's campaign folders (--robust): every policy (a run's final weights or a snapshot)
-# played each action from the same many noisy starts, and its per_seed.csv holds, per policy and
-# action, the mean return over the episodes and the mean and standard error of the paired
-# difference against tanh(mu) from the same starts. Everything across seeds is computed here.
-ROBUST_SETTINGS_FILE = "evaluation.json"
-ROBUST_PER_SEED_FILE = "per_seed.csv"
-ROBUST_COLUMNS = ("env_id", "seed", "step", "selector", "episodes", "return_mean",
-                  "difference_mean", "difference_se")
-ROBUST_UNSTABLE_COLUMN = "unstable_ends"  # episodes a physics blow-up ended; empty: not recorded
-ROBUST_END_PREFIX = "end_"  # end_<why>: episodes that ended so (evaluate.py's `end`)
-
-
-@dataclasses.dataclass
-class Robust:
-    """The --robust folders: every per_seed.csv row, one per (task, seed, step, action), sorted
-    by task, step, action and seed; each folder's evaluation.json; the actions in the order the
-    evaluation.json files list them."""
-
-    rows: pd.DataFrame
-    settings: dict[Path, dict]
-    actions: list[str]
-
-
-def read_robust_folder(folder: Path) -> tuple[dict, pd.DataFrame]:
-    """A --robust folder's evaluation.json and per_seed.csv, checked for what analyze.py reads."""
-    path = folder / ROBUST_SETTINGS_FILE
-    if not path.is_file():
-        raise AnalysisError(
-            f"--robust {folder}: no {ROBUST_SETTINGS_FILE} there; pass a folder that "
-            "`evaluate.py RUNS_DIR --out FOLDER` wrote over a campaign of runs")
-    try:
-        settings = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise AnalysisError(f"{path} is not valid JSON ({error}); evaluate again") from None
-    if not isinstance(settings, dict):
-        raise AnalysisError(f"{path} does not hold a JSON object; evaluate again")
-    path, again = folder / ROBUST_PER_SEED_FILE, f"`evaluate.py {folder}` writes it again"
-    if not path.is_file():
-        raise AnalysisError(f"{path} is missing: {again} from the runs' episodes.csv")
-    try:  # round_trip: the floats evaluate.py wrote, to the last bit
-        rows = pd.read_csv(path, float_precision="round_trip")
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as error:
-        raise AnalysisError(f"{path} is not a CSV ({str(error).splitlines()[0]}); "
-                            f"{again}") from None
-    missing = [name for name in ROBUST_COLUMNS if name not in rows.columns]
-    if missing:
-        raise AnalysisError(f"{path}: its header {list(rows.columns)} lacks {missing}; {again}")
-    for name in ("seed", "step", "episodes", "return_mean"):
-        if not pd.api.types.is_numeric_dtype(rows[name]) or rows[name].isna().any():
-            raise AnalysisError(f"{path}: column {name} holds something that is not a number; "
-                                f"{again}")
-    for (task, seed, step), policy in rows.groupby(["env_id", "seed", "step"]):
-        if BASELINE not in set(policy.selector):
-            raise AnalysisError(
-                f"{path}: no {BASELINE} episodes at step {format_step(step)} ({task}, seed "
-                f"{seed}); every action is compared with tanh(mu) of the same actor, so "
-                f"evaluate with --selectors ... {BASELINE}")
-    return settings, rows.assign(source=str(path))
-
-
-def load_robust(folders: Sequence[Path]) -> Robust:
-    """Every --robust folder's per-seed rows; a (task, seed, step) may come from one folder."""
-    settings, frames = {}, []
-    for folder in folders:
-        settings[folder], rows = read_robust_folder(folder)
-        frames.append(rows)
-    rows = pd.concat(frames, ignore_index=True)
-    twice = rows[rows.duplicated(["env_id", "seed", "step", "selector"], keep=False)]
-    if len(twice):
-        task, seed, step = twice.iloc[0][["env_id", "seed", "step"]]
-        sources = " and ".join(twice[(twice.env_id == task) & (twice.seed == seed)
-                                     & (twice.step == step)].source.unique())
-        raise AnalysisError(f"{task}, seed {seed}, step {format_step(step)} is in two --robust "
-                            f"folders ({sources}); pass each evaluation once")
-    listed = [a for s in settings.values() if isinstance(s.get("selectors"), list)
-              for a in s["selectors"]]
-    actions = list(dict.fromkeys([*listed, *rows.selector]))
-    rows = rows.assign(order=rows.selector.map(actions.index)).sort_values(
-        ["env_id", "step", "order", "seed"], ignore_index=True)
-    return Robust(rows, settings, actions)
-
-
-@dataclasses.dataclass
-class RobustStep:
-    """One task's robust evaluation at one step: per action, one value per seed (seed order)."""
-
-    returns: dict[str, np.ndarray]  # mean return over each seed's episodes
-    differences: dict[str, np.ndarray]  # all but tanh_mu: mean of (it - tanh_mu) per episode
-    errors: dict[str, np.ndarray]  # the standard errors of those paired episodes
-    verdicts: dict[str, list[str]]  # stats.verdict per seed
-    episodes: np.ndarray  # episodes per seed (of tanh_mu, which every seed played)
-    played: dict[str, int]  # each action's episodes over its seeds
-    unstable: dict[str, int | None]  # of those, ended by a physics blow-up (None: not recorded)
-    ends: dict[str, collections.Counter | None]  # how they ended (None: not recorded)
-
-
-def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]]:
-    """task -> step -> RobustStep, from the per-seed rows."""
-    by_task: dict[str, dict[int, RobustStep]] = {}
-    reasons = [c for c in robust.rows.columns if c.startswith(ROBUST_END_PREFIX)]
-    for (task, step), rows in robust.rows.groupby(["env_id", "step"], sort=False):
-        at = RobustStep({}, {}, {}, {}, rows[rows.selector == BASELINE].episodes.to_numpy(),
-                        {}, {}, {})
-        for action, seeds in rows.groupby("selector", sort=False):
-            at.returns[action] = seeds.return_mean.to_numpy()
-            at.played[action] = int(seeds.episodes.sum())
-            unstable = seeds.get(ROBUST_UNSTABLE_COLUMN)
-            at.unstable[action] = None if unstable is None or unstable.isna().any() \
-                else int(unstable.sum())
-            ends = seeds[reasons]
-            at.ends[action] = None if not reasons or ends.isna().any(axis=None) else \
-                collections.Counter({r.removeprefix(ROBUST_END_PREFIX): int(n)
-                                     for r, n in ends.sum().items() if n > 0})
-            if action != BASELINE:
-                at.differences[action] = seeds.difference_mean.to_numpy()
-                at.errors[action] = seeds.difference_se.to_numpy()
-                at.verdicts[action] = [stats.verdict(m, se) for m, se in
-                                       zip(at.differences[action], at.errors[action],
-                                           strict=True)]
-        by_task.setdefault(task, {})[int(step)] = at
-    return by_task
-
-
-# ------------------------------------------------------------------------------------- normalise
-def resolve_normalization(mode: str, tasks: Sequence[str]) -> tuple[str, str]:
-    """`auto` made concrete, and a sentence for summary.md saying what was chosen and why."""
-    if mode != "auto":
-        return mode, ""
-    lacking = [task for task in tasks if task not in SUCCESS_BARS]
-    if not lacking:
-        return "success-bar", "`auto` chose `success-bar`: every task has a HumanoidBench bar. "
-    return "min-max", (f"`auto` chose `min-max`: no HumanoidBench success bar for "
-                       f"{', '.join(lacking)}. ")
-
-
-def normalizers(tasks: dict[str, Task], mode: str) -> dict[str, tuple[float, float]]:
-    """Per task (offset, scale): score = (return - offset) / scale."""
-    if mode == "none":
-        if len(tasks) > 1:
-            raise AnalysisError(
-                f"{len(tasks)} tasks found ({', '.join(tasks)}) but --normalize none: raw "
-                "returns of different tasks cannot be aggregated. Use --normalize success-bar "
-                "or --normalize min-max, or point analyze.py at a folder with one task"
-            )
-        return {task: (0.0, 1.0) for task in tasks}
-    if mode == "success-bar":
-        unknown = [task for task in tasks if task not in SUCCESS_BARS]
-        if unknown:
-            raise AnalysisError(
-                f"no success bar known for {', '.join(unknown)} (known: "
-                f"{', '.join(SUCCESS_BARS)}); use --normalize min-max"
-                + (" or --normalize none" if len(tasks) == 1 else "")
-            )
-        return {task: (0.0, SUCCESS_BARS[task]) for task in tasks}
-    bounds = {}
-    for task, data in tasks.items():
-        everything = np.concatenate([returns.ravel() for returns in data.returns.values()])
-        low, high = float(everything.min()), float(everything.max())
-        bounds[task] = (low, high - low if high > low else 1.0)
-    return bounds
-
-
-def normalize(returns: np.ndarray, norm: tuple[float, float]) -> np.ndarray:
-    offset, scale = norm
-    return (returns - offset) / scale
-
-
-@dataclasses.dataclass
-class Aggregate:
-    """Normalised scores of the groups compared across tasks, as rliable wants them."""
-
-    tasks: list[str]
-    groups: list[Key]
-    final: dict[Key, np.ndarray]  # group -> (runs, tasks) at each task's scored step
-    frames: np.ndarray  # x of the sample-efficiency curve: steps, or fractions of the budgets
-    curves: dict[str, np.ndarray]  # group -> (runs, tasks, frames)
-    by_fraction: bool = False  # frames are fractions of each task's budget
-
-
-def build_aggregate(
-    tasks: dict[str, Task], norms: dict, groups: list[Key], curve_points: int
-) -> tuple[Aggregate | None, list[str]]:
-    """Score matrices over the tasks that every algorithm ran, and notes on what was left out."""
-    notes = []
-    algorithms = [g for g in groups if is_own(g)]
-    common = [t for t, data in tasks.items() if all(a in data.returns for a in algorithms)]
-    for task in sorted(set(tasks) - set(common)):
-        lacking = [a for a in algorithms if a not in tasks[task].returns]
-        notes.append(f"{task}: left out of the aggregate metrics (no "
-                     f"{', '.join(map(group_name, lacking))} runs)")
-    if not common:
-        notes.append("no task was run by every algorithm: aggregate metrics skipped")
-        return None, notes
-    members = [g for g in groups if all(g in tasks[t].returns for t in common)]
-    for group in sorted(set(groups) - set(members), key=groups.index):
-        notes.append(f"{group_name(group)}: left out of the aggregate metrics (missing on some "
-                     "tasks)")
-    runs = {g: min(tasks[t].returns[g].shape[0] for t in common) for g in members}
-    for g in members:
-        if any(tasks[t].returns[g].shape[0] > runs[g] for t in common):
-            notes.append(
-                f"{group_name(g)}: tasks have different numbers of seeds; the aggregate uses the "
-                f"{runs[g]} lowest seeds of each task"
-            )
-    final = {
-        g: np.stack([normalize(tasks[t].scored(g)[: runs[g]], norms[t]) for t in common], axis=1)
-        for g in members
-    }
-    shared = functools.reduce(np.intersect1d, [tasks[t].steps for t in common])
-    by_fraction = shared.size == 0 or len({tasks[t].budget for t in common}) > 1
-    if by_fraction:
-        frames, steps, note = fraction_frames({t: tasks[t] for t in common}, curve_points)
-        notes.append(note)
-    else:
-        picks = np.linspace(0, shared.size - 1, curve_points).round().astype(int)
-        frames = shared[np.unique(picks)]
-        steps = dict.fromkeys(common, frames)
-    curves = {
-        g: np.stack([normalize(tasks[t].at(g, steps[t])[: runs[g]], norms[t]) for t in common],
-                    1) if frames.size else np.empty((runs[g], len(common), 0))
-        for g in members
-    }
-    return Aggregate(common, members, final, frames, curves, by_fraction), notes
-
-
-def fraction_frames(tasks: dict[str, Task], curve_points: int
-                    ) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
-    """Tasks with different budgets or no evaluation step in common: the sample-efficiency
-    curve's x is the fraction of each task's budget, over the range every task covers; a task
-    contributes its last evaluation at or before each fraction. Returns the fractions, each
-    task's steps at them, and summary.md's note saying so."""
-    first = max(data.steps[0] / data.budget for data in tasks.values())
-    last = min(data.steps[-1] / data.budget for data in tasks.values())
-    budgets = ", ".join(f"{t} {format_step(data.budget)}" for t, data in tasks.items())
-    if first > last:
-        return np.empty(0), {}, (
-            f"the aggregated tasks' evaluations cover no common fraction of their budgets "
-            f"({budgets}): sample-efficiency curve skipped")
-    frames = np.unique(np.linspace(first, last, curve_points))
-    # A step's fraction is rounded so that an evaluation exactly at a frame counts as reached.
-    steps = {t: data.steps[np.searchsorted(np.round(data.steps / data.budget, 12),
-                                           np.round(frames, 12), side="right") - 1]
-             for t, data in tasks.items()}
-    return frames, steps, (
-        "the aggregated tasks have different budgets or share no evaluation step, so the "
-        "sample-efficiency curve's x axis is the fraction of each task's budget (config.json's "
-        "total_timesteps where a task's runs agree on it, else its last shared step: "
-        f"{budgets}); at each fraction a task contributes its last evaluation at or before it")
 
 
 # ============================================================================== shared tools
@@ -899,6 +207,40 @@ def iqm_per_step(scores: np.ndarray) -> np.ndarray:
     return scipy.stats.trim_mean(scores.reshape(-1, scores.shape[-1]), 0.25, axis=0)
 
 
+# ------------------------------------------- paired differences: the headline's and the robust's
+# The training log's paired difference (2.) and the robust evaluation's (3.) write through these.
+def difference_rows(report: Report, section: str, task: str, key: Key | str, step: int,
+                    diffs: np.ndarray, boot: Sequence[float], scale: float | None = None,
+                    suffix: str = "") -> tuple[float, float, float]:
+    """summary.csv's rows of one paired difference, one value per seed: the mean with its
+    bootstrap CI (`boot`) and Student's t-interval, in returns and, given the task's scale, in
+    scores; and the share of seeds above zero. Returns the t-interval."""
+    n, t_values = diffs.size, t_interval(diffs)
+    for unit, divisor in (("return", 1.0), ("score", scale)):
+        if divisor is not None:
+            report.row(section, task, key, f"{unit}{suffix}", step, n,
+                       *(v / divisor for v in boot))
+            report.row(section, task, key, f"{unit}{suffix}_t", step, n,
+                       *(v / divisor for v in t_values))
+    report.row(section, task, key, f"share_won{suffix}", step, n, int((diffs > 0).sum()) / n,
+               math.nan, math.nan)
+    return t_values
+
+
+def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str, np.ndarray],
+               step: int | str, shapes: dict[str, str], args: Args) -> PairedCell:
+    """A paired difference over tasks, each task's per-seed values already in scores:
+    difference_over_tasks, summary.csv's rows (the mean with its bootstrap CI and Welch's
+    interval, the share of (task, seed) pairs above zero) and the figure's cell."""
+    scores, boot, t_values = difference_over_tasks(list(per_task.values()), args.reps,
+                                                   args.seed)
+    report.row(section, "all", key, "mean_score", step, scores.shape[0], *boot)
+    report.row(section, "all", key, "mean_score_t", step, scores.shape[0], *t_values)
+    report.row(section, "all", key, "share_won", step, scores.size,
+               int((scores > 0).sum()) / scores.size, math.nan, math.nan)
+    return over_tasks_cell(scores, boot, t_values, {t: shapes[t] for t in per_task})
+
+
 # ----------------------------------------------------- the paper's Figures 6-8, from any scores
 # The training log's final scores (7.-9.) and the robust evaluation's (3.) go through these.
 def figure_6(report: Report, scores: dict, names: Sequence[str], labels: Callable, colors: dict,
@@ -955,6 +297,15 @@ class GroupLabels:
         return f"{key[1]} ({self.algorithm(key[0])})"
 
 
+def standard_label(pairing: Pairing, tasks: Sequence[str]) -> str:
+    """What the standard group is: sac_standard.py runs, the paired evaluation, or a mix."""
+    if not pairing.derived:
+        return STANDARD_LABEL
+    if len(pairing.derived) == len(tasks):
+        return STANDARD_FROM_PAIRED_LABEL
+    return STANDARD_FROM_PAIRED_LABEL.replace("paired", "paired on some tasks")
+
+
 def group_colors(groups: list[Key]) -> dict[Key, tuple]:
     """Each group's colour: its fixed one, else a free one of the palette, else a dark one."""
     palette = sns.color_palette("colorblind", n_colors=10)
@@ -966,7 +317,7 @@ def group_colors(groups: list[Key]) -> dict[Key, tuple]:
 
 @dataclasses.dataclass(frozen=True)
 class Analysis:
-    """The data layer's output and the flags: what every report section reads (none changes
+    """The data and the flags: what every report section reads (none changes
     it)."""
 
     args: Args  # --normalize resolved from auto
@@ -1006,7 +357,7 @@ def aggregate_title(agg: Aggregate) -> str:
 # ============================================================================== the reports
 # One section per report, in the order summary.md prints them. Each report_*(report, analysis)
 # computes its estimates, draws its figure and writes its summary.csv rows and summary.md table;
-# it reads `analysis` (the data layer's output) and the shared tools, never another section.
+# it reads `analysis` (the data (sac_utils/scores.py)) and the shared tools, never another section.
 
 # --------------------------------------- 1. the header, and where the standard numbers come from
 def found_table(runs: Runs, groups: list[Key]) -> str:
@@ -1128,15 +479,10 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
         per_task = {t: d[key] / norms[t][1] for t, d in differences.items() if key in d}
         if len(per_task) < 2:
             continue
-        scores, boot, t_values = difference_over_tasks(list(per_task.values()), args.reps,
-                                                       args.seed)
-        seeds = scores.shape[0]
-        won = sum(int((d > 0).sum()) for d in per_task.values())
-        pairs = sum(d.size for d in per_task.values())
-        report.row("paired_difference", "all", key, "mean_score", "", seeds, *boot)
-        report.row("paired_difference", "all", key, "mean_score_t", "", seeds, *t_values)
-        report.row("paired_difference", "all", key, "share_won", "", pairs, won / pairs,
-                   math.nan, math.nan)
+        cell = cells[0, key] = over_tasks(report, "paired_difference", key, per_task, "", shapes,
+                                          args)
+        boot, t_values, pairs = cell.boot, cell.t, cell.values.size
+        seeds, won = pairs // len(per_task), int((cell.values > 0).sum())
         action = key[1]
         lines += ["", f"Over {len(per_task)} tasks, {labels.algorithm(key[0])}, {action} "
                   f"minus tanh(mu): mean {SCORE_NAMES[args.normalize].lower()} difference "
@@ -1145,8 +491,6 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
                   f"stratified bootstrap CI), t-interval [{t_values[1]:.3f}, "
                   f"{t_values[2]:.3f}] (Welch, the tasks' seeds independent); the {action} won "
                   f"in {won} of {pairs} (task, seed) pairs."]
-        cells[0, key] = over_tasks_cell(scores, boot, t_values,
-                                        {t: shapes[t] for t in per_task})
     if not cells:
         return lines, None
     name = SCORE_NAMES[args.normalize].lower()
@@ -1185,12 +529,8 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
                 values, window = averages[task, group, k], windows[task, k]
                 estimate = estimates[f"{task}|{k}", group]
                 won = int((values > 0).sum())
-                report.row("paired_last_rounds", task, group, f"return_last{k}", step,
-                           values.size, *estimate)
-                report.row("paired_last_rounds", task, group, f"return_last{k}_t", step,
-                           values.size, *t_interval(values))
-                report.row("paired_last_rounds", task, group, f"share_won_last{k}", step,
-                           values.size, won / values.size, math.nan, math.nan)
+                difference_rows(report, "paired_last_rounds", task, group, step, values,
+                                estimate, suffix=f"_last{k}")
                 episodes = one_episode_per_seed(
                     [c for cs in runs[task].values() for c in cs], window)
                 rounds = f"last {k} ({format_step(window[0])}-{format_step(window[-1])})" + \
@@ -1236,18 +576,9 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
         if single:
             one_episode.append(task)
         for group, diffs in by_group.items():
-            values = estimates[task, group]
-            n = diffs.size
+            values, n, won = estimates[task, group], diffs.size, int((diffs > 0).sum())
+            difference_rows(report, "paired_difference", task, group, step, diffs, values, scale)
             scaled = [v / scale for v in values]
-            t_values = t_interval(diffs)
-            won = int((diffs > 0).sum())
-            report.row("paired_difference", task, group, "return", step, n, *values)
-            report.row("paired_difference", task, group, "return_t", step, n, *t_values)
-            report.row("paired_difference", task, group, "score", step, n, *scaled)
-            report.row("paired_difference", task, group, "score_t", step, n,
-                       *(v / scale for v in t_values))
-            report.row("paired_difference", task, group, "share_won", step, n, won / n,
-                       math.nan, math.nan)
             table.append([task, format_step(step), labels.algorithm(group[0]),
                           group[1], n, *seed_cells(diffs, values, 1),
                           seed_cells(diffs / scale, scaled)[0], f"{won} of {n}"])
@@ -1325,15 +656,14 @@ def robust_shared_step(by_task: dict[str, dict[int, RobustStep]]) -> int | None:
 
 @dataclasses.dataclass
 class RobustOverTasks:
-    """Each action's paired difference over tasks at their shared last step, divided by each
-    task's success bar: (seeds, tasks) values, their bootstrap and Welch t (mean, low, high)."""
+    """The tasks at their shared last step, each divided by its success bar: each action's
+    paired difference over tasks (the figure's cell) and its (seeds, tasks) returns."""
 
     step: int
     tasks: list[str]
-    values: dict[str, np.ndarray]
-    bootstrap: dict[str, tuple[float, float, float]]
-    t: dict[str, tuple[float, float, float]]
-    scores: dict[str, np.ndarray]  # each action's (seeds, tasks) returns / success bar
+    seeds: int
+    cells: dict[str, PairedCell]
+    scores: dict[str, np.ndarray]
 
 
 def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[int, RobustStep]]
@@ -1352,7 +682,6 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
     recorded = blowups_recorded(by_task)
     table = []
     for task, steps in by_task.items():
-        bar = SUCCESS_BARS.get(task)
         for step, at in steps.items():
             key, episodes = f"{task}|{step}", episodes_span(at.episodes)
             for action, action_returns in at.returns.items():
@@ -1370,16 +699,9 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
                     table.append([*cells, "(the baseline)", "", "", "", *blowups])
                     continue
                 diffs, boot = at.differences[action], estimates[key, action]
-                t_values, won = t_interval(diffs), int((diffs > 0).sum())
-                report.row("robust_difference", task, action, "return", step, n, *boot)
-                report.row("robust_difference_t", task, action, "return", step, n, *t_values)
-                if bar is not None:
-                    report.row("robust_difference", task, action, "score", step, n,
-                               *(v / bar for v in boot))
-                    report.row("robust_difference_t", task, action, "score", step, n,
-                               *(v / bar for v in t_values))
-                report.row("robust_difference", task, action, "share_won", step, n, won / n,
-                           math.nan, math.nan)
+                won = int((diffs > 0).sum())
+                difference_rows(report, "robust_difference", task, action, step, diffs, boot,
+                                SUCCESS_BARS.get(task))
                 verdicts = " / ".join(str(at.verdicts[action].count(v))
                                       for v in ("ahead", "level", "behind"))
                 table.append([*cells, *seed_cells(diffs, boot, 1), f"{won} of {n}", verdicts,
@@ -1412,22 +734,17 @@ def robust_over_tasks(report: Report, analysis: Analysis,
              "bootstrap CI and Welch's t-interval; the returns' aggregate metrics.", ""]
     scores = {a: np.stack([by_task[t][step].returns[a][:seeds] / SUCCESS_BARS[t]
                            for t in tasks], axis=1) for a in actions}
-    over = RobustOverTasks(step, tasks, {}, {}, {}, scores)
+    over = RobustOverTasks(step, tasks, seeds, {}, scores)
     table = []
     for action in actions:
         if action not in by_task[tasks[0]][step].differences:
             continue
-        values, boot, t_values = difference_over_tasks(
-            [by_task[t][step].differences[action][:seeds] / SUCCESS_BARS[t] for t in tasks],
-            args.reps, args.seed)
-        won = int((values > 0).sum())
-        over.values[action], over.bootstrap[action], over.t[action] = values, boot, t_values
-        report.row("robust_difference", "all", action, "score", step, seeds, *boot)
-        report.row("robust_difference_t", "all", action, "score", step, seeds, *t_values)
-        report.row("robust_difference", "all", action, "share_won", step, values.size,
-                   won / values.size, math.nan, math.nan)
-        table.append([action, format_ci(*boot), f"[{t_values[1]:.3f}, {t_values[2]:.3f}]",
-                      f"{won} of {values.size}"])
+        per_task = {t: by_task[t][step].differences[action][:seeds] / SUCCESS_BARS[t]
+                    for t in tasks}
+        cell = over.cells[action] = over_tasks(report, "robust_difference", action, per_task,
+                                               step, task_markers(tasks), args)
+        table.append([action, format_ci(*cell.boot), f"[{cell.t[1]:.3f}, {cell.t[2]:.3f}]",
+                      f"{int((cell.values > 0).sum())} of {cell.values.size}"])
     lines += [markdown_table(["action", "difference / success bar (bootstrap CI)",
                               "t-interval (Welch)", "won (task, seed)"], table), ""]
     return over, lines
@@ -1506,14 +823,11 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
         reference = (float(steps[last].returns[BASELINE].mean()), f"at {format_step(last)}")
         rows.append(PairedRow(task, ticks, cells, "return minus tanh(mu)'s", reference))
     if over is not None:
-        seeds = next(iter(over.values.values())).shape[0]
-        shapes = task_markers(over.tasks)
-        cells = {(0, a): over_tasks_cell(v, over.bootstrap[a], over.t[a], shapes)
-                 for a, v in over.values.items()}
         rows.append(PairedRow(f"Over {counted(len(over.tasks), 'task')} at "
                               f"{format_step(over.step)}, each divided by its success bar",
-                              [f"{seeds} seeds per task"], cells, "difference / success bar",
-                              shapes=shapes))
+                              [f"{over.seeds} seeds per task"],
+                              {(0, a): cell for a, cell in over.cells.items()},
+                              "difference / success bar", shapes=task_markers(over.tasks)))
     labels = {a: robust_action_label(a) for a in colors}
     report.figure(plot_paired(rows, colors, labels, "the robust evaluation: evaluate.py's noisy "
                               "starts"), "robust_evaluation")
@@ -1550,7 +864,7 @@ def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOver
     the same actors, the returns at the tasks' shared last step divided by each success bar.
     Writes summary.csv's `robust_aggregate` rows; returns summary.md's lines."""
     args, name, step = analysis.args, SCORE_NAMES["success-bar"], over.step
-    seeds, tasks = next(iter(over.scores.values())).shape[0], over.tasks
+    seeds, tasks = over.seeds, over.tasks
     point, interval = figure_6(
         report, over.scores, AGGREGATE_METRICS, robust_action_label, colors, name,
         f"The robust evaluation at {format_step(step)}, over {counted(len(tasks), 'task')}",
@@ -1913,51 +1227,11 @@ def report_probability_of_improvement(report: Report, analysis: Analysis) -> Non
 
 
 # ---------------------------------------------------------------------- 11. the dimension study
-# Beyond the paper; sac_utils/dimension_study.py estimates, tabulates and draws it.
-def shift_at(curves: list[Curve], step: int) -> dict[str, np.ndarray]:
-    """Each SHIFT_COLUMN at `step`, one value per run that logged it (empty cells left out)."""
-    shift = {}
-    for column in SHIFT_COLUMNS:
-        values = np.array([c.shift[column][c.steps == step][0]
-                           for c in curves if column in c.shift])
-        if np.isfinite(values).any():
-            shift[column] = values[np.isfinite(values)]
-    return shift
-
-
-def dimension_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
-                    ) -> tuple[dict[str, Dimension], list[str]]:
-    """Each evaluation action's paired difference and the measured shift per task, keyed by
-    action dimension, and notes on the tasks left out."""
-    study, notes = {}, []
-    for task, data in tasks.items():
-        pairs = paired_groups(data, task in derived)
-        if not pairs:
-            continue
-        algorithms = {group[0] for group, _ in pairs}
-        dims = {c.action_dim for a in algorithms for c in runs[task].get((a, own_action(a)), [])}
-        if None in dims or len(dims) != 1:
-            notes.append(f"{task}: its runs' config.json give no single action_dim "
-                         f"({sorted(dims, key=str)}); left out of the dimension study")
-            continue
-        baselines = np.concatenate([data.returns[b].ravel() for b in {b for _, b in pairs}])
-        scale = float(baselines.max() - baselines.min()) or 1.0
-        steps = training_fraction_steps(data.steps, data.scored_step)
-        differences = {}
-        for group, baseline in pairs:
-            own, paired = paired_values(data, group, baseline, np.array(list(steps.values())))
-            differences[group] = dict(zip(steps, (own - paired).T, strict=True))
-        shift = {}
-        for key in sorted(((a, own_action(a)) for a in algorithms), key=group_rank):
-            shift = shift or shift_at(runs[task][key], data.scored_step)
-        study[task] = Dimension(dims.pop(), scale, steps, differences, shift)
-    return study, notes
-
-
+# Beyond the paper; sac_utils/dimension_study.py builds, estimates, tabulates and draws it.
 def report_dimension_study(report: Report, analysis: Analysis) -> None:
     """Beyond the paper (figure `dimension_study`): what each evaluation action is worth as the
     action dimension grows, one task per dimension (sac_utils/dimension_study.py)."""
-    study, notes = dimension_study(analysis.runs, analysis.tasks, analysis.derived)
+    study, notes = dimensions.build_study(analysis.runs, analysis.tasks, analysis.derived)
     report.notes.extend(notes)
     dimensions.report_study(report, study, analysis.labels, list(ACTIONS), analysis.args.reps,
                             analysis.args.seed)
@@ -1998,7 +1272,7 @@ def validate(args: Args) -> None:
 
 
 def analyze(args: Args) -> Report:
-    """The whole analysis: the data layer (load, pair, align, normalise) once, then each report
+    """The whole analysis: the data (load, pair, align, normalise) once, then each report
     section of REPORT_SECTIONS in turn, then summary.md and summary.csv."""
     validate(args)
     runs, notes = load_runs(args.runs_dirs)

@@ -3,9 +3,9 @@ one task per dimension (analyze.py's last report section; the classic tasks of
 `sweep.py --preset dimensions` give it several dimensions). Each point is a different task, with
 its own body and reward, not one task swept over its action dimension.
 
-analyze.py builds the study from its data layer (`Dimension` per task); this module estimates,
-tabulates and draws it: summary.csv's sections `dimension` and `dimension_shift`, figure
-`dimension_study`.
+Built from analyze.py's data (sac_utils/scores.py; `build_study`: a `Dimension` per task),
+then estimated, tabulated and drawn here: summary.csv's sections `dimension` and
+`dimension_shift`, figure `dimension_study`.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import seaborn as sns
 
 from sac_utils import stats
 from sac_utils.report import Report, format_ci, format_step, markdown_table, seed_cells
+from sac_utils.scores import Curve, Runs, Task, group_rank, own_action, paired_groups, paired_values
 
 # Measured at the states the mode policy visited (sac_corrected.py's eval.csv).
 SHIFT_COLUMNS = ("mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
@@ -47,6 +48,46 @@ def training_fraction_steps(steps: np.ndarray, scored_step: int) -> dict[float, 
     picks = {f: int(steps[max(0, np.searchsorted(steps, f * scored_step, side="right") - 1)])
              for f in TRAINING_FRACTIONS}
     return {**picks, 1.0: scored_step}
+
+
+def shift_at(curves: list[Curve], step: int) -> dict[str, np.ndarray]:
+    """Each SHIFT_COLUMN at `step`, one value per run that logged it (empty cells left out)."""
+    shift = {}
+    for column in SHIFT_COLUMNS:
+        values = np.array([c.shift[column][c.steps == step][0]
+                           for c in curves if column in c.shift])
+        if np.isfinite(values).any():
+            shift[column] = values[np.isfinite(values)]
+    return shift
+
+
+def build_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
+                ) -> tuple[dict[str, Dimension], list[str]]:
+    """Each evaluation action's paired difference and the measured shift per task, keyed by
+    action dimension, and notes on the tasks left out."""
+    study, notes = {}, []
+    for task, data in tasks.items():
+        pairs = paired_groups(data, task in derived)
+        if not pairs:
+            continue
+        algorithms = {group[0] for group, _ in pairs}
+        dims = {c.action_dim for a in algorithms for c in runs[task].get((a, own_action(a)), [])}
+        if None in dims or len(dims) != 1:
+            notes.append(f"{task}: its runs' config.json give no single action_dim "
+                         f"({sorted(dims, key=str)}); left out of the dimension study")
+            continue
+        baselines = np.concatenate([data.returns[b].ravel() for b in {b for _, b in pairs}])
+        scale = float(baselines.max() - baselines.min()) or 1.0
+        steps = training_fraction_steps(data.steps, data.scored_step)
+        differences = {}
+        for group, baseline in pairs:
+            own, paired = paired_values(data, group, baseline, np.array(list(steps.values())))
+            differences[group] = dict(zip(steps, (own - paired).T, strict=True))
+        shift = {}
+        for key in sorted(((a, own_action(a)) for a in algorithms), key=group_rank):
+            shift = shift or shift_at(runs[task][key], data.scored_step)
+        study[task] = Dimension(dims.pop(), scale, steps, differences, shift)
+    return study, notes
 
 
 def dimension_estimates(study: dict[str, Dimension], reps: int, seed: int) -> dict:

@@ -13,7 +13,7 @@ import pytest
 import scipy.stats
 
 import analyze
-from sac_utils import figures
+from sac_utils import figures, scores
 
 EVAL_COLUMNS = ["global_step", "wall_time", "eval_round", "return_mean", "return_std",
                 "return_min", "return_max", "length_mean", "success_rate"]
@@ -66,7 +66,7 @@ def write_paper_like_folder(root: Path, seeds: int = 5, evaluations: int = 100,
     rng = np.random.default_rng(seed)
     steps = interval * np.arange(1, evaluations + 1)
     for t, task in enumerate(TASKS):
-        bar = analyze.SUCCESS_BARS[task]
+        bar = scores.SUCCESS_BARS[task]
         level = 0.3 + 0.2 * t
         for s in range(seeds):
             luck = rng.normal(0, 0.08)
@@ -105,7 +105,7 @@ def write_offset_folder(root: Path, offset: float, paired_gap: float = 0.05, see
     steps = 10_000 * np.arange(1, evaluations + 1)
     standard_returns = {}
     for task in TASKS:
-        bar = analyze.SUCCESS_BARS[task]
+        bar = scores.SUCCESS_BARS[task]
         standard_returns[task] = []
         for seed in range(seeds):
             standard = bar * (0.4 + rng.uniform(-0.05, 0.05, steps.size))
@@ -135,7 +135,7 @@ def test_offset_gives_certain_improvement_and_iqm_gap(tmp_path):
     corrected = estimate(summary, "aggregate", "all", "corrected", "Mean")[0]
     assert np.isclose(tanh_mu, corrected - 0.05)
     for task in TASKS:
-        bar = analyze.SUCCESS_BARS[task]
+        bar = scores.SUCCESS_BARS[task]
         assert np.allclose(estimate(summary, "paired_difference", task, "corrected", "return"),
                            0.05 * bar)
         assert np.allclose(estimate(summary, "paired_difference", task, "corrected", "score"), 0.05)
@@ -252,7 +252,7 @@ def test_incomplete_last_line_is_dropped(tmp_path):
     assert summary[("task_final", "h1hand-cube-v0", "standard", "return")]["step"] == "50000"
     text = (tmp_path / "out" / "summary.md").read_text()
     assert "incomplete last line" in text and str(eval_csv) in text
-    columns, partial = analyze.read_eval_csv(eval_csv)
+    columns, partial = scores.read_eval_csv(eval_csv)
     assert partial and columns["global_step"][-1] == 50_000
     assert columns["return_mean"][-1] == last_value
 
@@ -299,7 +299,7 @@ def test_corrected_runs_alone_are_both_algorithms(tmp_path):
     assert estimate(summary, "probability_of_improvement", "all", "corrected > standard",
                     "P(X > Y)")[0] > 0.5
     # Over the two tasks: the mean normalised difference (10 / success bar per task), won 6 of 6.
-    bars = [analyze.SUCCESS_BARS[t] for t in TASKS[:2]]
+    bars = [scores.SUCCESS_BARS[t] for t in TASKS[:2]]
     mean = estimate(summary, "paired_difference", "all", "corrected", "mean_score")
     assert np.isclose(mean[0], np.mean([10 / b for b in bars]))
     assert estimate(summary, "paired_difference", "all", "corrected", "share_won")[0] == 1.0
@@ -631,11 +631,11 @@ def test_tasks_with_no_step_in_common_and_other_budgets_share_a_fraction_axis(tm
             and f"{TASKS[1]} 250k, {TASKS[0]} 300k" in text)
     # By hand: frames from max(30k/300k, 25k/250k) = 0.1 to 1; at 0.5 powerlift's 150k and
     # cube's 125k; at 0.6 cube's last evaluation at or before 150k, which it skipped: 125k.
-    loaded, _ = analyze.load_runs([runs])
-    analyze.standard_from_paired(loaded)
-    tasks, _ = analyze.align(loaded, None)
-    norms = analyze.normalizers(tasks, "success-bar")
-    aggregate, _ = analyze.build_aggregate(tasks, norms, analyze.ordered_groups(loaded), 19)
+    loaded, _ = scores.load_runs([runs])
+    scores.standard_from_paired(loaded)
+    tasks, _ = scores.align(loaded, None)
+    norms = scores.normalizers(tasks, "success-bar")
+    aggregate, _ = scores.build_aggregate(tasks, norms, scores.ordered_groups(loaded), 19)
     assert aggregate.by_fraction and np.allclose(aggregate.frames, np.linspace(0.1, 1, 19))
     assert aggregate.tasks == [TASKS[1], TASKS[0]]
     seeds = np.arange(3)
@@ -898,8 +898,8 @@ def test_a_new_task_and_a_new_evaluation_action_are_one_entry_each(tmp_path, mon
         (tmp_path / "before" / "summary.md").read_text()
     assert not any("median" in key[2] for key in read_summary(tmp_path / "before"))
 
-    monkeypatch.setitem(analyze.SUCCESS_BARS, TOY_TASK, TOY_BAR)
-    monkeypatch.setitem(analyze.ACTIONS, "median", "median")
+    monkeypatch.setitem(scores.SUCCESS_BARS, TOY_TASK, TOY_BAR)
+    monkeypatch.setitem(scores.ACTIONS, "median", "median")
     out = tmp_path / "out"
     assert run_analysis(tmp_path / "runs", out) == 0
     summary = read_summary(out)
@@ -952,8 +952,9 @@ def test_an_analysis_changes_no_module_state(tmp_path):
 
 def test_no_report_section_calls_another():
     """analyze.py's layout (docs/analyze.md): within it, a report's section (a `# --- N. title`
-    banner under `# === the reports`) uses the data layer and the shared tools, never another
-    report's section; neither the data layer nor the shared tools use a report's."""
+    banner under `# === the reports`) uses the data (sac_utils/scores.py) and the shared tools,
+    never another report's section; the shared tools use no report's, and the data imports
+    nothing that draws or reports."""
     import ast
     import re
 
@@ -981,7 +982,15 @@ def test_no_report_section_calls_another():
             if name:
                 defined[name] = (part(node.lineno), node)
     sections = {where for where, _ in defined.values() if where.startswith("report ")}
-    assert len(sections) >= 9 and "the data layer" in {w for w, _ in defined.values()}
+    assert len(sections) >= 9 and "shared tools" in {w for w, _ in defined.values()}
+    data = ast.parse(Path(scores.__file__).read_text())
+    imported = {alias.name for node in ast.walk(data) if isinstance(node, ast.Import)
+                for alias in node.names}
+    imported |= {f"{node.module}.{alias.name}" for node in ast.walk(data)
+                 if isinstance(node, ast.ImportFrom) for alias in node.names}
+    assert not {name for name in imported
+                if name.split(".")[0] in ("analyze", "matplotlib", "seaborn", "rliable")
+                or name.startswith(("sac_utils.figures", "sac_utils.report.Report"))}, imported
     crossings = []
     for name, (where, node) in defined.items():
         for used in {n.id for n in ast.walk(node) if isinstance(n, ast.Name)} & set(defined):
@@ -1074,33 +1083,33 @@ def test_robust_evaluation_matches_a_hand_computation(tmp_path):
             for action in normalised:
                 per_seed = np.array([np.mean(e[action] - e["tanh_mu"]) for e in episodes])
                 mean, half = per_seed.mean(), quantile * per_seed.std(ddof=1) / np.sqrt(3)
-                assert np.allclose(row_at(rows, "robust_difference_t", task, action, "return",
+                assert np.allclose(row_at(rows, "robust_difference", task, action, "return_t",
                                           step), (mean, mean - half, mean + half))
                 assert np.isclose(row_at(rows, "robust_difference", task, action, "return",
                                          step)[0], mean)
                 if step == last:
-                    normalised[action].append(mean / analyze.SUCCESS_BARS[task])
+                    normalised[action].append(mean / scores.SUCCESS_BARS[task])
             assert np.isclose(row_at(rows, "robust_return", task, "tanh_mu", "return", step)[0],
                               np.mean([e["tanh_mu"].mean() for e in episodes]))
     for action, values in normalised.items():
-        for section in ("robust_difference", "robust_difference_t"):
-            assert np.isclose(row_at(rows, section, "all", action, "score", last)[0],
-                              np.mean(values)), (section, action)
+        for metric in ("mean_score", "mean_score_t"):
+            assert np.isclose(row_at(rows, "robust_difference", "all", action, metric, last)[0],
+                              np.mean(values)), (metric, action)
     assert row_at(rows, "robust_difference", "all", "mode", "share_won", last)[0] == 1.0
     assert {r["metric"] for r in rows if r["section"] == "robust_aggregate"} == \
         {"IQM", "Median", "Mean", "Optimality Gap"}
     for action in ("mode", "tanh_mu", "mean"):  # (seeds x tasks) mean returns / success bar
-        scores = np.array([[written[task, seed, last][action].mean() / analyze.SUCCESS_BARS[task]
+        matrix = np.array([[written[task, seed, last][action].mean() / scores.SUCCESS_BARS[task]
                             for task in ROBUST_TASKS] for seed in range(3)])
         assert np.isclose(row_at(rows, "robust_aggregate", "all", action, "Mean", last)[0],
-                          scores.mean())
+                          matrix.mean())
         assert np.isclose(row_at(rows, "robust_aggregate", "all", action, "Optimality Gap",
-                                 last)[0], np.maximum(1 - scores, 0).mean())
+                                 last)[0], np.maximum(1 - matrix, 0).mean())
     for step in ROBUST_STEPS:  # rliable's IQM: the 25% trimmed mean of all (seed, task) scores
-        scores = [written[task, seed, step]["mode"].mean() / analyze.SUCCESS_BARS[task]
+        matrix = [written[task, seed, step]["mode"].mean() / scores.SUCCESS_BARS[task]
                   for task in ROBUST_TASKS for seed in range(3)]
         assert np.isclose(row_at(rows, "robust_sample_efficiency", "all", "mode", "IQM", step)[0],
-                          scipy.stats.trim_mean(scores, 0.25))
+                          scipy.stats.trim_mean(matrix, 0.25))
     for figure in ("robust_evaluation", "robust_aggregate_metrics", "robust_performance_profiles",
                    "robust_sample_efficiency"):
         assert (out / f"{figure}.png").is_file(), figure
@@ -1124,7 +1133,7 @@ def test_robust_folders_read_alike_with_and_without_physics_unstable(tmp_path):
             f"{row},{('', '0', '1')[k % 3]},{('', 'fell', 'blow_up')[k % 3]}"
             for k, row in enumerate(rows))]) + "\n")
     write_per_seed(new)
-    old, fresh = (analyze.load_robust([tmp_path / name]).rows for name in ("old", "new"))
+    old, fresh = (scores.load_robust([tmp_path / name]).rows for name in ("old", "new"))
     assert len(old) == len(fresh) == sum(map(len, written.values()))
     for (task, seed, step), selectors in written.items():
         for selector, values in selectors.items():
