@@ -137,14 +137,21 @@ def optional_columns() -> tuple[str, ...]:
             *SHIFT_COLUMNS, EPISODES_COLUMN)
 
 
+def read_json_object(path: Path, fix: str) -> dict:
+    """A JSON file that holds an object; else the one-line error, ending with `fix`."""
+    try:
+        value = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise AnalysisError(f"{path} is not valid JSON ({error}); {fix}") from None
+    if not isinstance(value, dict):
+        raise AnalysisError(f"{path} does not hold a JSON object; {fix}")
+    return value
+
+
 def read_config(path: Path) -> dict:
     """The run's config.json, checked for the keys analyze.py needs."""
-    try:
-        config = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise AnalysisError(f"{path} is not valid JSON ({error}); fix or remove that run") from None
-    if not isinstance(config, dict):
-        raise AnalysisError(f"{path} must hold a JSON object with keys {REQUIRED_CONFIG_KEYS}")
+    config = read_json_object(path, f"fix or remove that run (it needs keys "
+                                    f"{list(REQUIRED_CONFIG_KEYS)})")
     missing = [key for key in REQUIRED_CONFIG_KEYS if key not in config]
     if missing:
         raise AnalysisError(
@@ -532,12 +539,7 @@ def read_robust_folder(folder: Path) -> tuple[dict, pd.DataFrame]:
         raise AnalysisError(
             f"--robust {folder}: no {ROBUST_SETTINGS_FILE} there; pass a folder that "
             "`evaluate.py RUNS_DIR --out FOLDER` wrote over a campaign of runs")
-    try:
-        settings = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise AnalysisError(f"{path} is not valid JSON ({error}); evaluate again") from None
-    if not isinstance(settings, dict):
-        raise AnalysisError(f"{path} does not hold a JSON object; evaluate again")
+    settings = read_json_object(path, "evaluate again")
     path, again = folder / ROBUST_PER_SEED_FILE, f"`evaluate.py {folder}` writes it again"
     if not path.is_file():
         raise AnalysisError(f"{path} is missing: {again} from the runs' episodes.csv")

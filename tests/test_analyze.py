@@ -391,6 +391,10 @@ def test_bad_inputs_give_one_clear_message(tmp_path, capsys):
     (tmp_path / "no_seed" / "run" / "config.json").write_text('{"env_id": "h1hand-cube-v0",')
     assert run_analysis(tmp_path / "no_seed", tmp_path / "out") == 2
     assert "config.json is not valid JSON" in capsys.readouterr().err
+    (tmp_path / "no_seed" / "run" / "config.json").write_text('["h1hand-cube-v0"]')
+    assert run_analysis(tmp_path / "no_seed", tmp_path / "out") == 2
+    assert "config.json does not hold a JSON object; fix or remove that run (it needs keys " \
+        "['env_id', 'seed', 'algorithm'])" in capsys.readouterr().err
 
 
 @pytest.mark.slow
