@@ -61,13 +61,13 @@ from sac_utils.scores import (
     BASELINE,
     CHOICE_SHARES,
     CORRECTED,
+    LAST_ROUNDS,
     OVER_TRAINING_SHIFT_COLUMNS,
     PAIRED_RETURN_COLUMN,
     STANDARD,
     SUCCESS_BARS,
     Aggregate,
     AnalysisError,
-    Curve,
     Key,
     Pairing,
     Robust,
@@ -75,22 +75,26 @@ from sac_utils.scores import (
     Runs,
     Task,
     align,
+    blowups_recorded,
     build_aggregate,
     eval_suffix,
     group_name,
     group_rank,
     is_own,
+    last_rounds_averages,
     load_robust,
     load_runs,
     normalize,
     normalizers,
+    one_episode_per_seed,
     ordered_groups,
-    own_action,
     paired_difference_curves,
     paired_differences,
     paired_groups,
     resolve_normalization,
     robust_paired_differences,
+    robust_shared_step,
+    shift_curves,
     standard_from_paired,
 )
 from sac_utils.stats import CONFIDENCE, seed_mean_estimates, t_interval, welch_interval
@@ -337,17 +341,6 @@ class Analysis:
         return self.pairing.derived
 
 
-def one_episode_per_seed(curves: Sequence[Curve], steps: np.ndarray) -> bool:
-    """Whether every run logged one distinct episode (eval.csv's distinct_episodes) at each of
-    `steps`, which all of them share: its return there is one draw of the episode's noise."""
-    for curve in curves:
-        if curve.episodes is None:
-            return False
-        if not np.all(curve.episodes[np.searchsorted(curve.steps, steps)] == 1):
-            return False
-    return bool(curves)
-
-
 def aggregate_title(agg: Aggregate) -> str:
     """Figures 7 and 8 name what they aggregate: the tasks and the runs per task."""
     runs = sorted({scores.shape[0] for scores in agg.final.values()})
@@ -436,36 +429,6 @@ def report_standard_provenance(report: Report, analysis: Analysis) -> None:
 
 
 # ------------------------------------------------------- 2. the paired difference (headline)
-# Each seed's paired difference averaged over its last evaluation rounds, since one round of a
-# noisy task is one draw of that noise.
-LAST_ROUNDS = (20, 50)
-
-
-def last_rounds_averages(tasks: dict[str, Task], curves: dict[str, dict[str, np.ndarray]]
-                         ) -> tuple[dict[tuple[str, str, int], np.ndarray],
-                                    dict[tuple[str, int], np.ndarray], list[str]]:
-    """Per seed, each paired difference averaged over the last k shared evaluation steps up to
-    the scored step, for each k of LAST_ROUNDS: (task, group, k) -> per-seed averages, (task, k)
-    -> the window's steps, and notes on the tasks with fewer steps than k."""
-    averages, windows, short = {}, {}, {}
-    for task, by_group in curves.items():
-        data = tasks[task]
-        rounds = int(np.searchsorted(data.steps, data.scored_step, side="right"))
-        if rounds < max(LAST_ROUNDS):
-            short[task] = rounds
-        for k in LAST_ROUNDS:
-            if k > rounds:
-                continue
-            windows[task, k] = data.steps[rounds - k:rounds]
-            for group, diffs in by_group.items():
-                averages[task, group, k] = diffs[:, rounds - k:rounds].mean(axis=1)
-    notes = [f"averages over the last {' / '.join(map(str, LAST_ROUNDS))} evaluation rounds left "
-             "out where a task has fewer shared rounds up to its scored step: "
-             + ", ".join(f"{task} ({rounds} rounds)" for task, rounds in short.items())
-             ] if short else []
-    return averages, windows, notes
-
-
 def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
                       ) -> tuple[list[str], PairedRow | None]:
     """Over tasks, per evaluation action: the mean normalised paired difference and the share
@@ -648,12 +611,6 @@ def episodes_span(episodes: np.ndarray) -> str:
     return f"{low}" if low == high else f"{low}-{high}"
 
 
-def robust_shared_step(by_task: dict[str, dict[int, RobustStep]]) -> int | None:
-    """The last step every task's robust evaluation has (normally the final weights)."""
-    shared = functools.reduce(set.intersection, [set(steps) for steps in by_task.values()])
-    return max(shared) if shared else None
-
-
 @dataclasses.dataclass
 class RobustOverTasks:
     """The tasks at their shared last step, each divided by its success bar: each action's
@@ -707,13 +664,6 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
                 table.append([*cells, *seed_cells(diffs, boot, 1), f"{won} of {n}", verdicts,
                               *blowups])
     return table, estimates
-
-
-def blowups_recorded(by_task: dict[str, dict[int, RobustStep]]) -> bool:
-    """Whether any policy's episodes record physics blow-ups (evaluate.py since it wrote
-    physics_unstable)."""
-    return any(ends is not None for steps in by_task.values() for at in steps.values()
-               for ends in at.unstable.values())
 
 
 def robust_over_tasks(report: Report, analysis: Analysis,
@@ -934,21 +884,6 @@ def robust_sample_efficiency(report: Report, analysis: Analysis,
 
 # ------------------------------------------------------------------------- 4. over training
 OVER_TRAINING_TABLE_STEPS = 11  # rows of summary.md's over-training table; summary.csv has all
-
-
-def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.ndarray]]:
-    """task -> shift column -> (runs, steps) at the task's shared steps, from the corrected runs
-    that logged it with no empty cell there."""
-    shifts: dict[str, dict[str, np.ndarray]] = {}
-    for task, data in tasks.items():
-        curves = runs[task].get((CORRECTED, own_action(CORRECTED)), [])
-        for column in OVER_TRAINING_SHIFT_COLUMNS:
-            rows = [c.shift[column][np.searchsorted(c.steps, data.steps)] for c in curves
-                    if column in c.shift]
-            rows = [row for row in rows if np.isfinite(row).all()]
-            if rows:
-                shifts.setdefault(task, {})[column] = np.stack(rows)
-    return shifts
 
 
 def report_over_training(report: Report, analysis: Analysis) -> None:

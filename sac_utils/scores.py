@@ -7,8 +7,10 @@ then pair (`standard_from_paired`), align on the steps a task's runs share (`ali
 take each action minus tanh(mu) per seed (`paired_differences`), normalise and stack what
 rliable aggregates (`build_aggregate`). evaluate.py's per_seed.csv (`load_robust`): per policy
 and action the mean return and the paired difference with its standard error
-(`robust_paired_differences` -> `RobustStep`). Nothing here writes a report; the notes each
-step returns (runs skipped, cut, left out) go to summary.md.
+(`robust_paired_differences` -> `RobustStep`). Beside them the questions the reports ask of the
+data (the last rounds' averages, whether a round was one episode, the shift over training, the
+robust evaluation's shared step). Nothing here writes a report; the notes each step returns
+(runs skipped, cut, left out) go to summary.md.
 
 What to edit: a task with a success bar is one entry in SUCCESS_BARS, a new evaluation action
 one entry in ACTIONS; every report follows.
@@ -508,6 +510,62 @@ def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
     return curves
 
 
+# Each seed's paired difference averaged over its last evaluation rounds, since one round of a
+# noisy task is one draw of that noise.
+LAST_ROUNDS = (20, 50)
+
+
+def last_rounds_averages(tasks: dict[str, Task], curves: dict[str, dict[str, np.ndarray]]
+                         ) -> tuple[dict[tuple[str, str, int], np.ndarray],
+                                    dict[tuple[str, int], np.ndarray], list[str]]:
+    """Per seed, each paired difference averaged over the last k shared evaluation steps up to
+    the scored step, for each k of LAST_ROUNDS: (task, group, k) -> per-seed averages, (task, k)
+    -> the window's steps, and notes on the tasks with fewer steps than k."""
+    averages, windows, short = {}, {}, {}
+    for task, by_group in curves.items():
+        data = tasks[task]
+        rounds = int(np.searchsorted(data.steps, data.scored_step, side="right"))
+        if rounds < max(LAST_ROUNDS):
+            short[task] = rounds
+        for k in LAST_ROUNDS:
+            if k > rounds:
+                continue
+            windows[task, k] = data.steps[rounds - k:rounds]
+            for group, diffs in by_group.items():
+                averages[task, group, k] = diffs[:, rounds - k:rounds].mean(axis=1)
+    notes = [f"averages over the last {' / '.join(map(str, LAST_ROUNDS))} evaluation rounds left "
+             "out where a task has fewer shared rounds up to its scored step: "
+             + ", ".join(f"{task} ({rounds} rounds)" for task, rounds in short.items())
+             ] if short else []
+    return averages, windows, notes
+
+
+def one_episode_per_seed(curves: Sequence[Curve], steps: np.ndarray) -> bool:
+    """Whether every run logged one distinct episode (eval.csv's distinct_episodes) at each of
+    `steps`, which all of them share: its return there is one draw of the episode's noise."""
+    for curve in curves:
+        if curve.episodes is None:
+            return False
+        if not np.all(curve.episodes[np.searchsorted(curve.steps, steps)] == 1):
+            return False
+    return bool(curves)
+
+
+def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.ndarray]]:
+    """task -> shift column -> (runs, steps) at the task's shared steps, from the corrected runs
+    that logged it with no empty cell there."""
+    shifts: dict[str, dict[str, np.ndarray]] = {}
+    for task, data in tasks.items():
+        curves = runs[task].get((CORRECTED, own_action(CORRECTED)), [])
+        for column in OVER_TRAINING_SHIFT_COLUMNS:
+            rows = [c.shift[column][np.searchsorted(c.steps, data.steps)] for c in curves
+                    if column in c.shift]
+            rows = [row for row in rows if np.isfinite(row).all()]
+            if rows:
+                shifts.setdefault(task, {})[column] = np.stack(rows)
+    return shifts
+
+
 # ------------------------------------------------------------- robust evaluation (evaluate.py)
 # evaluate.py's campaign folders (--robust): every policy (a run's final weights or a snapshot)
 # played each action from the same many noisy starts, and its per_seed.csv holds, per policy and
@@ -625,6 +683,19 @@ def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]
                                            strict=True)]
         by_task.setdefault(task, {})[int(step)] = at
     return by_task
+
+
+def robust_shared_step(by_task: dict[str, dict[int, RobustStep]]) -> int | None:
+    """The last step every task's robust evaluation has (normally the final weights)."""
+    shared = functools.reduce(set.intersection, [set(steps) for steps in by_task.values()])
+    return max(shared) if shared else None
+
+
+def blowups_recorded(by_task: dict[str, dict[int, RobustStep]]) -> bool:
+    """Whether any policy's episodes record physics blow-ups (evaluate.py since it wrote
+    physics_unstable)."""
+    return any(ends is not None for steps in by_task.values() for at in steps.values()
+               for ends in at.unstable.values())
 
 
 # ------------------------------------------------------------------------------------- normalise
