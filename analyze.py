@@ -14,10 +14,10 @@ profiles, sample efficiency, probability of improvement.
 
 The data (load -> pair -> align -> paired differences -> normalise; the --robust folders) is
 sac_utils/scores.py's, which writes no report; a task or an evaluation action is one entry
-there. Here, top to bottom (docs/analyze.md maps each figure to its code): what to edit
-(COLORS, the labels); the shared tools (rliable's estimators, the paper's Figures 6-8, labels
-and colours); one section per report, in summary.md's order, each reading the data and the
-shared tools, never another section; the pipeline.
+there. Here, top to bottom (docs/analyze.md maps each figure to its code): what to edit (COLORS,
+the labels); the shared tools (rliable's estimators, the paired difference's rows for both
+headlines, the paper's Figures 6-8, labels and colours); one section per report, in summary.md's
+order, each reading the data and the shared tools, never another section; the pipeline.
 """
 
 from __future__ import annotations
