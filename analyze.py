@@ -215,10 +215,10 @@ def iqm_per_step(scores: np.ndarray) -> np.ndarray:
 # The training log's paired difference (2.) and the robust evaluation's (3.) write through these.
 def difference_rows(report: Report, section: str, task: str, key: Key | str, step: int,
                     diffs: np.ndarray, boot: Sequence[float], scale: float | None = None,
-                    suffix: str = "") -> tuple[float, float, float]:
+                    suffix: str = "") -> None:
     """summary.csv's rows of one paired difference, one value per seed: the mean with its
     bootstrap CI (`boot`) and Student's t-interval, in returns and, given the task's scale, in
-    scores; and the share of seeds above zero. Returns the t-interval."""
+    scores; and the share of seeds above zero."""
     n, t_values = diffs.size, t_interval(diffs)
     for unit, divisor in (("return", 1.0), ("score", scale)):
         if divisor is not None:
@@ -228,7 +228,6 @@ def difference_rows(report: Report, section: str, task: str, key: Key | str, ste
                        *(v / divisor for v in t_values))
     report.row(section, task, key, f"share_won{suffix}", step, n, int((diffs > 0).sum()) / n,
                math.nan, math.nan)
-    return t_values
 
 
 def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str, np.ndarray],
@@ -350,7 +349,7 @@ def aggregate_title(agg: Aggregate) -> str:
 # ============================================================================== the reports
 # One section per report, in the order summary.md prints them. Each report_*(report, analysis)
 # computes its estimates, draws its figure and writes its summary.csv rows and summary.md table;
-# it reads `analysis` (the data (sac_utils/scores.py)) and the shared tools, never another section.
+# it reads `analysis` (the data, sac_utils/scores.py's) and the shared tools, never another section.
 
 # --------------------------------------- 1. the header, and where the standard numbers come from
 def found_table(runs: Runs, groups: list[Key]) -> str:

@@ -7,7 +7,6 @@ config.json, a non-finite action or loss. The flags themselves are the scripts' 
 import dataclasses
 import difflib
 import importlib
-import json
 import math
 import sys
 from collections.abc import Callable
@@ -17,6 +16,8 @@ from typing import NoReturn
 import gymnasium as gym
 import numpy as np
 import tyro
+
+from sac_utils.files import read_json_object
 
 # A training script's exit code after a graceful stop on a signal: "resume with --resume".
 INTERRUPTED_EXIT_CODE = 3
@@ -50,12 +51,9 @@ def read_config_json(run_dir: Path, give_instead: str, restore: str) -> dict:
     if not path.is_file():
         fail(f"{run_dir} is not a run folder (no config.json); {give_instead}")
     try:
-        config = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        fail(f"{path} is not valid JSON ({error}); {restore}")
-    if not isinstance(config, dict):
-        fail(f"{path} does not hold a JSON object; {restore}")
-    return config
+        return read_json_object(path)
+    except ValueError as error:
+        fail(f"{error}; {restore}")
 
 
 def read_run_config(run_dir: Path, algorithm: str) -> dict:

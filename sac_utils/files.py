@@ -1,6 +1,7 @@
 """Files written whole or not at all, and read without a half-written last line: a run, a sweep
 or an evaluation may be killed at any moment. No torch here: sweep.py's processes import it."""
 
+import json
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -23,6 +24,17 @@ def write_text_atomically(path: Path, text: str) -> None:
             os.fsync(f.fileno())
 
     atomic_write(path, write)
+
+
+def read_json_object(path: Path) -> dict:
+    """A JSON file that holds an object; else ValueError naming what is wrong with it."""
+    try:
+        value = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path} is not valid JSON ({error})") from None
+    if not isinstance(value, dict):
+        raise ValueError(f"{path} does not hold a JSON object")
+    return value
 
 
 def complete_lines(path: Path) -> list[str]:

@@ -22,7 +22,6 @@ import collections
 import csv
 import dataclasses
 import functools
-import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -30,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from sac_utils import stats
+from sac_utils import files, stats
 from sac_utils.report import format_step
 
 
@@ -142,12 +141,9 @@ def optional_columns() -> tuple[str, ...]:
 def read_json_object(path: Path, fix: str) -> dict:
     """A JSON file that holds an object; else the one-line error, ending with `fix`."""
     try:
-        value = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise AnalysisError(f"{path} is not valid JSON ({error}); {fix}") from None
-    if not isinstance(value, dict):
-        raise AnalysisError(f"{path} does not hold a JSON object; {fix}")
-    return value
+        return files.read_json_object(path)
+    except ValueError as error:
+        raise AnalysisError(f"{error}; {fix}") from None
 
 
 def read_config(path: Path) -> dict:
