@@ -88,6 +88,7 @@ from sac_utils.scores import (
     normalizers,
     one_episode_per_seed,
     ordered_groups,
+    own_action,
     paired_difference_curves,
     paired_differences,
     paired_groups,
@@ -211,6 +212,24 @@ def iqm_per_step(scores: np.ndarray) -> np.ndarray:
     return scipy.stats.trim_mean(scores.reshape(-1, scores.shape[-1]), 0.25, axis=0)
 
 
+def few_seeds_lines(seeds: Sequence[int]) -> list[str]:
+    """summary.md's warning where a mean over seeds has a bootstrap CI from FEW_SEEDS or fewer."""
+    return ["", f"With {FEW_SEEDS} seeds or fewer a percentile bootstrap CI is narrower than "
+            "the data allow: read the t-interval."] if seeds and min(seeds) <= FEW_SEEDS else []
+
+
+def iqm_note(runs: Sequence[int], tasks: int) -> str:
+    """With few runs per task, what IQM is: rliable's 25% trimmed mean over all runs x tasks
+    keeps the middle ones; and with one task rliable's median (over tasks of each task's mean)
+    is the mean."""
+    if not runs or max(runs) > FEW_SEEDS:
+        return ""
+    kept = " or ".join(f"the middle {n * tasks - 2 * int(0.25 * n * tasks)} of {n * tasks}"
+                       for n in runs)
+    return (f"{' or '.join(map(str, runs))} runs x {counted(tasks, 'task')}: IQM is the mean of "
+            f"{kept} runs" + ("; the median is the mean" if tasks == 1 else ""))
+
+
 # ------------------------------------------- paired differences: the headline's and the robust's
 # The training log's paired difference (2.) and the robust evaluation's (3.) write through these.
 def difference_rows(report: Report, section: str, task: str, key: Key | str, step: int,
@@ -230,18 +249,26 @@ def difference_rows(report: Report, section: str, task: str, key: Key | str, ste
                math.nan, math.nan)
 
 
+OVER_TASKS_HEADER = ["tasks", "seeds per task", "difference (bootstrap CI)",
+                     "t-interval (Welch)", "won (task, seed)"]
+
+
 def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str, np.ndarray],
-               step: int | str, shapes: dict[str, str], args: Args) -> PairedCell:
+               step: int | str, shapes: dict[str, str], args: Args) -> tuple[PairedCell, list]:
     """A paired difference over tasks, each task's per-seed values already in scores:
     difference_over_tasks, summary.csv's rows (the mean with its bootstrap CI and Welch's
-    interval, the share of (task, seed) pairs above zero) and the figure's cell."""
+    interval, the share of (task, seed) pairs above zero), the figure's cell and summary.md's
+    row under OVER_TASKS_HEADER."""
     scores, boot, t_values = difference_over_tasks(list(per_task.values()), args.reps,
                                                    args.seed)
-    report.row(section, "all", key, "mean_score", step, scores.shape[0], *boot)
-    report.row(section, "all", key, "mean_score_t", step, scores.shape[0], *t_values)
-    report.row(section, "all", key, "share_won", step, scores.size,
-               int((scores > 0).sum()) / scores.size, math.nan, math.nan)
-    return over_tasks_cell(scores, boot, t_values, {t: shapes[t] for t in per_task})
+    seeds, won = scores.shape[0], int((scores > 0).sum())
+    report.row(section, "all", key, "mean_score", step, seeds, *boot)
+    report.row(section, "all", key, "mean_score_t", step, seeds, *t_values)
+    report.row(section, "all", key, "share_won", step, scores.size, won / scores.size,
+               math.nan, math.nan)
+    return (over_tasks_cell(scores, boot, t_values, {t: shapes[t] for t in per_task}),
+            [len(per_task), seeds, format_ci(*boot, runs=seeds),
+             f"[{t_values[1]:.3f}, {t_values[2]:.3f}]", f"{won} of {scores.size}"])
 
 
 # ----------------------------------------------------- the paper's Figures 6-8, from any scores
@@ -297,7 +324,7 @@ class GroupLabels:
 
     def action_first(self, key: Key) -> str:
         """"mean (Corrected SAC)": where the figure's series are actions."""
-        return f"{key[1]} ({self.algorithm(key[0])})"
+        return f"{ACTIONS.get(key[1], key[1])} ({self.algorithm(key[0])})"
 
 
 def standard_label(pairing: Pairing, tasks: Sequence[str]) -> str:
@@ -431,33 +458,24 @@ def report_standard_provenance(report: Report, analysis: Analysis) -> None:
 def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
                       ) -> tuple[list[str], PairedRow | None]:
     """Over tasks, per evaluation action: the mean normalised paired difference and the share
-    of (task, seed) pairs won; summary.md's lines and the figure's panel. Estimator:
-    difference_over_tasks."""
-    args, norms, labels = analysis.args, analysis.norms, analysis.labels
-    lines, cells = [], {}
+    of (task, seed) pairs won (over_tasks); summary.md's lines and the figure's panel."""
+    args, norms, name = analysis.args, analysis.norms, SCORE_NAMES[analysis.args.normalize]
     shapes = task_markers(list(differences))
-    found = {group for by_group in differences.values() for group in by_group}
-    for key in sorted(found, key=group_rank):
+    cells, table = {}, []
+    for key in sorted({g for by_group in differences.values() for g in by_group}, key=group_rank):
         per_task = {t: d[key] / norms[t][1] for t, d in differences.items() if key in d}
-        if len(per_task) < 2:
-            continue
-        cell = cells[0, key] = over_tasks(report, "paired_difference", key, per_task, "", shapes,
-                                          args)
-        boot, t_values, pairs = cell.boot, cell.t, cell.values.size
-        seeds, won = pairs // len(per_task), int((cell.values > 0).sum())
-        action = key[1]
-        lines += ["", f"Over {len(per_task)} tasks, {labels.algorithm(key[0])}, {action} "
-                  f"minus tanh(mu): mean {SCORE_NAMES[args.normalize].lower()} difference "
-                  f"{format_ci(*boot, runs=seeds)} ({seeds} seeds "
-                  "per task, "
-                  f"stratified bootstrap CI), t-interval [{t_values[1]:.3f}, "
-                  f"{t_values[2]:.3f}] (Welch, the tasks' seeds independent); the {action} won "
-                  f"in {won} of {pairs} (task, seed) pairs."]
+        if len(per_task) >= 2:
+            cells[0, key], row = over_tasks(report, "paired_difference", key, per_task, "",
+                                            shapes, args)
+            table.append([analysis.labels.action_first(key), *row])
     if not cells:
-        return lines, None
-    name = SCORE_NAMES[args.normalize].lower()
+        return [], None
+    lines = ["", f"Over tasks, each action minus tanh(mu) in {name.lower()}s: the mean over "
+             "tasks with rliable's stratified bootstrap CI (seeds resampled within each task) "
+             "and Welch's t-interval (the tasks' seeds independent); 'won': (task, seed) pairs "
+             "above zero.", "", markdown_table(["action", *OVER_TASKS_HEADER], table)]
     return lines, PairedRow(f"Over {len(shapes)} tasks at their scored steps", ["all tasks"],
-                            cells, f"difference in {name}", shapes=shapes)
+                            cells, f"difference in {name.lower()}", shapes=shapes)
 
 
 def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: list[str]
@@ -549,9 +567,7 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
              "actor, same start states (q_best: the critic's pick of mode / tanh(mu) / mean). "
              "Mean over seeds with rliable's 95% bootstrap CI and the 95% t-interval (two "
              "seeds: the two values); 'won': seeds above zero."]
-    if min(seeds) <= FEW_SEEDS:
-        lines += ["", f"With {FEW_SEEDS} seeds or fewer a percentile bootstrap CI is narrower "
-                  "than the data allow: read the t-interval."]
+    lines += few_seeds_lines(seeds)
     for task in one_episode:
         lines += ["", f"{task}: each seed's evaluation at "
                   f"{format_step(tasks[task].scored_step)} is one episode (`distinct_episodes` "
@@ -589,19 +605,13 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
 # --------------------------------------------------- 3. the robust evaluation (evaluate.py)
 # The headline's decisive version: the same paired difference, from evaluate.py's many noisy
 # starts per seed instead of the training log's few evaluation episodes.
-# The robust figures' names for evaluate.py's actions: which SAC evaluates with each.
-ROBUST_ACTION_LABELS = {"mode": "mode (Corrected SAC)", "tanh_mu": "tanh(mu) (Standard SAC)"}
-
-
-def robust_action_label(action: str) -> str:
-    return ROBUST_ACTION_LABELS.get(action, action)
-
-
-def robust_action_colors(selectors: Sequence[str]) -> dict[str, tuple]:
-    """Each action's colour: that of the corrected runs' group evaluated with it (the mode is
-    Corrected SAC's own), so that it matches the paired-difference figure."""
-    colors = group_colors([(CORRECTED, s) for s in selectors])
-    return {s: colors[CORRECTED, s] for s in selectors}
+def robust_labels_colors(actions: Sequence[str]) -> tuple[dict[str, str], dict[str, tuple]]:
+    """Each evaluate.py action's name and colour in the figures: those of the group it stands
+    for, tanh(mu) Standard SAC's own evaluation, every other action Corrected SAC's actors."""
+    keys = {a: (STANDARD if a == own_action(STANDARD) else CORRECTED, a) for a in actions}
+    colors = group_colors(list(keys.values()))
+    return ({a: GroupLabels().action_first(k) for a, k in keys.items()},
+            {a: colors[k] for a, k in keys.items()})
 
 
 def episodes_span(episodes: np.ndarray) -> str:
@@ -686,17 +696,13 @@ def robust_over_tasks(report: Report, analysis: Analysis,
     over = RobustOverTasks(step, tasks, seeds, {}, scores)
     table = []
     for action in actions:
-        if action not in by_task[tasks[0]][step].differences:
-            continue
-        per_task = {t: by_task[t][step].differences[action][:seeds] / SUCCESS_BARS[t]
-                    for t in tasks}
-        cell = over.cells[action] = over_tasks(report, "robust_difference", action, per_task,
-                                               step, task_markers(tasks), args)
-        table.append([action, format_ci(*cell.boot), f"[{cell.t[1]:.3f}, {cell.t[2]:.3f}]",
-                      f"{int((cell.values > 0).sum())} of {cell.values.size}"])
-    lines += [markdown_table(["action", "difference / success bar (bootstrap CI)",
-                              "t-interval (Welch)", "won (task, seed)"], table), ""]
-    return over, lines
+        if action in by_task[tasks[0]][step].differences:
+            per_task = {t: by_task[t][step].differences[action][:seeds] / SUCCESS_BARS[t]
+                        for t in tasks}
+            over.cells[action], row = over_tasks(report, "robust_difference", action, per_task,
+                                                 step, task_markers(tasks), args)
+            table.append([action, *row])
+    return over, [*lines, markdown_table(["action", *OVER_TASKS_HEADER], table), ""]
 
 
 def robust_settings_lines(robust: Robust) -> list[str]:
@@ -736,9 +742,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
              "episodes above zero, within, or below."]
     seeds = [d.size for steps in by_task.values() for at in steps.values()
              for d in at.differences.values()]
-    if seeds and min(seeds) <= FEW_SEEDS:
-        lines += ["", f"With {FEW_SEEDS} seeds or fewer the percentile bootstrap is narrower "
-                  "than the data allow: read the t-interval."]
+    lines += few_seeds_lines(seeds)
     recorded = blowups_recorded(by_task)
     if recorded:
         lines += ["", "'blow-ups': episodes over the seeds that a physics blow-up ended (the "
@@ -760,7 +764,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     elif step is not None:
         over, over_lines = robust_over_tasks(report, analysis, by_task, step)
         lines += ["", *over_lines]
-    colors = robust_action_colors(robust.actions)
+    labels, colors = robust_labels_colors(robust.actions)
     rows = []
     for task, steps in by_task.items():
         ticks = [f"{format_step(s)}\n{episodes_span(at.episodes)} starts x {at.episodes.size} "
@@ -777,12 +781,11 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
                               [f"{over.seeds} seeds per task"],
                               {(0, a): cell for a, cell in over.cells.items()},
                               "difference / success bar", shapes=task_markers(over.tasks)))
-    labels = {a: robust_action_label(a) for a in colors}
     report.figure(plot_paired(rows, colors, labels, "the robust evaluation: evaluate.py's noisy "
                               "starts"), "robust_evaluation")
     if over is not None:
-        lines += report_robust_aggregate(report, analysis, over, colors)
-    lines += robust_sample_efficiency(report, analysis, barred, colors)
+        lines += report_robust_aggregate(report, analysis, over, labels, colors)
+    lines += robust_sample_efficiency(report, analysis, barred, labels, colors)
     report.section("The robust evaluation: each action minus tanh(mu) from many noisy starts "
                    "(evaluate.py)", *lines)
 
@@ -807,7 +810,7 @@ def ends_table(by_task: dict[str, dict[int, RobustStep]]) -> list[str]:
 
 
 def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOverTasks,
-                            colors: dict) -> list[str]:
+                            labels: dict, colors: dict) -> list[str]:
     """Figures `robust_aggregate_metrics` and `robust_performance_profiles` (figure_6,
     figure_7): Figures 6 and 7 of the paper from the robust evaluation, one entry per action of
     the same actors, the returns at the tasks' shared last step divided by each success bar.
@@ -815,11 +818,11 @@ def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOver
     args, name, step = analysis.args, SCORE_NAMES["success-bar"], over.step
     seeds, tasks = over.seeds, over.tasks
     point, interval = figure_6(
-        report, over.scores, AGGREGATE_METRICS, robust_action_label, colors, name,
+        report, over.scores, AGGREGATE_METRICS, labels.get, colors, name,
         f"The robust evaluation at {format_step(step)}, over {counted(len(tasks), 'task')}",
         "robust_aggregate_metrics", args)
     print(f"robust performance profiles ({args.curve_reps:,} reps) ...")
-    figure_7(report, over.scores, robust_action_label, colors, name, f"Robust evaluation at "
+    figure_7(report, over.scores, labels.get, colors, name, f"Robust evaluation at "
              f"{format_step(step)}: {', '.join(tasks)}, {seeds} seeds per task",
              "robust_performance_profiles", args)
     rows = []
@@ -829,18 +832,13 @@ def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOver
                        point[action][i], *interval[action][:, i])
         rows.append([action, *(format_ci(point[action][i], *interval[action][:, i])
                                for i in range(len(AGGREGATE_METRICS)))])
-    lines = [markdown_table(["action", *AGGREGATE_METRICS], rows)]
-    runs = seeds * len(tasks)
-    if seeds <= FEW_SEEDS:  # rliable's IQM trims 25% of all runs x tasks at each end
-        lines += ["", f"IQM here is the mean of the middle {runs - 2 * int(0.25 * runs)} of "
-                  f"{runs} runs ({seeds} seeds x {counted(len(tasks), 'task')})"
-                  + ("; rliable's median is the median over tasks of each task's mean, so with "
-                     "one task it is the mean" if len(tasks) == 1 else "") + "."]
-    return lines
+    note = iqm_note([seeds], len(tasks))
+    return [markdown_table(["action", *AGGREGATE_METRICS], rows)] + (["", f"{note}."] * bool(note))
 
 
 def robust_sample_efficiency(report: Report, analysis: Analysis,
-                             barred: dict[str, dict[int, RobustStep]], colors: dict) -> list[str]:
+                             barred: dict[str, dict[int, RobustStep]], labels: dict,
+                             colors: dict) -> list[str]:
     """Figure `robust_sample_efficiency`: Figure 8 of the paper from the robust evaluation, each
     action's IQM of the returns divided by each success bar at every step evaluated (snapshots
     and final weights), over the tasks evaluated at two steps or more, at the steps they all
@@ -866,7 +864,7 @@ def robust_sample_efficiency(report: Report, analysis: Analysis,
         f"{format_step(step)} {episodes_span(np.concatenate([row[i].episodes for row in at]))}"
         for i, step in enumerate(shared))
     point, interval = figure_8(
-        report, np.array(shared, dtype=float), scores, robust_action_label, colors,
+        report, np.array(shared, dtype=float), scores, labels.get, colors,
         f"IQM {SCORE_NAMES['success-bar'].lower()}", f"Robust evaluation: {', '.join(tasks)}, "
         f"{seeds} seeds per task\nstarts per seed: {starts}", "robust_sample_efficiency", args)
     for action in actions:
@@ -948,10 +946,10 @@ def report_choice_shares(report: Report, analysis: Analysis) -> None:
     Estimator: the mean over seeds with rliable's bootstrap CI (seed_mean_estimates:
     stats.bootstrap_mean), a share per seed being one value per seed."""
     for action in CHOICE_SHARES:
-        report_choice_shares_of(report, analysis, action)
+        choice_shares_of(report, analysis, action)
 
 
-def report_choice_shares_of(report: Report, analysis: Analysis, action: str) -> None:
+def choice_shares_of(report: Report, analysis: Analysis, action: str) -> None:
     """One action's choice shares (q_best's: mode, tanh(mu), mean), where it was evaluated."""
     args, runs, tasks = analysis.args, analysis.runs, analysis.tasks
     samples = {}
@@ -1044,17 +1042,6 @@ def report_reward_curves(report: Report, analysis: Analysis) -> None:
 
 
 # ------------------------------------------------------------ 7. aggregate metrics (Fig. 6)
-def few_runs_note(agg: Aggregate) -> str:
-    """With one task and few runs, what IQM is: a 25% trimmed mean keeps the middle runs only."""
-    if len(agg.tasks) > 1:
-        return ""
-    runs = sorted({scores.shape[0] for scores in agg.final.values()})
-    if max(runs) > FEW_SEEDS:
-        return ""
-    kept = ", ".join(f"the middle {n - 2 * int(0.25 * n)} of {n}" for n in runs)
-    return f"One task and {' or '.join(map(str, runs))} runs: IQM is the mean of {kept} runs"
-
-
 def report_aggregate_metrics(report: Report, analysis: Analysis) -> None:
     """Figure 6 (`aggregate_metrics`) and its table: IQM, median, mean and optimality gap of the
     normalised final scores over the tasks every algorithm ran. Estimator: rliable's
@@ -1068,7 +1055,7 @@ def report_aggregate_metrics(report: Report, analysis: Analysis) -> None:
     # the optimality gap's threshold 1 needs normalised scores
     names = AGGREGATE_METRICS if args.normalize != "none" else AGGREGATE_METRICS[:3]
     print(f"aggregate metrics over {len(agg.tasks)} task(s) ({args.reps:,} reps) ...")
-    note = few_runs_note(agg)
+    note = iqm_note(sorted({scores.shape[0] for scores in agg.final.values()}), len(agg.tasks))
     point, interval = figure_6(report, agg.final, names, analysis.labels, analysis.colors,
                                score_name, note, "aggregate_metrics", args)
     table = []

@@ -1119,7 +1119,7 @@ def test_robust_evaluation_matches_a_hand_computation(tmp_path):
         assert (out / f"{figure}.png").is_file(), figure
     text = (out / "summary.md").read_text()
     assert "## The robust evaluation" in text
-    assert "IQM here is the mean of the middle 4 of 6 runs" in text
+    assert "3 runs x 2 tasks: IQM is the mean of the middle 4 of 6 runs" in text
 
 
 def test_robust_folders_read_alike_with_and_without_physics_unstable(tmp_path):
