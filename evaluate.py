@@ -48,7 +48,7 @@ from sac_utils.eval_rounds import (
     eval_seeds,
     start_key,
 )
-from sac_utils.files import complete_lines, write_text_atomically
+from sac_utils.files import complete_lines, write_json, write_text_atomically
 from sac_utils.policies import build_actor, build_critic, load_policy, load_weights, read_config
 
 # Episodes per job. Fixed, not derived from --workers: a job's episodes share one batch per
@@ -420,7 +420,7 @@ def evaluate_campaign(args: Args) -> None:
         complete = {k: v for k, v in settings.items() if k != "steps"} | {
             "seconds": round(seconds, 1), "workers": args.workers,
             "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
-        write_text_atomically(args.out / CAMPAIGN_FILE, json.dumps(complete, indent=2) + "\n")
+        write_json(args.out / CAMPAIGN_FILE, complete)
         (args.out / PARTIAL_FILE).unlink(missing_ok=True)
     except OSError as error:
         fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable folder")
@@ -442,8 +442,7 @@ def evaluate_policies(args: Args, settings: dict,
                       planned: list[tuple[Policy, list[int], list[Round]]],
                       finished: dict[tuple[str, int], PolicyRows], seconds: float) -> float:
     """The seconds of all attempts at the end (`seconds`: of the earlier ones)."""
-    write_text_atomically(args.out / PARTIAL_FILE, json.dumps(settings | {"seconds": seconds},
-                                                         indent=2) + "\n")
+    write_json(args.out / PARTIAL_FILE, settings | {"seconds": seconds})
     if not planned:  # all finished by an attempt killed before it wrote evaluation.json
         return seconds
     actions = settings["selectors"]
@@ -464,8 +463,8 @@ def evaluate_policies(args: Args, settings: dict,
         waiting.pop(0)
         results.clear()
         write_run_files(args.out, policy.run, finished)
-        write_text_atomically(args.out / PARTIAL_FILE, json.dumps(
-            settings | {"seconds": seconds + time.perf_counter() - start}, indent=2) + "\n")
+        write_json(args.out / PARTIAL_FILE,
+                   settings | {"seconds": seconds + time.perf_counter() - start})
 
     run_jobs([job for *_, jobs in planned for job in jobs], args.workers,
              f"{len(planned)} policies x {' '.join(actions)}", keep)
@@ -722,7 +721,7 @@ def main(argv: list[str] | None = None) -> None:
             args.out.mkdir(parents=True, exist_ok=True)
             write_text_atomically(args.out / "episodes.csv", csv_text(
                 [EPISODE_COLUMNS, *episode_rows(results, seeds)]))
-            write_text_atomically(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
+            write_json(args.out / "summary.json", summary)
         except OSError as error:
             fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable "
                  "folder")
