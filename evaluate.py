@@ -147,8 +147,7 @@ def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: li
     jobs = []
     for start in range(0, len(seeds), JOB_EPISODES):
         part = seeds[start:start + JOB_EPISODES]
-        videos = {s: args.video / f"{s}.mp4" for s in actions} if args.video and start == 0 \
-            else {}
+        videos = {s: args.video / f"{s}.mp4" for s in actions} if args.video and start == 0 else {}
         jobs.append(Round(env_id, part, {s: s for s in actions}, actor, critic,
                           mode_solver=args.solver, reset_noise=args.reset_noise,
                           shift_of=shift_of, videos=videos,
@@ -192,12 +191,10 @@ def merge(results: list[dict], actions: list[str]) -> tuple[dict, dict]:
     merged = {s: {k: [x for r in results for x in r[s][k]]
                   for k in ("returns", "lengths", "successes", "unstable", "ends")}
               for s in actions}
-    for s in actions:
-        if "shares" in results[0][s]:
-            weights = np.array([sum(r[s]["lengths"]) for r in results], float)
-            merged[s]["shares"] = {c: float(np.average([r[s]["shares"][c] for r in results],
-                                                       weights=weights))
-                                   for c in Q_BEST_CANDIDATES}
+    for s in (s for s in actions if "shares" in results[0][s]):
+        weights = np.array([sum(r[s]["lengths"]) for r in results], float)
+        merged[s]["shares"] = {c: float(np.average([r[s]["shares"][c] for r in results],
+                                                   weights=weights)) for c in Q_BEST_CANDIDATES}
     states = np.array([r["shift_states"] for r in results], float)
     shift = {k: float(np.average([r["shift"][k] for r in results], weights=states))
              for k in SHIFT_COLUMNS}
@@ -215,8 +212,7 @@ def progress_bar(label: str, total: int) -> Callable[[int], None]:
                 f"{elapsed:.0f} s, ~{elapsed / done * (total - done):.0f} s left")
         if tty:
             # \r back to the line's start, ESC[K clears what a longer earlier line left.
-            print(f"\r{line}\033[K", end="\n" if done == total else "", file=sys.stderr,
-                  flush=True)
+            print(f"\r{line}\033[K", end="\n" if done == total else "", file=sys.stderr, flush=True)
         elif 10 * done // total > shown[0]:
             shown[0] = 10 * done // total
             print(line, file=sys.stderr, flush=True)
@@ -699,8 +695,7 @@ def main(argv: list[str] | None = None) -> None:
     if is_campaign(args.source):
         evaluate_campaign(args)
         return
-    actor, critic, env_id, info = load_policy(args.source, args.env_id,
-                                              "q_best" in args.selectors)
+    actor, critic, env_id, info = load_policy(args.source, args.env_id, "q_best" in args.selectors)
     actor = actor.eval()
     if args.video:
         try:
