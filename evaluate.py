@@ -48,7 +48,7 @@ from sac_utils.eval_rounds import (
     eval_seeds,
     start_key,
 )
-from sac_utils.files import complete_lines, write_text_atomically
+from sac_utils.files import complete_lines, write_json, write_text_atomically
 from sac_utils.policies import build_actor, build_critic, load_policy, load_weights, read_config
 
 # Episodes per job. Fixed, not derived from --workers: a job's episodes share one batch per
@@ -147,8 +147,7 @@ def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: li
     jobs = []
     for start in range(0, len(seeds), JOB_EPISODES):
         part = seeds[start:start + JOB_EPISODES]
-        videos = {s: args.video / f"{s}.mp4" for s in actions} if args.video and start == 0 \
-            else {}
+        videos = {s: args.video / f"{s}.mp4" for s in actions} if args.video and start == 0 else {}
         jobs.append(Round(env_id, part, {s: s for s in actions}, actor, critic,
                           mode_solver=args.solver, reset_noise=args.reset_noise,
                           shift_of=shift_of, videos=videos,
@@ -192,12 +191,10 @@ def merge(results: list[dict], actions: list[str]) -> tuple[dict, dict]:
     merged = {s: {k: [x for r in results for x in r[s][k]]
                   for k in ("returns", "lengths", "successes", "unstable", "ends")}
               for s in actions}
-    for s in actions:
-        if "shares" in results[0][s]:
-            weights = np.array([sum(r[s]["lengths"]) for r in results], float)
-            merged[s]["shares"] = {c: float(np.average([r[s]["shares"][c] for r in results],
-                                                       weights=weights))
-                                   for c in Q_BEST_CANDIDATES}
+    for s in (s for s in actions if "shares" in results[0][s]):
+        weights = np.array([sum(r[s]["lengths"]) for r in results], float)
+        merged[s]["shares"] = {c: float(np.average([r[s]["shares"][c] for r in results],
+                                                   weights=weights)) for c in Q_BEST_CANDIDATES}
     states = np.array([r["shift_states"] for r in results], float)
     shift = {k: float(np.average([r["shift"][k] for r in results], weights=states))
              for k in SHIFT_COLUMNS}
@@ -215,8 +212,7 @@ def progress_bar(label: str, total: int) -> Callable[[int], None]:
                 f"{elapsed:.0f} s, ~{elapsed / done * (total - done):.0f} s left")
         if tty:
             # \r back to the line's start, ESC[K clears what a longer earlier line left.
-            print(f"\r{line}\033[K", end="\n" if done == total else "", file=sys.stderr,
-                  flush=True)
+            print(f"\r{line}\033[K", end="\n" if done == total else "", file=sys.stderr, flush=True)
         elif 10 * done // total > shown[0]:
             shown[0] = 10 * done // total
             print(line, file=sys.stderr, flush=True)
@@ -420,7 +416,7 @@ def evaluate_campaign(args: Args) -> None:
         complete = {k: v for k, v in settings.items() if k != "steps"} | {
             "seconds": round(seconds, 1), "workers": args.workers,
             "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
-        write_text_atomically(args.out / CAMPAIGN_FILE, json.dumps(complete, indent=2) + "\n")
+        write_json(args.out / CAMPAIGN_FILE, complete)
         (args.out / PARTIAL_FILE).unlink(missing_ok=True)
     except OSError as error:
         fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable folder")
@@ -442,8 +438,7 @@ def evaluate_policies(args: Args, settings: dict,
                       planned: list[tuple[Policy, list[int], list[Round]]],
                       finished: dict[tuple[str, int], PolicyRows], seconds: float) -> float:
     """The seconds of all attempts at the end (`seconds`: of the earlier ones)."""
-    write_text_atomically(args.out / PARTIAL_FILE, json.dumps(settings | {"seconds": seconds},
-                                                         indent=2) + "\n")
+    write_json(args.out / PARTIAL_FILE, settings | {"seconds": seconds})
     if not planned:  # all finished by an attempt killed before it wrote evaluation.json
         return seconds
     actions = settings["selectors"]
@@ -464,8 +459,8 @@ def evaluate_policies(args: Args, settings: dict,
         waiting.pop(0)
         results.clear()
         write_run_files(args.out, policy.run, finished)
-        write_text_atomically(args.out / PARTIAL_FILE, json.dumps(
-            settings | {"seconds": seconds + time.perf_counter() - start}, indent=2) + "\n")
+        write_json(args.out / PARTIAL_FILE,
+                   settings | {"seconds": seconds + time.perf_counter() - start})
 
     run_jobs([job for *_, jobs in planned for job in jobs], args.workers,
              f"{len(planned)} policies x {' '.join(actions)}", keep)
@@ -700,8 +695,7 @@ def main(argv: list[str] | None = None) -> None:
     if is_campaign(args.source):
         evaluate_campaign(args)
         return
-    actor, critic, env_id, info = load_policy(args.source, args.env_id,
-                                              "q_best" in args.selectors)
+    actor, critic, env_id, info = load_policy(args.source, args.env_id, "q_best" in args.selectors)
     actor = actor.eval()
     if args.video:
         try:
@@ -722,7 +716,7 @@ def main(argv: list[str] | None = None) -> None:
             args.out.mkdir(parents=True, exist_ok=True)
             write_text_atomically(args.out / "episodes.csv", csv_text(
                 [EPISODE_COLUMNS, *episode_rows(results, seeds)]))
-            write_text_atomically(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
+            write_json(args.out / "summary.json", summary)
         except OSError as error:
             fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable "
                  "folder")

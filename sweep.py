@@ -94,10 +94,9 @@ PRESETS = {
         ONE_RUN_IS_BOTH + "; classic tasks 1M steps each, h1hand tasks the paper's 10M"),
 }
 # sweep.py sets these for every run itself; the same flags after `--` would contradict them.
-SWEEP_FLAGS = (
-    "--env-id", "--seed", "--output-dir", "--run-name", "--resume", "--checkpoint-interval",
-    "--track", "--wandb-project-name", "--wandb-entity", "--wandb-group",
-)
+SWEEP_FLAGS = ("--env-id", "--seed", "--output-dir", "--run-name", "--resume",
+               "--checkpoint-interval", "--track", "--wandb-project-name", "--wandb-entity",
+               "--wandb-group")
 # How fast a run goes, not what it computes: it may differ on --resume, no part of the identity.
 EVAL_WORKERS_FLAGS = ("--eval-workers", "--eval_workers")
 
@@ -233,9 +232,10 @@ def split_eval_workers(extra_args: tuple[str, ...]) -> tuple[tuple[str, ...], in
 
 def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     """The runs of the sweep, seed-major so that every cell gets its first seed early."""
-    preset = PRESETS.get(args.preset)
-    env_ids = args.env_ids or (list(preset.env_ids) if preset else [])
-    seeds = args.seeds or (list(preset.seeds) if preset else [])
+    # No --preset: no env ids or seeds unless given, the project's two scripts.
+    preset = PRESETS.get(args.preset, Preset((), (), DEFAULT_SCRIPTS, {}, ""))
+    env_ids = args.env_ids or list(preset.env_ids)
+    seeds = args.seeds or list(preset.seeds)
     if not env_ids:
         raise SweepError("no env ids: pass --env-ids ID [ID ...] (or --preset paper)")
     if not seeds:
@@ -244,8 +244,7 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     if args.mps and args.launcher != "local":
         raise SweepError("--mps is for --launcher local (on Slurm, the cluster decides how jobs "
                          "share a GPU); drop --mps")
-    names = args.scripts or (list(preset.scripts) if preset else list(DEFAULT_SCRIPTS))
-    scripts = [resolve_script(script) for script in dict.fromkeys(names)]
+    scripts = [resolve_script(script) for script in dict.fromkeys(args.scripts or preset.scripts)]
     check_env_ids(env_ids)
     run_args, eval_workers = split_eval_workers(extra_args)
     output_dir = Path(args.output_dir).resolve()
@@ -253,16 +252,13 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     tracking = ("--track", "--wandb-project-name", args.wandb_project_name, *entity) \
         if args.track else ()
     # The preset's step budget for an env id, unless the arguments after `--` give one.
-    steps = preset.total_timesteps if preset and given_total_timesteps(run_args) is None else {}
+    steps = preset.total_timesteps if given_total_timesteps(run_args) is None else {}
     budget = {env_id: ("--total-timesteps", str(steps[env_id])) if env_id in steps else ()
               for env_id in env_ids}
-    return [
-        Run(script, env_id, seed, budget[env_id] + run_args, output_dir,
-            args.checkpoint_interval, tracking, eval_workers)
-        for seed in dict.fromkeys(seeds)
-        for env_id in dict.fromkeys(env_ids)
-        for script in scripts
-    ]
+    return [Run(script, env_id, seed, budget[env_id] + run_args, output_dir,
+                args.checkpoint_interval, tracking, eval_workers)
+            for seed in dict.fromkeys(seeds) for env_id in dict.fromkeys(env_ids)
+            for script in scripts]
 
 
 def check_ranges(args: Args) -> None:
@@ -322,27 +318,16 @@ def check_output_dir(runs: list[Run]) -> None:
             others.append(f"{run_dir.name} (arguments: {shlex.join(identity['extra_args'])})")
     if others:
         shown = others[:10] + ([f"... and {len(others) - 10} more"] if len(others) > 10 else [])
-        listing = "\n  ".join(shown)
         theirs = sorted({shlex.join(args) or "none" for args in allowed})
-        raise SweepError(
-            f"{output_dir} holds runs made with other arguments than this sweep's "
-            f"({'; '.join(theirs)}):\n  {listing}\n"
-            "Use another --output-dir, or rerun with the same arguments after `--`."
-        )
+        raise SweepError(f"{output_dir} holds runs made with other arguments than this sweep's "
+                         f"({'; '.join(theirs)}):\n  " + "\n  ".join(shown) + "\nUse another "
+                         "--output-dir, or rerun with the same arguments after `--`.")
 
 
 def eval_workers_per_run(cores: int, runs_at_once: int) -> int:
     # At least one: in-process evaluation stops training for every round, which costs more than
     # one worker on an oversubscribed core.
     return max(1, (cores - runs_at_once) // runs_at_once)
-
-
-def slurm_cpus_per_task(args: Args) -> int:
-    # submitit writes additional sbatch parameters over its own: --sbatch cpus-per-task=N wins.
-    given = sbatch_options(args.sbatch).get("cpus_per_task", args.cpus_per_task)
-    if not (str(given).isascii() and str(given).isdigit()) or int(given) < 1:
-        raise SweepError(f"--sbatch cpus-per-task={given}: must be a whole number, at least 1")
-    return int(given)
 
 
 def plural(count: int, noun: str) -> str:
@@ -355,7 +340,11 @@ def eval_division(args: Args, given: int | None, to_launch: int) -> tuple[int, s
     if given is not None:
         return given, f"evaluation: {plural(given, 'worker')} per run (--eval-workers after `--`)"
     if args.launcher == "slurm":
-        cpus = slurm_cpus_per_task(args)
+        # submitit writes additional sbatch parameters over its own: --sbatch cpus-per-task=N wins.
+        asked = str(sbatch_options(args.sbatch).get("cpus_per_task", args.cpus_per_task))
+        if not (asked.isascii() and asked.isdigit()) or int(asked) < 1:
+            raise SweepError(f"--sbatch cpus-per-task={asked}: must be a whole number, at least 1")
+        cpus = int(asked)
         count = eval_workers_per_run(cpus, 1)
         why = f"{plural(cpus, 'CPU')} per Slurm task, one for training"
     else:
@@ -381,8 +370,7 @@ def mps_daemon() -> Iterator[None]:
         Path(path).mkdir()
     environment = {**os.environ, **variables}
     subprocess.run(["nvidia-cuda-mps-control", "-d"], env=environment, check=True)
-    print(f"sweep.py: MPS started (pipe folder {variables['CUDA_MPS_PIPE_DIRECTORY']})",
-          flush=True)
+    print(f"sweep.py: MPS started (pipe folder {variables['CUDA_MPS_PIPE_DIRECTORY']})", flush=True)
     saved = {k: os.environ.get(k) for k in variables}
     os.environ.update(variables)  # the runs started in the block inherit it
     try:
@@ -479,8 +467,7 @@ def launch_slurm(runs: list[Run], args: Args) -> str:
         # The job unpickles SlurmRun from sac_utils/sweep_run.py, wherever the sweep started.
         setup=[f"export PYTHONPATH={shlex.quote(str(ROOT))}${{PYTHONPATH:+:$PYTHONPATH}}"],
         additional_parameters=sbatch_options(args.sbatch),
-        **{key: value for key, value in optional.items() if value is not None},
-    )
+        **{key: value for key, value in optional.items() if value is not None})
     for run in runs:
         prepare_run_dir(run)
     jobs = executor.map_array(SlurmRun(), runs)
@@ -543,11 +530,8 @@ def print_plan(runs: list[Run], states: dict[Run, str], args: Args,
 
 
 def print_status(output_dir: Path) -> None:
-    run_dirs = [
-        d for d in sorted(output_dir.iterdir())
-        if d.is_dir() and not d.name.startswith(".")
-        and ((d / IDENTITY_FILE).exists() or (d / "config.json").exists())
-    ]
+    run_dirs = [d for d in sorted(output_dir.iterdir()) if d.is_dir() and not d.name.startswith(".")
+                and ((d / IDENTITY_FILE).exists() or (d / "config.json").exists())]
     if not run_dirs:
         raise SweepError(f"{output_dir} holds no runs")
     width = max(len(d.name) for d in run_dirs)

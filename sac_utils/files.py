@@ -26,6 +26,11 @@ def write_text_atomically(path: Path, text: str) -> None:
     atomic_write(path, write)
 
 
+def write_json(path: Path, data: dict) -> None:
+    """data as indented JSON with a final newline, written as write_text_atomically writes."""
+    write_text_atomically(path, json.dumps(data, indent=2) + "\n")
+
+
 def read_json_object(path: Path) -> dict:
     """A JSON file that holds an object; else ValueError naming what is wrong with it."""
     try:

@@ -25,7 +25,7 @@ from pathlib import Path
 import submitit
 
 from sac_utils.cli import INTERRUPTED_EXIT_CODE as EXIT_INTERRUPTED
-from sac_utils.files import complete_lines, write_text_atomically
+from sac_utils.files import complete_lines, write_json
 
 IDENTITY_FILE = "sweep_run.json"
 ATTEMPT_FILE = "sweep_attempt.json"
@@ -67,10 +67,6 @@ def args_hash(extra_args: tuple[str, ...]) -> str:
     """Short stable hash of the arguments every run of a sweep gets (it names existing folders:
     never change it)."""
     return hashlib.sha256(json.dumps(list(extra_args)).encode()).hexdigest()[:8]
-
-
-def write_json(path: Path, data: dict) -> None:
-    write_text_atomically(path, json.dumps(data, indent=2) + "\n")
 
 
 def read_json(path: Path) -> dict | None:
