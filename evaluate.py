@@ -48,7 +48,7 @@ from sac_utils.eval_rounds import (
     eval_seeds,
     start_key,
 )
-from sac_utils.files import complete_lines, write_json, write_text_atomically
+from sac_utils.files import complete_lines, read_json_object, write_json, write_text_atomically
 from sac_utils.policies import build_actor, build_critic, load_policy, load_weights, read_config
 
 # Episodes per job. Fixed, not derived from --workers: a job's episodes share one batch per
@@ -483,14 +483,19 @@ SHIFT_HEADER = ["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}" for c in Q_BEST_CA
 PolicyRows = tuple[list[list], list]
 
 
+def read_settings(path: Path) -> dict:
+    """evaluation.json or its marker; a damaged one is a one-line error."""
+    try:
+        return read_json_object(path)
+    except ValueError as error:
+        fail(f"{error}: the evaluation's record is damaged; give another --out")
+
+
 def recorded_settings(out: Path) -> dict | None:
     """evaluation.json, else the marker, else None (a new evaluation)."""
     for path in (out / CAMPAIGN_FILE, out / PARTIAL_FILE):
         if path.is_file():
-            try:
-                return json.loads(path.read_text())
-            except (json.JSONDecodeError, UnicodeDecodeError):
-                fail(f"{path} is damaged; give another --out")
+            return read_settings(path)
     return None
 
 
@@ -559,7 +564,7 @@ def csv_text(rows: list[list]) -> str:
 
 def read_campaign(out: Path) -> tuple[dict, dict[tuple[str, int, str], list[list[str]]]]:
     """evaluation.json, and episodes.csv's rows by (run, step, action)."""
-    settings = json.loads((out / CAMPAIGN_FILE).read_text())
+    settings = read_settings(out / CAMPAIGN_FILE)
     episodes: dict[tuple[str, int, str], list[list[str]]] = {}
     for run in settings["runs"]:
         path = out / run / "episodes.csv"

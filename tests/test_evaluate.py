@@ -378,6 +378,21 @@ def test_bad_sources_fail_clearly(sb3_models, our_run, tmp_path, capsys):
 
 
 @pytest.mark.slow
+def test_a_damaged_evaluation_record_fails_clearly(tmp_path, capsys):
+    """evaluation.json (an evaluation to summarise again) or its marker (one not finished) that
+    is not a JSON object: one line naming the file, nothing written."""
+    for name, content in (("evaluation.json", "{broken"), ("evaluation.json", "[1, 2]"),
+                          (evaluate.PARTIAL_FILE, "[]"), (evaluate.PARTIAL_FILE, "\xff")):
+        out = tmp_path / f"{name}-{len(content)}"
+        out.mkdir()
+        (out / name).write_text(content, encoding="latin-1")
+        code, printed, err = run(capsys, str(out))
+        assert code == 2 and printed == "" and len(err.strip().splitlines()) == 1, (code, err)
+        assert str(out / name) in err, err
+        assert err.strip().endswith("the evaluation's record is damaged; give another --out"), err
+        assert sorted(p.name for p in out.iterdir()) == [name]
+
+
 def test_bad_flags_fail_clearly_before_running(our_run, tmp_path, capsys):
     run_dir = str(our_run)
     refused(capsys, "--episodes 0: must be at least 1", run_dir, "--episodes", "0")
