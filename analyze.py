@@ -459,7 +459,8 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
                       ) -> tuple[list[str], PairedRow | None]:
     """Over tasks, per evaluation action: the mean normalised paired difference and the share
     of (task, seed) pairs won (over_tasks); summary.md's lines and the figure's panel."""
-    args, norms, name = analysis.args, analysis.norms, SCORE_NAMES[analysis.args.normalize]
+    args, norms = analysis.args, analysis.norms
+    name = SCORE_NAMES[args.normalize].lower()
     shapes = task_markers(list(differences))
     cells, table = {}, []
     for key in sorted({g for by_group in differences.values() for g in by_group}, key=group_rank):
@@ -470,12 +471,12 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
             table.append([analysis.labels.action_first(key), *row])
     if not cells:
         return [], None
-    lines = ["", f"Over tasks, each action minus tanh(mu) in {name.lower()}s: the mean over "
+    lines = ["", f"Over tasks, each action minus tanh(mu) in {name}s: the mean over "
              "tasks with rliable's stratified bootstrap CI (seeds resampled within each task) "
              "and Welch's t-interval (the tasks' seeds independent); 'won': (task, seed) pairs "
              "above zero.", "", markdown_table(["action", *OVER_TASKS_HEADER], table)]
     return lines, PairedRow(f"Over {len(shapes)} tasks at their scored steps", ["all tasks"],
-                            cells, f"difference in {name.lower()}", shapes=shapes)
+                            cells, f"difference in {name}", shapes=shapes)
 
 
 def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: list[str]
@@ -694,13 +695,13 @@ def robust_over_tasks(report: Report, analysis: Analysis,
     scores = {a: np.stack([by_task[t][step].returns[a][:seeds] / SUCCESS_BARS[t]
                            for t in tasks], axis=1) for a in actions}
     over = RobustOverTasks(step, tasks, seeds, {}, scores)
-    table = []
+    table, shapes = [], task_markers(tasks)
     for action in actions:
         if action in by_task[tasks[0]][step].differences:
             per_task = {t: by_task[t][step].differences[action][:seeds] / SUCCESS_BARS[t]
                         for t in tasks}
             over.cells[action], row = over_tasks(report, "robust_difference", action, per_task,
-                                                 step, task_markers(tasks), args)
+                                                 step, shapes, args)
             table.append([action, *row])
     return over, [*lines, markdown_table(["action", *OVER_TASKS_HEADER], table), ""]
 
@@ -832,8 +833,10 @@ def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOver
                        point[action][i], *interval[action][:, i])
         rows.append([action, *(format_ci(point[action][i], *interval[action][:, i])
                                for i in range(len(AGGREGATE_METRICS)))])
-    note = iqm_note([seeds], len(tasks))
-    return [markdown_table(["action", *AGGREGATE_METRICS], rows)] + (["", f"{note}."] * bool(note))
+    lines = [markdown_table(["action", *AGGREGATE_METRICS], rows)]
+    if note := iqm_note([seeds], len(tasks)):
+        lines += ["", f"{note}."]
+    return lines
 
 
 def robust_sample_efficiency(report: Report, analysis: Analysis,

@@ -38,7 +38,7 @@ import tyro
 
 import sac_corrected as sac
 from sac_utils import stats
-from sac_utils.cli import broken_rule, check_reset_noise, fail
+from sac_utils.cli import broken_rule, check_reset_noise, fail, json_object_or_fail
 from sac_utils.eval_rounds import (
     ACTIONS,
     Q_BEST_CANDIDATES,
@@ -48,7 +48,7 @@ from sac_utils.eval_rounds import (
     eval_seeds,
     start_key,
 )
-from sac_utils.files import complete_lines, read_json_object, write_json, write_text_atomically
+from sac_utils.files import complete_lines, write_json, write_text_atomically
 from sac_utils.policies import build_actor, build_critic, load_policy, load_weights, read_config
 
 # Episodes per job. Fixed, not derived from --workers: a job's episodes share one batch per
@@ -483,19 +483,15 @@ SHIFT_HEADER = ["step", *SHIFT_COLUMNS, *(f"q_best_share_{c}" for c in Q_BEST_CA
 PolicyRows = tuple[list[list], list]
 
 
-def read_settings(path: Path) -> dict:
-    """evaluation.json or its marker; a damaged one is a one-line error."""
-    try:
-        return read_json_object(path)
-    except ValueError as error:
-        fail(f"{error}: the evaluation's record is damaged; give another --out")
+# What a damaged evaluation.json or marker's one-line error ends with.
+DAMAGED_RECORD = "the evaluation's record is damaged; give another --out"
 
 
 def recorded_settings(out: Path) -> dict | None:
     """evaluation.json, else the marker, else None (a new evaluation)."""
     for path in (out / CAMPAIGN_FILE, out / PARTIAL_FILE):
         if path.is_file():
-            return read_settings(path)
+            return json_object_or_fail(path, DAMAGED_RECORD)
     return None
 
 
@@ -564,7 +560,7 @@ def csv_text(rows: list[list]) -> str:
 
 def read_campaign(out: Path) -> tuple[dict, dict[tuple[str, int, str], list[list[str]]]]:
     """evaluation.json, and episodes.csv's rows by (run, step, action)."""
-    settings = read_settings(out / CAMPAIGN_FILE)
+    settings = json_object_or_fail(out / CAMPAIGN_FILE, DAMAGED_RECORD)
     episodes: dict[tuple[str, int, str], list[list[str]]] = {}
     for run in settings["runs"]:
         path = out / run / "episodes.csv"

@@ -44,16 +44,21 @@ def check_finite(x: np.ndarray, what: str) -> None:
                          "rates or resume from an earlier checkpoint")
 
 
+def json_object_or_fail(path: Path, fix: str) -> dict:
+    """A JSON file that holds an object, or one line naming what is wrong with it and `fix`."""
+    try:
+        return read_json_object(path)
+    except ValueError as error:
+        fail(f"{error}; {fix}")
+
+
 def read_config_json(run_dir: Path, give_instead: str, restore: str) -> dict:
     """A run folder's config.json as a dict, or one line naming the problem: `give_instead` says
     what to give where the folder is not a run, `restore` what to do about a damaged file."""
     path = run_dir / "config.json"
     if not path.is_file():
         fail(f"{run_dir} is not a run folder (no config.json); {give_instead}")
-    try:
-        return read_json_object(path)
-    except ValueError as error:
-        fail(f"{error}; {restore}")
+    return json_object_or_fail(path, restore)
 
 
 def read_run_config(run_dir: Path, algorithm: str) -> dict:
