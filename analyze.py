@@ -768,7 +768,8 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     labels, colors = robust_labels_colors(robust.actions)
     rows = []
     for task, steps in by_task.items():
-        ticks = [f"{format_step(s)}\n{episodes_span(at.episodes)} starts x {at.episodes.size} "
+        # Three short lines: a campaign's ten steps side by side must not run into each other.
+        ticks = [f"{format_step(s)}\n{episodes_span(at.episodes)} starts\nx {at.episodes.size} "
                  "seeds" for s, at in steps.items()]
         cells = {(i, a): PairedCell(d, estimates[f"{task}|{step}", a], t_interval(d),
                                     at.errors.get(a))
