@@ -35,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import humanoid_envs  # noqa: E402,F401  (registers the envs)
 from humanoid_envs.base import H1HandEnv  # noqa: E402
 from humanoid_envs.robot import NV_ROBOT  # noqa: E402
+from sac_utils.eval_rounds import episode_end  # noqa: E402
 from sac_utils.policies import load_policy  # noqa: E402
 
 # qvel of the two hands: after the free base's 6 dofs and the 21 of legs, torso and arms.
@@ -73,14 +74,6 @@ def act(actor: torch.nn.Module, obs: np.ndarray, generator: torch.Generator | No
     return torch.tanh(mu)[0].numpy().astype(np.float64)
 
 
-def end_of(env: gym.Env, terminated: bool, info: dict) -> str:
-    if info.get("physics_unstable"):
-        return "blow-up"
-    if not terminated:
-        return "time limit"
-    return env.unwrapped.task.termination() or "terminated"
-
-
 def deterministic(actor: torch.nn.Module, env: gym.Env, episodes: int) -> dict:
     returns, lengths, ends = np.zeros(episodes), np.zeros(episodes), Counter()
     for k in range(episodes):
@@ -90,7 +83,7 @@ def deterministic(actor: torch.nn.Module, env: gym.Env, episodes: int) -> dict:
             returns[k] += reward
             lengths[k] += 1
             if terminated or truncated:
-                ends[end_of(env, terminated, info)] += 1
+                ends[episode_end(terminated, info)] += 1
                 break
     return {"returns": returns, "length": lengths.mean(), "ends": ends}
 
