@@ -15,6 +15,8 @@ for d in ~/campaign/cube-10M/*/; do
     [ -e "$f" ] || continue; n=$(basename $f .pt); n=${n#step}; [ $((n % 1000000)) -ne 0 ] && rm -f $f
   done
   cp $d/config.json $d/train.csv $d/eval.csv $d/sweep_run.json $OUT/$r/
+  # a restart from a snapshot keeps the CSVs as they were in restarts/step<N>/
+  [ -d $d/restarts ] && cp -r $d/restarts $OUT/$r/
   [ -d $d/snapshots ] && cp $d/snapshots/*.pt $OUT/$r/snapshots/ 2>/dev/null
   /work/main/.venv/bin/python - "$d" "$OUT/$r" <<'PY'
 import sys, torch
