@@ -237,6 +237,7 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
             notes.append(f"{run_dir}: no {EVAL_FILE} yet; skipped")
             continue
         config = read_config(config_path)
+        notes += restart_notes(run_dir, config)
         columns, partial = read_eval_csv(run_dir / EVAL_FILE)
         if partial:
             notes.append(
@@ -280,6 +281,19 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
         for curves in groups.values():
             curves.sort(key=lambda curve: curve.seed)
     return runs, notes
+
+
+def restart_notes(run_dir: Path, config: dict) -> list[str]:
+    """A note per restart from a snapshot (config.json's "restarts", written by `sweep.py
+    restart` when a run's checkpoint was lost), so that a report over the run says where its
+    curve stops being the original run's."""
+    restarts = config.get("restarts")
+    if not isinstance(restarts, list):
+        return []
+    return [f"{run_dir}: restarted from {r.get('snapshot')} at step {r.get('step')} (its "
+            f"checkpoint lost; the replay buffer refilled for {r.get('refill')} steps): from "
+            "there a new sample, not the lost run's future"
+            for r in restarts if isinstance(r, dict)]
 
 
 def _add_curve(runs: Runs, task: str, key: Key, curve: Curve) -> None:

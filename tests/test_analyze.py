@@ -257,6 +257,21 @@ def test_incomplete_last_line_is_dropped(tmp_path):
     assert columns["return_mean"][-1] == last_value
 
 
+def test_a_restart_from_a_snapshot_is_noted(tmp_path):
+    write_offset_folder(tmp_path / "runs", offset=0.1, seeds=2, evaluations=3)
+    _, notes = scores.load_runs([tmp_path / "runs"])
+    assert not any("restarted" in note for note in notes)
+    config_path = next((tmp_path / "runs").glob("*__seed1*/config.json"))
+    config = json.loads(config_path.read_text())
+    config["restarts"] = [{"step": 20_000, "snapshot": "snapshots/step20000.pt", "refill": 500}]
+    config_path.write_text(json.dumps(config))
+    _, notes = scores.load_runs([tmp_path / "runs"])
+    restarted = [note for note in notes if "restarted" in note]
+    assert restarted == [f"{config_path.parent}: restarted from snapshots/step20000.pt at step "
+                         "20000 (its checkpoint lost; the replay buffer refilled for 500 steps): "
+                         "from there a new sample, not the lost run's future"]
+
+
 @pytest.mark.slow
 def test_run_without_rows_or_eval_csv_is_skipped_with_a_note(tmp_path):
     write_offset_folder(tmp_path / "runs", offset=0.1, seeds=2, evaluations=4)
