@@ -93,6 +93,7 @@ from sac_utils.scores import (
     paired_differences,
     paired_groups,
     resolve_normalization,
+    restart_marks,
     robust_paired_differences,
     robust_shared_step,
     shift_curves,
@@ -909,7 +910,8 @@ def report_over_training(report: Report, analysis: Analysis) -> None:
              for g in by_group}
     report.figure(plot_over_training({t: data.steps for t, data in tasks.items()}, differences,
                                      estimates, shifts, OVER_TRAINING_SHIFT_COLUMNS,
-                                     analysis.colors, names), "over_training")
+                                     analysis.colors, names, restart_marks(runs)),
+                  "over_training")
     lines = ["At every step a task's runs share: the paired difference as in the headline "
              f"(bootstrap CI, {args.curve_reps:,} replications, and t-interval), and the shift "
              "measured at the states the mode policy visited (mean over runs). summary.csv has "
@@ -1027,8 +1029,8 @@ def report_reward_curves(report: Report, analysis: Analysis) -> None:
         {t: data.steps for t, data in tasks.items()},
         {t: {g: curves[t][g] for g in groups if g in data.returns} for t, data in tasks.items()},
         colors, labels, styles, SUCCESS_BARS,
-        f"Mean evaluation return over {' or '.join(map(str, seeds))} seeds, 95% {interval}"),
-        "reward_curves")
+        f"Mean evaluation return over {' or '.join(map(str, seeds))} seeds, 95% {interval}",
+        restart_marks(analysis.runs)), "reward_curves")
     finals = seed_mean_estimates({(t, g): data.scored(g) for t, data in tasks.items()
                                   for g in data.returns}, args.reps, args.seed)
     table = []

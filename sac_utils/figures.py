@@ -244,14 +244,28 @@ def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str)
 ROLLING_ROUNDS = 10
 
 
+def mark_restarts(ax: plt.Axes, marks: Sequence[tuple[int, int]], unit: float,
+                  named: bool = True) -> None:
+    """A dashed vertical line where a run restarted from a snapshot (its checkpoint lost): past
+    it the curve is a new sample from that step, not the lost run's future. `named`: the seed
+    written beside each line and one legend entry."""
+    for i, (seed, step) in enumerate(marks):
+        ax.axvline(step / unit, color="0.25", ls="--", lw=0.9,
+                   label="a run restarted from a snapshot" if named and i == 0 else None)
+        if named:
+            ax.text(step / unit, 0.98, f"seed {seed} ", rotation=90, ha="right", va="top",
+                    fontsize="x-small", color="0.25", transform=ax.get_xaxis_transform())
+
+
 def plot_over_training(steps: dict[str, np.ndarray], differences: dict, estimates: dict,
-                       shifts: dict, shift_columns: Sequence[str], colors: dict, names: dict
-                       ) -> plt.Figure:
+                       shifts: dict, shift_columns: Sequence[str], colors: dict, names: dict,
+                       restarts: dict[str, list[tuple[int, int]]] | None = None) -> plt.Figure:
     """A row per task, over its shared `steps`. Left: each evaluation action minus tanh(mu)
     over training; with many rounds each round's mean over seeds (thin) and its rolling mean
     (thick), with few the mean, its 95% CI and each seed. Right, each on its own axes: the
     measured shift, sigma and the two-mode share (mean over the corrected runs, band: their
-    range), `shift_columns` in that order."""
+    range), `shift_columns` in that order; `restarts`: task -> (seed, step) of each run's restart
+    from a snapshot, marked on every panel."""
     shown = [t for t in steps if t in differences or t in shifts]
     titles = ("|mode - tanh(mu)|\nmean over dimensions", "sigma\nmean over dimensions",
               "two-mode share: dimensions\nwith 2 sigma^2 > 1")
@@ -278,6 +292,8 @@ def plot_over_training(steps: dict[str, np.ndarray], differences: dict, estimate
                 ax.fill_between(x, low, high, color=colors[group], alpha=0.2, lw=0)
                 ax.plot(x, diffs.T, color=colors[group], lw=0.5, alpha=0.35)
         ax.axhline(0, color="0.4", ls=":", lw=1)
+        marks = (restarts or {}).get(task, [])
+        mark_restarts(ax, marks, unit)
         n = " or ".join(map(str, sorted(seeds)))
         how = (f"thin: each round's mean over seeds; thick: mean of the last {ROLLING_ROUNDS} "
                "rounds" if rolling else "mean over seeds, 95% bootstrap CI; thin: each seed")
@@ -294,6 +310,7 @@ def plot_over_training(steps: dict[str, np.ndarray], differences: dict, estimate
                 ax.fill_between(x, values.min(0), values.max(0), color="0.5", alpha=0.25, lw=0)
                 if column != "bimodal_fraction" and np.all(values > 0):
                     ax.set_yscale("log")  # the first rounds' spike would flatten the rest
+            mark_restarts(ax, marks, unit, named=False)
             ax.set_title(title, fontsize="medium")
         row[3].set_ylim(-0.02, 1.02)  # a share
         for ax in row:
@@ -317,12 +334,13 @@ def success_bar_drawn(bar: float, top: float) -> bool:
 
 
 def plot_reward_curves(steps: dict[str, np.ndarray], curves: dict, colors: dict,
-                       labels: Callable, styles: dict, bars: dict[str, float], heading: str
-                       ) -> plt.Figure:
+                       labels: Callable, styles: dict, bars: dict[str, float], heading: str,
+                       restarts: dict[str, list[tuple[int, int]]] | None = None) -> plt.Figure:
     """Figure 5: per task (over its shared `steps`), each group's mean evaluation return with
     its 95% interval over seeds, `curves`: task -> group -> (mean, (low, high)), in legend
     order; `styles`: (task, group) -> line style, ":" for one episode per evaluation; `bars`:
-    the tasks' success bars; `heading` above the panels."""
+    the tasks' success bars; `heading` above the panels; `restarts`: task -> (seed, step) of
+    each run's restart from a snapshot, marked."""
     ncols = math.ceil(math.sqrt(len(steps)))
     nrows = math.ceil(len(steps) / ncols)
     # At least 9 inches wide, so that the legend below fits in a few rows beside one panel.
@@ -341,6 +359,7 @@ def plot_reward_curves(steps: dict[str, np.ndarray], curves: dict, colors: dict,
                                            else ""))
             ax.fill_between(x / unit, low, high, color=colors[group], alpha=0.2, lw=0)
             top = max(top, float(np.max(high)))
+        mark_restarts(ax, (restarts or {}).get(task, []), unit)
         title = task
         if task in bars:
             bar = bars[task]
@@ -352,7 +371,8 @@ def plot_reward_curves(steps: dict[str, np.ndarray], curves: dict, colors: dict,
         ax.set_xlabel(xlabel)
         ax.set_ylabel("Evaluation return")
         ax.grid(alpha=0.25)
-    handles = {h.get_label(): h for ax in axes.flat for h in ax.get_lines()}
+    handles = {h.get_label(): h for ax in axes.flat for h in ax.get_lines()
+               if not h.get_label().startswith("_")}  # matplotlib's name for an unlabelled line
     ncol = max(1, min(len(handles), int(width // 3.0)))
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=ncol,
                frameon=False)

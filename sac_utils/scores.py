@@ -124,6 +124,7 @@ class Curve:
     shares: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # CHOICE_SHARES
     budget: int | None = None  # config.json's total_timesteps, where it has one
     episodes: np.ndarray | None = None  # EPISODES_COLUMN per step, where the run logged it
+    restarts: tuple[int, ...] = ()  # steps where the run restarted from a snapshot
 
 
 # task -> (algorithm, action) -> curves sorted by seed
@@ -237,7 +238,10 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
             notes.append(f"{run_dir}: no {EVAL_FILE} yet; skipped")
             continue
         config = read_config(config_path)
-        notes += restart_notes(run_dir, config)
+        restarts = config_restarts(config)
+        notes += [f"{run_dir}: restarted from {r.get('snapshot')} at step {r.get('step')} (its "
+                  f"checkpoint lost; the replay buffer refilled for {r.get('refill')} steps): "
+                  "from there a new sample, not the lost run's future" for r in restarts]
         columns, partial = read_eval_csv(run_dir / EVAL_FILE)
         if partial:
             notes.append(
@@ -256,8 +260,10 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
         shift = {c: columns[c] for c in SHIFT_COLUMNS if c in columns}
         episodes = columns.get(EPISODES_COLUMN)
         own = (algorithm, own_action(algorithm))
+        restarted = tuple(r["step"] for r in restarts if isinstance(r.get("step"), int))
         _add_curve(runs, task, own, Curve(run_dir, seed, steps, columns[RETURN_COLUMN],
-                                          action_dim, shift, budget=budget, episodes=episodes))
+                                          action_dim, shift, budget=budget, episodes=episodes,
+                                          restarts=restarted))
         for action in ACTIONS:
             paired = columns.get(f"{action}_{RETURN_COLUMN}")
             if paired is None or action == own[1]:
@@ -265,7 +271,7 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
             if np.isfinite(paired).all():
                 shares = {c: columns[c] for c in CHOICE_SHARES.get(action, ()) if c in columns}
                 curve = Curve(run_dir, seed, steps, paired, action_dim, shares=shares,
-                              budget=budget, episodes=episodes)
+                              budget=budget, episodes=episodes, restarts=restarted)
                 _add_curve(runs, task, (algorithm, action), curve)
             else:
                 notes.append(f"{run_dir}: {action}_{RETURN_COLUMN} has empty cells; "
@@ -283,17 +289,19 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
     return runs, notes
 
 
-def restart_notes(run_dir: Path, config: dict) -> list[str]:
-    """A note per restart from a snapshot (config.json's "restarts", written by `sweep.py
-    restart` when a run's checkpoint was lost), so that a report over the run says where its
-    curve stops being the original run's."""
+def config_restarts(config: dict) -> list[dict]:
+    """config.json's "restarts" (written by `sweep.py restart` when a run's checkpoint was lost):
+    a report over the run says where its curve stops being the original run's."""
     restarts = config.get("restarts")
-    if not isinstance(restarts, list):
-        return []
-    return [f"{run_dir}: restarted from {r.get('snapshot')} at step {r.get('step')} (its "
-            f"checkpoint lost; the replay buffer refilled for {r.get('refill')} steps): from "
-            "there a new sample, not the lost run's future"
-            for r in restarts if isinstance(r, dict)]
+    return [r for r in restarts if isinstance(r, dict)] if isinstance(restarts, list) else []
+
+
+def restart_marks(runs: Runs) -> dict[str, list[tuple[int, int]]]:
+    """task -> (seed, step) of every restart from a snapshot among its runs, for the figures
+    over training to mark."""
+    return {task: sorted({(curve.seed, step) for curves in groups.values() for curve in curves
+                          for step in curve.restarts})
+            for task, groups in runs.items()}
 
 
 def _add_curve(runs: Runs, task: str, key: Key, curve: Curve) -> None:

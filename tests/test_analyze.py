@@ -265,11 +265,26 @@ def test_a_restart_from_a_snapshot_is_noted(tmp_path):
     config = json.loads(config_path.read_text())
     config["restarts"] = [{"step": 20_000, "snapshot": "snapshots/step20000.pt", "refill": 500}]
     config_path.write_text(json.dumps(config))
-    _, notes = scores.load_runs([tmp_path / "runs"])
+    runs, notes = scores.load_runs([tmp_path / "runs"])
     restarted = [note for note in notes if "restarted" in note]
     assert restarted == [f"{config_path.parent}: restarted from snapshots/step20000.pt at step "
                          "20000 (its checkpoint lost; the replay buffer refilled for 500 steps): "
                          "from there a new sample, not the lost run's future"]
+    marks = scores.restart_marks(runs)
+    assert marks == {task: [(1, 20_000)] if task in config_path.parent.name else []
+                     for task in runs}
+    # The reward curves mark each restart where it happened, with its seed, in one legend entry.
+    task = next(t for t, m in marks.items() if m)
+    steps = np.array([10_000, 20_000, 30_000])
+    curve = (np.ones(3), (np.zeros(3), 2 * np.ones(3)))
+    fig = figures.plot_reward_curves({task: steps}, {task: {"g": curve}}, {"g": "C0"}, str,
+                                     {(task, "g"): "-"}, {}, "heading",
+                                     {task: [*marks[task], (0, 25_000)]})
+    lines = [line for line in fig.axes[0].get_lines() if line.get_linestyle() == "--"]
+    assert [list(line.get_xdata()) for line in lines] == [[20.0, 20.0], [25.0, 25.0]]  # 1000s
+    assert [text.get_text() for text in fig.axes[0].texts] == ["seed 1 ", "seed 0 "]
+    legend = [text.get_text() for text in fig.legends[0].get_texts()]
+    assert legend == ["g", "a run restarted from a snapshot"]
 
 
 @pytest.mark.slow
