@@ -371,8 +371,8 @@ def plot_reward_curves(steps: dict[str, np.ndarray], curves: dict, colors: dict,
         ax.set_xlabel(xlabel)
         ax.set_ylabel("Evaluation return")
         ax.grid(alpha=0.25)
-    handles = {h.get_label(): h for ax in axes.flat for h in ax.get_lines()
-               if not h.get_label().startswith("_")}  # matplotlib's name for an unlabelled line
+    handles = {label: handle for ax in axes.flat
+               for handle, label in zip(*ax.get_legend_handles_labels(), strict=True)}
     ncol = max(1, min(len(handles), int(width // 3.0)))
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=ncol,
                frameon=False)

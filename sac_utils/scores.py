@@ -290,8 +290,8 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
 
 
 def config_restarts(config: dict) -> list[dict]:
-    """config.json's "restarts" (written by `sweep.py restart` when a run's checkpoint was lost):
-    a report over the run says where its curve stops being the original run's."""
+    """config.json's "restarts", one record per restart from a snapshot (written by `sweep.py
+    restart` when a run's checkpoint was lost): where the run's curve stops being its own."""
     restarts = config.get("restarts")
     return [r for r in restarts if isinstance(r, dict)] if isinstance(restarts, list) else []
 
