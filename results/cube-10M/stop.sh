@@ -1,24 +1,29 @@
 #!/bin/bash
 # End of a session: stop the campaign's runs with a checkpoint at their current step, then copy
 # what lets each go on without this machine into the checkout (CSVs, config, a snapshot made from
-# the checkpoint: `sweep.py restart` continues from it if the checkpoint is lost).
+# the checkpoint: `sweep.py restart` continues from it if the checkpoint is lost). A finished run
+# (done.json) is copied whole: its final_model.pt and done.json, no stop snapshot.
 set -u
-OUT=/work/main/results/cube-10M/runs
 pids=$(pgrep -f "campaign/src/sac_corrected.py" || true)
 [ -n "$pids" ] && kill -TERM $pids
 for p in $pids; do while kill -0 $p 2>/dev/null; do sleep 1; done; done
-mkdir -p $OUT
-for d in ~/campaign/cube-10M/*/; do
-  r=$(basename $d); mkdir -p $OUT/$r/snapshots
-  # an earlier stop's snapshot (off the 1M grid) gives way to this stop's
-  for f in $OUT/$r/snapshots/step*.pt; do
-    [ -e "$f" ] || continue; n=$(basename $f .pt); n=${n#step}; [ $((n % 1000000)) -ne 0 ] && rm -f $f
-  done
-  cp $d/config.json $d/train.csv $d/eval.csv $d/sweep_run.json $OUT/$r/
-  # a restart from a snapshot keeps the CSVs as they were in restarts/step<N>/
-  [ -d $d/restarts ] && cp -r $d/restarts $OUT/$r/
-  [ -d $d/snapshots ] && cp $d/snapshots/*.pt $OUT/$r/snapshots/ 2>/dev/null
-  /work/main/.venv/bin/python - "$d" "$OUT/$r" <<'PY'
+for campaign in ~/campaign/*-10M/; do
+  task=$(basename $campaign); OUT=/work/main/results/$task/runs
+  for d in $campaign*/; do
+    r=$(basename $d); mkdir -p $OUT/$r/snapshots
+    # an earlier stop's snapshot (off the 1M grid) gives way to this stop's; a restart's comes back
+    # with the run's own snapshots below
+    for f in $OUT/$r/snapshots/step*.pt; do
+      [ -e "$f" ] || continue; n=$(basename $f .pt); n=${n#step}; [ $((n % 1000000)) -ne 0 ] && rm -f $f
+    done
+    cp $d/config.json $d/train.csv $d/eval.csv $d/sweep_run.json $OUT/$r/
+    # a restart from a snapshot keeps the CSVs as they were in restarts/step<N>/
+    [ -d $d/restarts ] && cp -r $d/restarts $OUT/$r/
+    [ -d $d/snapshots ] && cp $d/snapshots/*.pt $OUT/$r/snapshots/ 2>/dev/null
+    if [ -e $d/done.json ]; then
+      cp $d/final_model.pt $d/done.json $OUT/$r/; echo "$r finished"; continue
+    fi
+    /work/main/.venv/bin/python - "$d" "$OUT/$r" <<'PY'
 import sys, torch
 from pathlib import Path
 run, out = Path(sys.argv[1]), Path(sys.argv[2])
@@ -29,9 +34,12 @@ torch.save({"actor": ckpt["actor"], "qf": ckpt["qf"], "config": config,
             "log_alpha": ckpt["log_alpha"]}, out / "snapshots" / f"step{step}.pt")
 print(run.name, "stopped at", step)
 PY
+  done
+  # The report reads the runs' CSVs, which grew: rebuild it with reports.json's flags
+  # (tests/test_results.py checks it against the committed runs).
+  R=/work/main/results/$task
+  [ -e $R/reports.json ] || continue
+  cd /work/main && .venv/bin/python analyze.py $R/runs --out $R/report \
+    $(python3 -c "import json; print(' '.join(json.load(open('$R/reports.json'))['report']['args']))") \
+    > /tmp/$task-report.log 2>&1 && echo "$task report rebuilt" || echo "$task report FAILED: /tmp/$task-report.log"
 done
-# The report reads the runs' CSVs, which grew: rebuild it with reports.json's flags (tests/test_results.py
-# checks it against the committed runs).
-cd /work/main && .venv/bin/python analyze.py results/cube-10M/runs --out results/cube-10M/report \
-  $(python3 -c 'import json; print(" ".join(json.load(open("results/cube-10M/reports.json"))["report"]["args"]))') \
-  > /tmp/cube-10M-report.log 2>&1 && echo "report rebuilt" || echo "report FAILED: /tmp/cube-10M-report.log"
