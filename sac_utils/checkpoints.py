@@ -22,6 +22,8 @@ import torch.utils._pytree as pytree
 from sac_utils.cli import fail
 from sac_utils.files import atomic_write, complete_lines
 
+# What final_model.pt keeps of the arguments, so that it alone rebuilds the actor (evaluate.py).
+MODEL_FIELDS = ("env_id", "hidden_sizes", "log_std_min", "log_std_max")
 CHECKPOINT_KEYS = ("args", "global_step", "elapsed", "progress", "actor", "qf", "qf_target",
                    "log_alpha", "q_optimizer", "actor_optimizer", "alpha_optimizer", "buffer",
                    "rng")
@@ -190,7 +192,28 @@ def load_checkpoint(ckpt: dict, agent: dict, buffer, action_space: gym.Space,
     return ckpt["global_step"], ckpt["elapsed"], ckpt["progress"]
 
 
-# A run whose checkpoint is lost (a machine gone with it) restarts from its last snapshot.
+# The policy alone: final_model.pt and snapshots. A run whose checkpoint is lost (a machine gone
+# with it) restarts from its last snapshot.
+
+
+def policy_weights(actor: dict, qf: dict, args: dict,
+                   log_alpha: torch.Tensor | None = None) -> dict:
+    """final_model.pt: the actor's and critic's state dicts and the arguments that rebuild them;
+    with log alpha, a snapshot (snapshots/step<N>.pt), all that restart_from_snapshot needs."""
+    weights = {"actor": actor, "qf": qf, "config": {f: args[f] for f in MODEL_FIELDS}}
+    return weights if log_alpha is None else weights | {"log_alpha": log_alpha.detach().clone()}
+
+
+def snapshot_from_checkpoint(run_dir: Path, out_dir: Path) -> int:
+    """Writes out_dir/step<N>.pt, the snapshot of a stopped run at its checkpoint's step N, and
+    returns N: committed where the checkpoint (with its buffer, too big to keep) is not, it lets
+    `sweep.py restart` continue the run if the machine holding the checkpoint is lost."""
+    ckpt = read_checkpoint(run_dir / "checkpoint.pt")
+    step = ckpt["global_step"]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    save_tensors(out_dir / f"step{step}.pt", policy_weights(ckpt["actor"], ckpt["qf"],
+                                                            ckpt["args"], ckpt["log_alpha"]))
+    return step
 
 
 def restart_from_snapshot(run_dir: Path, refill: int) -> dict:

@@ -35,8 +35,6 @@ from sac_utils.files import atomic_write, complete_lines
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
                  "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
                  "episode_return_mean", "episode_length_mean")
-# What final_model.pt keeps of the arguments, so that it alone rebuilds the actor (evaluate.py).
-MODEL_FIELDS = ("env_id", "hidden_sizes", "log_std_min", "log_std_max")
 
 
 class StopRequest:
@@ -206,19 +204,14 @@ class RunFolder:
         (self.dir / "videos").mkdir(exist_ok=True)
         return self.dir / "videos" / f"eval_step{global_step}.mp4"
 
-    def policy_weights(self, actor: nn.Module, qf: nn.Module) -> dict:
-        """The actor and critic, and what rebuilds them: final_model.pt and snapshots."""
-        return {"actor": actor.state_dict(), "qf": qf.state_dict(),
-                "config": {f: getattr(self.args, f) for f in MODEL_FIELDS}}
-
     def save_snapshot(self, global_step: int, actor: nn.Module, qf: nn.Module,
                       log_alpha: torch.Tensor) -> None:
         """snapshots/step<N>.pt, as final_model.pt plus log alpha: all that a run whose checkpoint
         is lost needs to restart from it (--restart-from; a resumed run rewrites the later ones
         with the same numbers)."""
         (self.dir / "snapshots").mkdir(exist_ok=True)
-        save_tensors(self.dir / "snapshots" / f"step{global_step}.pt",
-                     self.policy_weights(actor, qf) | {"log_alpha": log_alpha.detach().clone()})
+        save_tensors(self.dir / "snapshots" / f"step{global_step}.pt", checkpoints.policy_weights(
+            actor.state_dict(), qf.state_dict(), dataclasses.asdict(self.args), log_alpha))
 
     def checkpoint(self, global_step: int, agent: dict, buffer, action_space: gym.Space,
                    envs: gym.vector.VectorEnv, stopping: bool) -> None:
@@ -243,7 +236,8 @@ class RunFolder:
         self.eval_pool.drain()
         self.eval_pool.close()
         wall_time = self.wall_time()
-        save_tensors(self.dir / "final_model.pt", self.policy_weights(actor, qf))
+        save_tensors(self.dir / "final_model.pt", checkpoints.policy_weights(
+            actor.state_dict(), qf.state_dict(), dataclasses.asdict(self.args)))
         close_logs(self.logs)
         atomic_write(self.dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
             {"global_step": global_step, "wall_time": wall_time})))

@@ -3,6 +3,7 @@
 import csv
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -12,6 +13,8 @@ from pathlib import Path
 import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from sac_utils.checkpoints import snapshot_from_checkpoint
 
 ROOT = Path(__file__).resolve().parent.parent
 # A short Pendulum run: updates start at step 500, evaluation every 500 steps.
@@ -241,6 +244,20 @@ def test_snapshots_keep_the_policy_at_each_interval_and_survive_a_resume(tmp_pat
     wait_for(lambda: (run_dir / "checkpoint.pt").exists())  # at step 600, past snapshot 500
     process.send_signal(signal.SIGKILL)
     process.wait()
+    # A copy whose checkpoint is lost once its snapshot was taken (a campaign's stop commits it)
+    # restarts from that snapshot: the same policy, in the format `sweep.py restart` reads.
+    lost = tmp_path / "lost"
+    shutil.copytree(run_dir, lost)
+    assert snapshot_from_checkpoint(lost, lost / "snapshots") == 600
+    (lost / "checkpoint.pt").unlink()
+    ckpt = torch.load(run_dir / "checkpoint.pt", weights_only=False)
+    at_stop = torch.load(lost / "snapshots" / "step600.pt", weights_only=True)
+    assert set(at_stop) == {"actor", "qf", "config", "log_alpha"}
+    assert at_stop["config"] == torch.load(run_dir / "snapshots" / "step500.pt")["config"]
+    assert all(torch.equal(v, ckpt["actor"][k]) for k, v in at_stop["actor"].items())
+    restarted = run("sweep.py", "restart", str(lost), "--refill", "100")
+    assert "checkpoint.pt written from snapshots/step600.pt" in restarted.stdout
+
     run("sac_corrected.py", "--resume", str(run_dir))
     snapshots = {p.name: torch.load(p, weights_only=True)
                  for p in sorted((run_dir / "snapshots").iterdir())}

@@ -23,17 +23,9 @@ for campaign in ~/campaign/*-10M/; do
     if [ -e $d/done.json ]; then
       cp $d/final_model.pt $d/done.json $OUT/$r/; echo "$r finished"; continue
     fi
-    /work/main/.venv/bin/python - "$d" "$OUT/$r" <<'PY'
-import sys, torch
-from pathlib import Path
-run, out = Path(sys.argv[1]), Path(sys.argv[2])
-ckpt = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False, mmap=True)
-step = ckpt["global_step"]
-config = {k: ckpt["args"][k] for k in ("env_id", "hidden_sizes", "log_std_min", "log_std_max")}
-torch.save({"actor": ckpt["actor"], "qf": ckpt["qf"], "config": config,
-            "log_alpha": ckpt["log_alpha"]}, out / "snapshots" / f"step{step}.pt")
-print(run.name, "stopped at", step)
-PY
+    (cd /work/main && .venv/bin/python -c 'import sys; from pathlib import Path
+from sac_utils.checkpoints import snapshot_from_checkpoint as snap
+print(Path(sys.argv[1]).name, "stopped at", snap(Path(sys.argv[1]), Path(sys.argv[2])))' $d $OUT/$r/snapshots)
   done
   # The report reads the runs' CSVs, which grew: rebuild it with reports.json's flags
   # (tests/test_results.py checks it against the committed runs).
