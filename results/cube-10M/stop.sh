@@ -9,9 +9,9 @@ pids=$(pgrep -f "campaign/src/sac_corrected.py" || true)
 for p in $pids; do while kill -0 $p 2>/dev/null; do sleep 1; done; done
 for campaign in ~/campaign/*-10M/; do
   task=$(basename $campaign); OUT=/work/main/results/$task/runs
-  for d in $campaign*/; do
-    [ -e $d/config.json ] || continue  # a run folder, not something else kept beside them
-    r=$(basename $d); mkdir -p $OUT/$r/snapshots
+  for config in $campaign*/config.json; do
+    [ -e "$config" ] || continue
+    d=$(dirname $config)/; r=$(basename $d); mkdir -p $OUT/$r/snapshots
     # an earlier stop's snapshot (off the 1M grid) gives way to this stop's; a restart's comes back
     # with the run's own snapshots below
     for f in $OUT/$r/snapshots/step*.pt; do
