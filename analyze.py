@@ -48,6 +48,7 @@ from sac_utils.figures import (
     plot_aggregate_metrics,
     plot_over_training,
     plot_paired,
+    plot_per_seed,
     plot_performance_profiles,
     plot_probability_of_improvement,
     plot_reward_curves,
@@ -773,7 +774,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
         ticks = [f"{format_step(s)}\n{episodes_span(at.episodes)} starts\nx {at.episodes.size} "
                  "seeds" for s, at in steps.items()]
         cells = {(i, a): PairedCell(d, estimates[f"{task}|{step}", a], t_interval(d),
-                                    at.errors.get(a))
+                                    at.errors.get(a), seeds=at.seeds)
                  for i, (step, at) in enumerate(steps.items()) for a, d in at.differences.items()}
         last = max(steps)
         reference = (float(steps[last].returns[BASELINE].mean()), f"at {format_step(last)}")
@@ -784,8 +785,9 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
                               [f"{over.seeds} seeds per task"],
                               {(0, a): cell for a, cell in over.cells.items()},
                               "difference / success bar", shapes=task_markers(over.tasks)))
-    report.figure(plot_paired(rows, colors, labels, "the robust evaluation: evaluate.py's noisy "
-                              "starts"), "robust_evaluation")
+    how = "the robust evaluation: evaluate.py's noisy starts"
+    report.figure(plot_paired(rows, colors, labels, how), "robust_evaluation")
+    report.figure(plot_per_seed(rows[:len(by_task)], colors, labels, how), "robust_per_seed")
     if over is not None:
         lines += report_robust_aggregate(report, analysis, over, labels, colors)
     lines += robust_sample_efficiency(report, analysis, barred, labels, colors)

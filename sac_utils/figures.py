@@ -129,6 +129,7 @@ class PairedCell:
     t: Sequence[float]
     errors: np.ndarray | None = None
     markers: Sequence[str] | None = None
+    seeds: Sequence[int] | None = None  # the seeds of `values`, for plot_per_seed
 
 
 @dataclasses.dataclass
@@ -199,6 +200,17 @@ def summary_range(cells: Sequence[PairedCell]) -> tuple[float, float]:
     return low - pad, high + pad
 
 
+def percent_axis(ax: plt.Axes, reference: tuple[float, str] | None) -> None:
+    """A right axis in % of tanh(mu)'s return (value, where it was measured)."""
+    if reference is None:
+        return
+    value, where = reference
+    scale = abs(value) or 1.0
+    right = ax.secondary_yaxis("right", functions=(lambda y, r=scale: 100 * y / r,
+                                                   lambda p, r=scale: p * r / 100))
+    right.set_ylabel(f"% of tanh(mu)'s return ({value:.3g} {where})", fontsize="small")
+
+
 def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str) -> plt.Figure:
     """The headline figure of both the training log and the robust evaluation: a panel per task
     (and one over tasks), in each every series' paired difference against tanh(mu) at each x,
@@ -217,12 +229,7 @@ def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str)
         ax.set_xlim(-0.5, len(row.ticks) - 0.5)
         ax.set_title(row.title, fontsize="medium")
         ax.set_ylabel(row.ylabel)
-        if row.reference is not None:
-            value, where = row.reference
-            reference = abs(value) or 1.0
-            right = ax.secondary_yaxis("right", functions=(lambda y, r=reference: 100 * y / r,
-                                                           lambda p, r=reference: p * r / 100))
-            right.set_ylabel(f"% of tanh(mu)'s return ({value:.3g} {where})", fontsize="small")
+        percent_axis(ax, row.reference)
         if row.shapes:
             ax.legend(handles=[plt.Line2D([], [], ls="", marker=m, color="0.4", label=t)
                                for t, m in row.shapes.items()], fontsize="x-small", loc="best")
@@ -237,6 +244,47 @@ def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str)
     fig.suptitle(f"Each action minus tanh(mu): same actor, same start states\n{how}\n{dots} "
                  "(triangles: beyond the axis)\ntick and whisker: mean over seeds and its 95% "
                  "t-interval; bar: bootstrap CI", fontsize="medium")
+    return fig
+
+
+def plot_per_seed(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str
+                  ) -> plt.Figure:
+    """The robust evaluation's verdicts, seed by seed: plot_paired's task panels with only the
+    seeds, each with +-VERDICT_SE standard errors of its paired episodes, on an axis scaled to
+    them (with few seeds the mean's t-interval is many times wider and hides them). A marker
+    per seed, filled where stats.verdict says ahead or behind, hollow where level."""
+    series = list(dict.fromkeys(s for row in rows for _, s in row.cells))
+    slot = 0.8 / len(series)
+    offsets = {s: (j - (len(series) - 1) / 2) * slot for j, s in enumerate(series)}
+    every = sorted({int(seed) for row in rows for c in row.cells.values() for seed in c.seeds})
+    shapes = dict(zip(every, "osD^vP*Xph", strict=False))
+    fig, axes = plt.subplots(len(rows), 1, figsize=(8, 2.8 * len(rows) + 1.2), squeeze=False,
+                             layout="constrained")
+    for ax, row in zip(axes[:, 0], rows, strict=True):
+        seeds = sorted({int(seed) for c in row.cells.values() for seed in c.seeds})
+        spread = np.linspace(-0.35, 0.35, len(seeds)) * slot if len(seeds) > 1 else [0.0]
+        for (i, s), cell in row.cells.items():
+            for seed, value, error in zip(cell.seeds, cell.values, cell.errors, strict=True):
+                x = i + offsets[s] + spread[seeds.index(int(seed))]
+                decided = stats.verdict(value, error) in ("ahead", "behind")
+                ax.errorbar(x, value, yerr=None if np.isnan(error) else stats.VERDICT_SE * error,
+                            color=colors[s], lw=0.8, zorder=3, ls="", marker=shapes[int(seed)],
+                            ms=4.5, mfc=colors[s] if decided else "white", mec=colors[s])
+        ax.set_xticks(range(len(row.ticks)), row.ticks, fontsize="small")
+        ax.set_xlim(-0.5, len(row.ticks) - 0.5)
+        ax.set_title(row.title, fontsize="medium")
+        ax.set_ylabel(row.ylabel)
+        percent_axis(ax, row.reference)
+        ax.axhline(0, color="0.4", ls=":", lw=1)
+        ax.grid(axis="y", alpha=0.25)
+    handles = [Patch(color=colors[s], label=labels[s]) for s in series]
+    handles += [plt.Line2D([], [], ls="", marker=m, color="0.4", label=f"seed {seed}")
+                for seed, m in shapes.items()]
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 4),
+               fontsize="small", title="evaluation action; seed", title_fontsize="small")
+    fig.suptitle(f"Each seed's action minus tanh(mu): same actor, same start states\n{how}\n"
+                 f"whisker: +-{stats.VERDICT_SE:g} SE of the seed's paired episodes; filled: "
+                 "beyond it (ahead or behind), hollow: level", fontsize="medium")
     return fig
 
 

@@ -671,6 +671,7 @@ class RobustStep:
     errors: dict[str, np.ndarray]  # the standard errors of those paired episodes
     verdicts: dict[str, list[str]]  # stats.verdict per seed
     episodes: np.ndarray  # episodes per seed (of tanh_mu, which every seed played)
+    seeds: np.ndarray  # the seeds, in the order of every array above
     played: dict[str, int]  # each action's episodes over its seeds
     unstable: dict[str, int | None]  # of those, ended by a physics blow-up (None: not recorded)
     ends: dict[str, collections.Counter | None]  # how they ended (None: not recorded)
@@ -681,7 +682,8 @@ def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]
     by_task: dict[str, dict[int, RobustStep]] = {}
     reasons = [c for c in robust.rows.columns if c.startswith(ROBUST_END_PREFIX)]
     for (task, step), rows in robust.rows.groupby(["env_id", "step"], sort=False):
-        at = RobustStep({}, {}, {}, {}, rows[rows.selector == BASELINE].episodes.to_numpy(),
+        baseline = rows[rows.selector == BASELINE]
+        at = RobustStep({}, {}, {}, {}, baseline.episodes.to_numpy(), baseline.seed.to_numpy(),
                         {}, {}, {})
         for action, seeds in rows.groupby("selector", sort=False):
             at.returns[action] = seeds.return_mean.to_numpy()

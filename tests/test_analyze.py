@@ -1144,12 +1144,47 @@ def test_robust_evaluation_matches_a_hand_computation(tmp_path):
                   for task in ROBUST_TASKS for seed in range(3)]
         assert np.isclose(row_at(rows, "robust_sample_efficiency", "all", "mode", "IQM", step)[0],
                           scipy.stats.trim_mean(matrix, 0.25))
-    for figure in ("robust_evaluation", "robust_aggregate_metrics", "robust_performance_profiles",
-                   "robust_sample_efficiency"):
+    for figure in ("robust_evaluation", "robust_per_seed", "robust_aggregate_metrics",
+                   "robust_performance_profiles", "robust_sample_efficiency"):
         assert (out / f"{figure}.png").is_file(), figure
     text = (out / "summary.md").read_text()
     assert "## The robust evaluation" in text
     assert "3 runs x 2 tasks: IQM is the mean of the middle 4 of 6 runs" in text
+
+
+def test_per_seed_figure_fills_the_seeds_the_three_se_rule_decides():
+    """robust_per_seed: one marker per (step, action, seed) at its value, +-3 SE whiskers,
+    filled exactly where stats.verdict is ahead or behind, and an axis that holds every
+    whisker (the mean's t-interval, which hides them in robust_evaluation, plays no part)."""
+    import matplotlib.colors
+
+    values = {(0, "mode"): [-2.0, 0.5], (0, "mean"): [0.1, 4.0], (1, "mode"): [1.0, -0.3]}
+    errors = {(0, "mode"): [0.5, 0.4], (0, "mean"): [0.2, 1.0], (1, "mode"): [0.3, 0.2]}
+    cells = {key: figures.PairedCell(np.array(v), (0.0, -50.0, 50.0), (0.0, -90.0, 90.0),
+                                     np.array(errors[key]), seeds=[2, 3])
+             for key, v in values.items()}
+    row = figures.PairedRow("task", ["1M", "2M"], cells, "return minus tanh(mu)'s", (10.0, "2M"))
+    colors = {"mode": (0.9, 0.6, 0.0), "mean": (0.0, 0.6, 0.5)}
+    fig = figures.plot_per_seed([row], colors, {"mode": "mode", "mean": "mean"}, "test")
+    ax = fig.axes[0]
+    markers = [line for line in ax.lines if line.get_marker() not in ("None", "", None)]
+    drawn = {}
+    for line in markers:
+        [x], [y] = line.get_data()
+        filled = matplotlib.colors.to_rgba(line.get_markerfacecolor()) != (1.0, 1.0, 1.0, 1.0)
+        drawn[round(float(y), 6)] = (filled, line.get_marker())
+    expected = {}
+    for key, vs in values.items():
+        for seed, v, e in zip([2, 3], vs, errors[key], strict=True):
+            decided = figures.stats.verdict(v, e) in ("ahead", "behind")
+            expected[round(v, 6)] = (decided, "o" if seed == 2 else "s")
+    assert drawn == expected
+    low, high = ax.get_ylim()
+    ends = [v + sign * 3 * e for key in values
+            for v, e in zip(values[key], errors[key], strict=True) for sign in (-1, 1)]
+    assert low <= min(ends) and high >= max(ends)
+    assert high < 50.0  # scaled to the seeds, not to the t-interval
+    figures.plt.close(fig)
 
 
 def test_robust_folders_read_alike_with_and_without_physics_unstable(tmp_path):
