@@ -29,9 +29,10 @@ from sac_utils.checkpoints import snapshot_from_checkpoint as snap
 print(Path(sys.argv[1]).name, "stopped at", snap(Path(sys.argv[1]), Path(sys.argv[2])))' $d $OUT/$r/snapshots)
   done
   # The report reads the runs' CSVs, which grew: rebuild it with reports.json's flags
-  # (tests/test_results.py checks it against the committed runs).
-  R=/work/main/results/$task
-  [ -e $R/reports.json ] || continue
+  # (tests/test_results.py checks it against the committed runs). Paths relative to the
+  # checkout, as the README's command gives them, so that summary.md names no machine's folders.
+  R=results/$task
+  [ -e /work/main/$R/reports.json ] || continue
   cd /work/main && .venv/bin/python analyze.py $R/runs --out $R/report \
     $(python3 -c "import json; print(' '.join(json.load(open('$R/reports.json'))['report']['args']))") \
     > /tmp/$task-report.log 2>&1 && echo "$task report rebuilt" || echo "$task report FAILED: /tmp/$task-report.log"
