@@ -200,15 +200,28 @@ def summary_range(cells: Sequence[PairedCell]) -> tuple[float, float]:
     return low - pad, high + pad
 
 
-def percent_axis(ax: plt.Axes, reference: tuple[float, str] | None) -> None:
-    """A right axis in % of tanh(mu)'s return (value, where it was measured)."""
-    if reference is None:
-        return
-    value, where = reference
-    scale = abs(value) or 1.0
-    right = ax.secondary_yaxis("right", functions=(lambda y, r=scale: 100 * y / r,
-                                                   lambda p, r=scale: p * r / 100))
-    right.set_ylabel(f"% of tanh(mu)'s return ({value:.3g} {where})", fontsize="small")
+def series_slots(rows: Sequence[PairedRow]) -> tuple[list, float, dict]:
+    """The series in order of appearance, each one's share of an x and its offset there."""
+    series = list(dict.fromkeys(s for row in rows for _, s in row.cells))
+    slot = 0.8 / len(series)
+    return series, slot, {s: (j - (len(series) - 1) / 2) * slot for j, s in enumerate(series)}
+
+
+def frame_panel(ax: plt.Axes, row: PairedRow) -> None:
+    """A task panel's ticks, title, labels, zero line and, where given, a right axis in % of
+    tanh(mu)'s return (row.reference: value, where it was measured)."""
+    ax.set_xticks(range(len(row.ticks)), row.ticks, fontsize="small")
+    ax.set_xlim(-0.5, len(row.ticks) - 0.5)
+    ax.set_title(row.title, fontsize="medium")
+    ax.set_ylabel(row.ylabel)
+    if row.reference is not None:
+        value, where = row.reference
+        scale = abs(value) or 1.0
+        right = ax.secondary_yaxis("right", functions=(lambda y, r=scale: 100 * y / r,
+                                                       lambda p, r=scale: p * r / 100))
+        right.set_ylabel(f"% of tanh(mu)'s return ({value:.3g} {where})", fontsize="small")
+    ax.axhline(0, color="0.4", ls=":", lw=1)
+    ax.grid(axis="y", alpha=0.25)
 
 
 def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str) -> plt.Figure:
@@ -216,25 +229,17 @@ def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str)
     (and one over tasks), in each every series' paired difference against tanh(mu) at each x,
     the seeds beside their mean's t-interval and bootstrap CI (draw_seed_summary); a task's
     right axis in % of tanh(mu)'s return. `how`: the protocol, under the title."""
-    series = list(dict.fromkeys(s for row in rows for _, s in row.cells))
-    slot = 0.8 / len(series)  # each series' share of an x
-    offsets = {s: (j - (len(series) - 1) / 2) * slot for j, s in enumerate(series)}
+    series, slot, offsets = series_slots(rows)
     fig, axes = plt.subplots(len(rows), 1, figsize=(8, 3.1 * len(rows) + 1.0), squeeze=False,
                              layout="constrained")
     for ax, row in zip(axes[:, 0], rows, strict=True):
         ax.set_ylim(*summary_range(list(row.cells.values())))
         for (i, s), cell in row.cells.items():
             draw_seed_summary(ax, i + offsets[s], slot / 2, cell, colors[s])
-        ax.set_xticks(range(len(row.ticks)), row.ticks, fontsize="small")
-        ax.set_xlim(-0.5, len(row.ticks) - 0.5)
-        ax.set_title(row.title, fontsize="medium")
-        ax.set_ylabel(row.ylabel)
-        percent_axis(ax, row.reference)
+        frame_panel(ax, row)
         if row.shapes:
             ax.legend(handles=[plt.Line2D([], [], ls="", marker=m, color="0.4", label=t)
                                for t, m in row.shapes.items()], fontsize="x-small", loc="best")
-        ax.axhline(0, color="0.4", ls=":", lw=1)
-        ax.grid(axis="y", alpha=0.25)
     handles = [Patch(color=colors[s], label=labels[s]) for s in series]
     fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3),
                fontsize="small", title="evaluation action", title_fontsize="small")
@@ -253,9 +258,7 @@ def plot_per_seed(rows: Sequence[PairedRow], colors: dict, labels: dict, how: st
     seeds, each with +-VERDICT_SE standard errors of its paired episodes, on an axis scaled to
     them (with few seeds the mean's t-interval is many times wider and hides them). A marker
     per seed, filled where stats.verdict says ahead or behind, hollow where level."""
-    series = list(dict.fromkeys(s for row in rows for _, s in row.cells))
-    slot = 0.8 / len(series)
-    offsets = {s: (j - (len(series) - 1) / 2) * slot for j, s in enumerate(series)}
+    series, slot, offsets = series_slots(rows)
     every = sorted({int(seed) for row in rows for c in row.cells.values() for seed in c.seeds})
     shapes = dict(zip(every, "osD^vP*Xph", strict=False))
     fig, axes = plt.subplots(len(rows), 1, figsize=(8, 2.8 * len(rows) + 1.2), squeeze=False,
@@ -270,13 +273,7 @@ def plot_per_seed(rows: Sequence[PairedRow], colors: dict, labels: dict, how: st
                 ax.errorbar(x, value, yerr=None if np.isnan(error) else stats.VERDICT_SE * error,
                             color=colors[s], lw=0.8, zorder=3, ls="", marker=shapes[int(seed)],
                             ms=4.5, mfc=colors[s] if decided else "white", mec=colors[s])
-        ax.set_xticks(range(len(row.ticks)), row.ticks, fontsize="small")
-        ax.set_xlim(-0.5, len(row.ticks) - 0.5)
-        ax.set_title(row.title, fontsize="medium")
-        ax.set_ylabel(row.ylabel)
-        percent_axis(ax, row.reference)
-        ax.axhline(0, color="0.4", ls=":", lw=1)
-        ax.grid(axis="y", alpha=0.25)
+        frame_panel(ax, row)
     handles = [Patch(color=colors[s], label=labels[s]) for s in series]
     handles += [plt.Line2D([], [], ls="", marker=m, color="0.4", label=f"seed {seed}")
                 for seed, m in shapes.items()]
