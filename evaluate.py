@@ -330,6 +330,7 @@ def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
 CAMPAIGN_FILE = "evaluation.json"
 # Asked of each seed: the paired difference's standard error below this share of tanh(mu)'s.
 PRECISION = 0.10
+FELL = "fell"  # the h1hand tasks' end with the robot down (eval_rounds.episode_end)
 
 
 @dataclass
@@ -605,7 +606,13 @@ def per_seed_rows(settings: dict, episodes: dict[tuple[str, int, str], list[list
             row |= {"tanh_mu_return_mean": float(np.mean(baseline)),
                     "difference_mean": diffs.mean(), "difference_se": stats.standard_error(diffs),
                     "share_better": float(np.mean(diffs > 0))}
-        key = (run, step, action)
+        key, pair = (run, step, action), ends.get((run, step, "tanh_mu"))
+        if action != "tanh_mu" and FELL in reasons and ends[key] is not None and pair is not None:
+            # "The mode's episodes end with the robot down more often", tested as the returns are:
+            # per start, 1 where the action's episode fell minus 1 where tanh(mu)'s did.
+            fell = stats.paired_difference(np.array(ends[key]) == FELL, np.array(pair) == FELL)
+            row |= {"fell_difference_mean": fell.mean(),
+                    "fell_difference_se": stats.standard_error(fell)}
         if any_unstable:
             row["unstable_ends"] = None if flags[key] is None else sum(map(int, flags[key]))
         counts = None if ends[key] is None else collections.Counter(ends[key])
@@ -638,6 +645,15 @@ def _count(ends: dict, row: dict, action: str) -> str:
     return "n/r" if count is None else str(count)
 
 
+def _fell(row: dict) -> str:
+    if row.get("fell_difference_mean") is None:
+        return ""
+    mean, se = row["fell_difference_mean"], row["fell_difference_se"]
+    verdict = stats.verdict(mean, se)
+    word = {"ahead": "more", "behind": "fewer"}.get(verdict, verdict)
+    return f"{mean:+.3f} +- {se:.3f} ({word})"
+
+
 def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
     noise = settings["reset_noise"]
     lines = [f"# Evaluation of {len(settings['runs'])} runs from `{settings['source']}`", "",
@@ -650,16 +666,22 @@ def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
              f"{settings['seconds']:.0f} s of evaluation. Across seeds: analyze.py --robust.", ""]
     ends = {(r["run"], r["step"], r["selector"]): r["unstable_ends"] for r in per_seed
             if "unstable_ends" in r}
+    falls = any("fell_difference_mean" in r for r in per_seed)
     lines += ["## Per seed", "",
               "Paired difference against tanh(mu) with its standard error over the episodes; "
               f"verdict: ahead / behind where more than {stats.VERDICT_SE:g} standard errors "
               f"from zero, else level; precision: that standard error as a share of tanh(mu)'s "
               f"mean return (asked: below {PRECISION:.0%})"
               + ("; unstable ends: the episodes a physics blow-up ended, the action's / tanh(mu)'s "
-                 "(n/r: not recorded)." if ends else "."), "",
+                 "(n/r: not recorded)" if ends else "")
+              + ("; fell: the share of its episodes that ended with the robot down minus "
+                 "tanh(mu)'s from the same starts, +- its standard error, more / fewer by the "
+                 "same rule (empty: not recorded)" if falls else "") + ".", "",
               "| task | seed | step | action | return | tanh(mu) | minus tanh(mu) | SE | verdict | "
-              "precision | better in |" + (" unstable ends |" if ends else ""),
-              "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if ends else "")]
+              "precision | better in |" + (" unstable ends |" if ends else "")
+              + (" fell, minus tanh(mu) |" if falls else ""),
+              "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if ends else "")
+              + ("---|" if falls else "")]
     failed = []
     for r in per_seed:
         if "difference_mean" not in r:
@@ -675,7 +697,7 @@ def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
                      f"{stats.verdict(r['difference_mean'], r['difference_se'])} | "
                      f"{share:.1%} | {r['share_better']:.0%} |"
                      + (f" {_count(ends, r, r['selector'])} / {_count(ends, r, 'tanh_mu')} |"
-                        if ends else ""))
+                        if ends else "") + (f" {_fell(r)} |" if falls else ""))
     lines += ["", f"Precision check: {'every' if not failed else 'not every'} seed's paired "
               f"difference has a standard error below {PRECISION:.0%} of tanh(mu)'s mean return"
               + (f"; above it: {', '.join(failed)} (more --episodes would narrow it)."

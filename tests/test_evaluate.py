@@ -828,3 +828,47 @@ def test_a_campaign_counts_blow_ups_and_summarises_and_resumes_older_folders(
             for seed in (0, 1) for step in ("500", "1000")}
     summary = (old / "summary.md").read_text()
     assert "| n/r / n/r |" in summary and f"| {blow_ups[0]} / {blow_ups[0]} |" in summary
+
+
+def test_per_seed_tests_the_paired_share_of_falls_as_it_tests_the_returns():
+    """fell_difference_*: per start, 1 where the action's episode ended with the robot down minus
+    1 where tanh(mu)'s did; summary.md says more / fewer by the 3-SE rule. A step whose ends were
+    not recorded gets no such cells, nor a folder where no episode fell."""
+    falls = {"tanh_mu": [1, 0, 0, 1, 0, 0] * 5, "mode": [1, 1, 1, 1, 1, 0] * 5,
+             "mean": [1, 0, 0, 1, 0, 0] * 5}
+
+    def rows(step: int, action: str, ends: list[str]) -> list[list[str]]:
+        return [[str(step), action, str(i), str(1000 + i), str(float(i % 7)), "10", "", "0", end]
+                for i, end in enumerate(ends)]
+
+    episodes = {}
+    for action, fell in falls.items():
+        episodes["run", 100, action] = rows(100, action, ["fell" if f else "dropped" for f in fell])
+        episodes["run", 200, action] = rows(200, action, [""] * len(fell))  # not recorded
+        episodes["other", 100, action] = rows(100, action, ["time_limit"] * len(fell))
+    settings = {"runs": {"run": {"env_id": "task-v0", "seed": 0},
+                         "other": {"env_id": "other-v0", "seed": 1}},
+                "selectors": ["mode", "tanh_mu", "mean"], "source": "runs",
+                "command": ["evaluate.py"], "episodes": 30, "eval_round": 0, "reset_noise": 0.01,
+                "seconds": 1.0}
+    per_seed = evaluate.per_seed_rows(settings, episodes)
+    got = {(r["run"], r["step"], r["selector"]): r for r in per_seed}
+    paired = np.array(falls["mode"], dtype=float) - falls["tanh_mu"]
+    mode = got["run", 100, "mode"]
+    assert mode["fell_difference_mean"] == pytest.approx(0.5)
+    assert mode["fell_difference_se"] == pytest.approx(paired.std(ddof=1) / np.sqrt(30))
+    assert mode["end_fell"] == 25 and got["run", 100, "tanh_mu"]["end_fell"] == 10
+    assert got["run", 100, "mean"]["fell_difference_mean"] == 0.0
+    assert "fell_difference_mean" not in got["run", 100, "tanh_mu"]
+    assert "fell_difference_mean" not in got["run", 200, "mode"]
+    # where some episode in the folder fell, as end_fell: none of the other task's did
+    assert got["other", 100, "mode"]["fell_difference_mean"] == 0.0
+    table = evaluate.campaign_markdown(settings, per_seed)
+    assert "fell, minus tanh(mu) |" in table
+    assert f"| +0.500 +- {mode['fell_difference_se']:.3f} (more) |" in table  # 5.4 SE
+    assert "| +0.000 +- 0.000 (level) |" in table
+    assert sum(line.endswith(" |  |") for line in table.splitlines()) == 2  # step 200's
+    no_falls = {k: v for k, v in episodes.items() if k[0] == "other"}
+    settings["runs"].pop("run")
+    assert "fell" not in evaluate.campaign_markdown(settings,
+                                                    evaluate.per_seed_rows(settings, no_falls))
