@@ -247,12 +247,12 @@ def difference_rows(report: Report, section: str, task: str, key: Key | str, ste
                        *(v / divisor for v in boot))
             report.row(section, task, key, f"{unit}{suffix}_t", step, n,
                        *(v / divisor for v in t_values))
-    report.row(section, task, key, f"share_won{suffix}", step, n, int((diffs > 0).sum()) / n,
+    report.row(section, task, key, f"share_above_zero{suffix}", step, n, int((diffs > 0).sum()) / n,
                math.nan, math.nan)
 
 
 OVER_TASKS_HEADER = ["tasks", "seeds per task", "difference (bootstrap CI)",
-                     "t-interval (Welch)", "won (task, seed)"]
+                     "t-interval (Welch)", "above zero (task, seed)"]
 
 
 def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str, np.ndarray],
@@ -263,14 +263,14 @@ def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str,
     row under OVER_TASKS_HEADER."""
     scores, boot, t_values = difference_over_tasks(list(per_task.values()), args.reps,
                                                    args.seed)
-    seeds, won = scores.shape[0], int((scores > 0).sum())
+    seeds, above = scores.shape[0], int((scores > 0).sum())
     report.row(section, "all", key, "mean_score", step, seeds, *boot)
     report.row(section, "all", key, "mean_score_t", step, seeds, *t_values)
-    report.row(section, "all", key, "share_won", step, scores.size, won / scores.size,
+    report.row(section, "all", key, "share_above_zero", step, scores.size, above / scores.size,
                math.nan, math.nan)
     return (over_tasks_cell(scores, boot, t_values, {t: shapes[t] for t in per_task}),
             [len(per_task), seeds, format_ci(*boot, runs=seeds),
-             f"[{t_values[1]:.3f}, {t_values[2]:.3f}]", f"{won} of {scores.size}"])
+             f"[{t_values[1]:.3f}, {t_values[2]:.3f}]", f"{above} of {scores.size}"])
 
 
 # ----------------------------------------------------- the paper's Figures 6-8, from any scores
@@ -460,7 +460,7 @@ def report_standard_provenance(report: Report, analysis: Analysis) -> None:
 def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
                       ) -> tuple[list[str], PairedRow | None]:
     """Over tasks, per evaluation action: the mean normalised paired difference and the share
-    of (task, seed) pairs won (over_tasks); summary.md's lines and the figure's panel."""
+    of (task, seed) pairs above zero (over_tasks); summary.md's lines and the figure's panel."""
     args, norms = analysis.args, analysis.norms
     name = SCORE_NAMES[args.normalize].lower()
     shapes = task_markers(list(differences))
@@ -475,8 +475,9 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
         return [], None
     lines = ["", f"Over tasks, each action minus tanh(mu) in {name}s: the mean over "
              "tasks with rliable's stratified bootstrap CI (seeds resampled within each task) "
-             "and Welch's t-interval (the tasks' seeds independent); 'won': (task, seed) pairs "
-             "above zero.", "", markdown_table(["action", *OVER_TASKS_HEADER], table)]
+             "and Welch's t-interval (the tasks' seeds independent); 'above zero': the (task, "
+             "seed) pairs whose difference is positive.", "",
+             markdown_table(["action", *OVER_TASKS_HEADER], table)]
     return lines, PairedRow(f"Over {len(shapes)} tasks at their scored steps", ["all tasks"],
                             cells, f"difference in {name}", shapes=shapes)
 
@@ -511,7 +512,7 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
                     continue
                 values, window = averages[task, group, k], windows[task, k]
                 estimate = estimates[f"{task}|{k}", group]
-                won = int((values > 0).sum())
+                above = int((values > 0).sum())
                 difference_rows(report, "paired_last_rounds", task, group, step, values,
                                 estimate, suffix=f"_last{k}")
                 episodes = one_episode_per_seed(
@@ -520,13 +521,14 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
                     (", one episode each" if episodes else "")
                 table.append([task, labels.algorithm(group[0]), group[1],
                               values.size, rounds, *seed_cells(values, estimate, 1),
-                              f"{won} of {values.size}"])
+                              f"{above} of {values.size}"])
     lines += ["", "Per seed, the difference averaged over the last "
               + " and the last ".join(map(str, LAST_ROUNDS)) + " shared rounds up to the scored "
               "step (one round is one draw of the evaluation noise), then over seeds as above; "
               "beside it the scored step's own.", "",
               markdown_table(["task", "algorithm", "action", "seeds", "rounds",
-                              "return difference (bootstrap CI)", "t-interval", "won"], table)]
+                              "return difference (bootstrap CI)", "t-interval", "above zero"],
+                             table)]
     k = LAST_ROUNDS[0]
     return {(t, g): (PairedCell(v, estimates[f"{t}|{k}", g], t_interval(v)),
                      f"{format_step(windows[t, k][0])}-{format_step(windows[t, k][-1])}")
@@ -536,10 +538,10 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
 def report_paired_difference(report: Report, analysis: Analysis) -> None:
     """The headline (figure `paired_difference`): each evaluation action (the mode, the mean,
     q_best) minus tanh(mu) of the same actors from the same start states (paired), per task and
-    over tasks, with the share of seeds where that action won; at the scored step and averaged
-    over the last rounds. Estimator, per task: the mean over seeds of the per-seed differences
-    with the bootstrap CI (seed_mean_estimates: stats.bootstrap_mean), since the pairing
-    makes each seed one value; beside it Student's t-interval, since with 5 seeds or fewer a
+    over tasks, with the share of seeds where that action is above zero; at the scored step and
+    averaged over the last rounds. Estimator, per task: the mean over seeds of the per-seed
+    differences with the bootstrap CI (seed_mean_estimates: stats.bootstrap_mean), since the
+    pairing makes each seed one value; beside it Student's t-interval, since with 5 seeds or fewer a
     percentile bootstrap is too narrow. Over tasks: paired_over_tasks."""
     args, runs, tasks, norms = analysis.args, analysis.runs, analysis.tasks, analysis.norms
     labels = analysis.labels
@@ -559,17 +561,18 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
         if single:
             one_episode.append(task)
         for group, diffs in by_group.items():
-            values, n, won = estimates[task, group], diffs.size, int((diffs > 0).sum())
+            values, n, above = estimates[task, group], diffs.size, int((diffs > 0).sum())
             difference_rows(report, "paired_difference", task, group, step, diffs, values, scale)
             scaled = [v / scale for v in values]
             table.append([task, format_step(step), labels.algorithm(group[0]),
                           group[1], n, *seed_cells(diffs, values, 1),
-                          seed_cells(diffs / scale, scaled)[0], f"{won} of {n}"])
+                          seed_cells(diffs / scale, scaled)[0], f"{above} of {n}"])
     seeds = [d.size for by_group in differences.values() for d in by_group.values()]
     lines = ["Per seed, at each task's scored step: an action's return minus tanh(mu)'s, same "
              "actor, same start states (q_best: the critic's pick of mode / tanh(mu) / mean). "
              "Mean over seeds with rliable's 95% bootstrap CI and the 95% t-interval (two "
-             "seeds: the two values); 'won': seeds above zero."]
+             "seeds: the two values in place of the bootstrap CI); 'above zero': seeds whose "
+             "difference is positive, a count of signs that decides nothing."]
     lines += few_seeds_lines(seeds)
     for task in one_episode:
         lines += ["", f"{task}: each seed's evaluation at "
@@ -577,7 +580,7 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
                   "= 1: no reset noise), one draw of that episode's noise."]
     lines += ["", markdown_table(["task", "step", "algorithm", "action", "seeds",
                                   "return difference (bootstrap CI)", "t-interval",
-                                  "score difference (bootstrap CI)", "won"], table)]
+                                  "score difference (bootstrap CI)", "above zero"], table)]
     over_lines, over = paired_over_tasks(report, analysis, differences)
     lines += over_lines
     last_rounds = paired_last_rounds(report, analysis, estimates, lines)
@@ -668,12 +671,12 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
                     table.append([*cells, "(the baseline)", "", "", "", *blowups])
                     continue
                 diffs, boot = at.differences[action], estimates[key, action]
-                won = int((diffs > 0).sum())
+                above = int((diffs > 0).sum())
                 difference_rows(report, "robust_difference", task, action, step, diffs, boot,
                                 SUCCESS_BARS.get(task))
                 verdicts = " / ".join(str(at.verdicts[action].count(v))
                                       for v in ("ahead", "level", "behind"))
-                table.append([*cells, *seed_cells(diffs, boot, 1), f"{won} of {n}", verdicts,
+                table.append([*cells, *seed_cells(diffs, boot, 1), f"{above} of {n}", verdicts,
                               *blowups])
     return table, estimates
 
@@ -740,7 +743,8 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
              "starts, episode by episode. Per seed, the mean over its episodes of the action's "
              "return minus tanh(mu)'s; over seeds, the mean with its 95% t-interval and rliable's "
              f"bootstrap ({args.reps:,} replications). 'return': the mean over seeds of each "
-             "seed's mean return; 'won': seeds above zero; 'ahead / level / "
+             "seed's mean return; 'above zero': seeds whose difference is positive (a count of "
+             "signs that decides nothing); 'ahead / level / "
              f"behind': seeds more than {stats.VERDICT_SE:g} standard errors of their paired "
              "episodes above zero, within, or below."]
     seeds = [d.size for steps in by_task.values() for at in steps.values()
@@ -752,7 +756,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
                   "return is what was earned until then); n/r: not recorded."]
     lines += ["", markdown_table(["task", "step", "action", "seeds", "episodes per seed",
                                   "return", "minus tanh(mu) (bootstrap CI)", "t-interval",
-                                  "won", "ahead / level / behind",
+                                  "above zero", "ahead / level / behind",
                                   *(["blow-ups"] if recorded else [])], table)]
     lines += ends_table(by_task)
     over = None

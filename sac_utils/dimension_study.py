@@ -267,7 +267,7 @@ def report_study(report: Report, study: dict[str, Dimension], labels, order: Seq
         "one task swept over its action dimension.", "",
         markdown_table(["task", "action dims", "algorithm", "action", "seeds", "fraction (step)",
                         "raw difference (bootstrap CI)", "t-interval", "normalised difference",
-                        "won"], table), "",
+                        "above zero"], table), "",
         "Measured shift at the final step (eval.csv, over the states the mode policy visited; "
         "mean over seeds with a 95% bootstrap CI), beside the theory curve of mode_search.py "
         "(figure, last row):", "",

@@ -34,16 +34,18 @@ def format_step(step: int | float) -> str:
 def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
                ) -> tuple[str, str]:
     """summary.md's cells for the mean of one value per seed: (mean with its bootstrap CI,
-    t-interval). With one or two seeds an interval says less than the values themselves, so
-    the cells give those ("two seeds: a to b")."""
+    t-interval). Two seeds' bootstrap CI says less than the values themselves, so the first
+    cell gives those ("two seeds: a to b"); their t-interval (one degree of freedom) stays,
+    since the rule that decides a task reads it. One seed has neither."""
     point = estimate[0]
     if values.size == 1:
         return f"{point:.{digits}f} (one seed)", "-"
+    _, low, high = stats.t_interval(values)
+    t_cell = f"[{low:.{digits}f}, {high:.{digits}f}]"
     if values.size == 2:
         a, b = sorted(float(v) for v in values)
-        return f"{point:.{digits}f} (two seeds: {a:.{digits}f} to {b:.{digits}f})", "-"
-    _, low, high = stats.t_interval(values)
-    return format_ci(*estimate, digits=digits), f"[{low:.{digits}f}, {high:.{digits}f}]"
+        return f"{point:.{digits}f} (two seeds: {a:.{digits}f} to {b:.{digits}f})", t_cell
+    return format_ci(*estimate, digits=digits), t_cell
 
 
 def markdown_table(header: Sequence[str], rows: Sequence[Sequence]) -> str:

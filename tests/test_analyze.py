@@ -323,16 +323,18 @@ def test_corrected_runs_alone_are_both_algorithms(tmp_path):
     assert "| 3 of 3 |" in text
     summary = read_summary(tmp_path / "out")
     assert np.allclose(estimate(summary, "paired_difference", TASKS[0], "corrected", "return"), 10)
-    assert estimate(summary, "paired_difference", TASKS[0], "corrected", "share_won")[0] == 1.0
+    assert estimate(summary, "paired_difference", TASKS[0], "corrected",
+                    "share_above_zero")[0] == 1.0
     # The standard group holds the paired numbers: seeds 0-2 end at 290, 291, 292.
     assert estimate(summary, "task_final", TASKS[0], "standard", "return")[0] == 291.0
     assert estimate(summary, "probability_of_improvement", "all", "corrected > standard",
                     "P(X > Y)")[0] > 0.5
-    # Over the two tasks: the mean normalised difference (10 / success bar per task), won 6 of 6.
+    # Over the two tasks: the mean normalised difference (10 / success bar per task), above zero
+    # on 6 of 6.
     bars = [scores.SUCCESS_BARS[t] for t in TASKS[:2]]
     mean = estimate(summary, "paired_difference", "all", "corrected", "mean_score")
     assert np.isclose(mean[0], np.mean([10 / b for b in bars]))
-    assert estimate(summary, "paired_difference", "all", "corrected", "share_won")[0] == 1.0
+    assert estimate(summary, "paired_difference", "all", "corrected", "share_above_zero")[0] == 1.0
     # Standard on one task, corrected on another: nothing to aggregate, per-task results only.
     write_run(tmp_path / "split", TASKS[0], "standard", 0, steps, np.linspace(1, 5, 5))
     write_run(tmp_path / "split", TASKS[1], "corrected", 0, steps, np.linspace(2, 6, 5))
@@ -594,8 +596,8 @@ def test_dimension_study_recovers_known_offsets_per_dimension(tmp_path):
                   if " | 1 (80k) | " in line}
     assert final_rows["Hopper-v5"].startswith(
         "| Hopper-v5 | 3 | Corrected SAC | mode | 5 | 1 (80k) | -30.0 [")
-    # Seeds where the mode won: Hopper's offsets -38..-22, Ant's -20..20, powerlift's 56..64.
-    assert [final_rows[t].endswith(f"| {won} of 5 |") for t, won in
+    # Seeds above zero: Hopper's offsets -38..-22, Ant's -20..20, powerlift's 56..64.
+    assert [final_rows[t].endswith(f"| {above} of 5 |") for t, above in
             (("Hopper-v5", 0), ("Ant-v5", 2), (TASKS[0], 5))] == [True] * 3
 
 
@@ -835,7 +837,7 @@ def write_alternating_folder(root: Path, offsets: list[float], rounds: int = 60,
     return steps
 
 
-def test_last_rounds_average_with_t_interval_and_seeds_won(tmp_path):
+def test_last_rounds_average_with_t_interval_and_seeds_above_zero(tmp_path):
     offsets = [-30.0, -10.0, 5.0, 20.0, 40.0]
     write_alternating_folder(tmp_path / "runs", offsets)
     assert run_analysis(tmp_path / "runs", tmp_path / "out") == 0
@@ -852,7 +854,7 @@ def test_last_rounds_average_with_t_interval_and_seeds_won(tmp_path):
         assert np.allclose(estimate(summary, *key, f"return_last{k}_t")[1:],
                            scipy.stats.t.interval(0.95, 4, loc=np.mean(offsets),
                                                   scale=scipy.stats.sem(offsets)))
-        assert estimate(summary, *key, f"share_won_last{k}")[0] == 0.6
+        assert estimate(summary, *key, f"share_above_zero_last{k}")[0] == 0.6
         assert summary[(*key, f"return_last{k}")]["step"] == "600000"
     text = (tmp_path / "out" / "summary.md").read_text()
     assert "With 5 seeds or fewer a percentile bootstrap CI is narrower" in text
@@ -875,9 +877,11 @@ def test_last_rounds_need_the_rounds_and_two_seeds_are_a_range(tmp_path):
     text = (tmp_path / "out" / "summary.md").read_text()
     assert (f"averages over the last 20 / 50 evaluation rounds left out where a task has fewer "
             f"shared rounds up to its scored step: {TASKS[2]} (30 rounds)") in text
-    # Two seeds: the two values, not an interval; no t-interval in the table.
-    assert "| last 20 (110k-300k) | -9.0 (two seeds: -30.0 to 12.0) | - | 1 of 2 |" in text
-    assert "-109.0 (two seeds: -130.0 to -88.0) | - |" in text  # the last round
+    # Two seeds: the two values in place of the bootstrap CI; the t-interval, one degree of
+    # freedom: -9 +- 12.706 * 21 (their standard error).
+    assert "| last 20 (110k-300k) | -9.0 (two seeds: -30.0 to 12.0) | [-275.8, 257.8] | 1 of 2 |" \
+        in text
+    assert "-109.0 (two seeds: -130.0 to -88.0) | [-375.8, 157.8] |" in text  # the last round
     assert "one episode" not in text  # the runs did not log distinct_episodes
 
 
@@ -1129,7 +1133,7 @@ def test_robust_evaluation_matches_a_hand_computation(tmp_path):
         for metric in ("mean_score", "mean_score_t"):
             assert np.isclose(row_at(rows, "robust_difference", "all", action, metric, last)[0],
                               np.mean(values)), (metric, action)
-    assert row_at(rows, "robust_difference", "all", "mode", "share_won", last)[0] == 1.0
+    assert row_at(rows, "robust_difference", "all", "mode", "share_above_zero", last)[0] == 1.0
     assert {r["metric"] for r in rows if r["section"] == "robust_aggregate"} == \
         {"IQM", "Median", "Mean", "Optimality Gap"}
     for action in ("mode", "tanh_mu", "mean"):  # (seeds x tasks) mean returns / success bar
