@@ -56,7 +56,15 @@ from sac_utils.figures import (
     profile_thresholds,
     task_markers,
 )
-from sac_utils.report import Report, counted, format_ci, format_step, markdown_table, seed_cells
+from sac_utils.report import (
+    Report,
+    above_zero,
+    counted,
+    format_ci,
+    format_step,
+    markdown_table,
+    seed_cells,
+)
 from sac_utils.scores import (
     ACTIONS,
     BASELINE,
@@ -263,14 +271,15 @@ def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str,
     row under OVER_TASKS_HEADER."""
     scores, boot, t_values = difference_over_tasks(list(per_task.values()), args.reps,
                                                    args.seed)
-    seeds, above = scores.shape[0], int((scores > 0).sum())
+    seeds = scores.shape[0]
     report.row(section, "all", key, "mean_score", step, seeds, *boot)
     report.row(section, "all", key, "mean_score_t", step, seeds, *t_values)
-    report.row(section, "all", key, "share_above_zero", step, scores.size, above / scores.size,
+    report.row(section, "all", key, "share_above_zero", step, scores.size,
+               int((scores > 0).sum()) / scores.size,
                math.nan, math.nan)
     return (over_tasks_cell(scores, boot, t_values, {t: shapes[t] for t in per_task}),
             [len(per_task), seeds, format_ci(*boot, runs=seeds),
-             f"[{t_values[1]:.3f}, {t_values[2]:.3f}]", f"{above} of {scores.size}"])
+             f"[{t_values[1]:.3f}, {t_values[2]:.3f}]", above_zero(scores)])
 
 
 # ----------------------------------------------------- the paper's Figures 6-8, from any scores
@@ -505,14 +514,12 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
             last = diffs[:, np.searchsorted(tasks[task].steps, step)]
             cells = seed_cells(last, scored[task, group], 1)
             table.append([task, labels.algorithm(group[0]), group[1], last.size,
-                          f"last ({format_step(step)})", *cells, f"{int((last > 0).sum())} of "
-                          f"{last.size}"])
+                          f"last ({format_step(step)})", *cells, above_zero(last)])
             for k in LAST_ROUNDS:
                 if (task, group, k) not in averages:
                     continue
                 values, window = averages[task, group, k], windows[task, k]
                 estimate = estimates[f"{task}|{k}", group]
-                above = int((values > 0).sum())
                 difference_rows(report, "paired_last_rounds", task, group, step, values,
                                 estimate, suffix=f"_last{k}")
                 episodes = one_episode_per_seed(
@@ -521,7 +528,7 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
                     (", one episode each" if episodes else "")
                 table.append([task, labels.algorithm(group[0]), group[1],
                               values.size, rounds, *seed_cells(values, estimate, 1),
-                              f"{above} of {values.size}"])
+                              above_zero(values)])
     lines += ["", "Per seed, the difference averaged over the last "
               + " and the last ".join(map(str, LAST_ROUNDS)) + " shared rounds up to the scored "
               "step (one round is one draw of the evaluation noise), then over seeds as above; "
@@ -561,12 +568,12 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
         if single:
             one_episode.append(task)
         for group, diffs in by_group.items():
-            values, n, above = estimates[task, group], diffs.size, int((diffs > 0).sum())
+            values, n = estimates[task, group], diffs.size
             difference_rows(report, "paired_difference", task, group, step, diffs, values, scale)
             scaled = [v / scale for v in values]
             table.append([task, format_step(step), labels.algorithm(group[0]),
                           group[1], n, *seed_cells(diffs, values, 1),
-                          seed_cells(diffs / scale, scaled)[0], f"{above} of {n}"])
+                          seed_cells(diffs / scale, scaled)[0], above_zero(diffs)])
     seeds = [d.size for by_group in differences.values() for d in by_group.values()]
     lines = ["Per seed, at each task's scored step: an action's return minus tanh(mu)'s, same "
              "actor, same start states (q_best: the critic's pick of mode / tanh(mu) / mean). "
@@ -671,12 +678,11 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
                     table.append([*cells, "(the baseline)", "", "", "", *blowups])
                     continue
                 diffs, boot = at.differences[action], estimates[key, action]
-                above = int((diffs > 0).sum())
                 difference_rows(report, "robust_difference", task, action, step, diffs, boot,
                                 SUCCESS_BARS.get(task))
                 verdicts = " / ".join(str(at.verdicts[action].count(v))
                                       for v in ("ahead", "level", "behind"))
-                table.append([*cells, *seed_cells(diffs, boot, 1), f"{above} of {n}", verdicts,
+                table.append([*cells, *seed_cells(diffs, boot, 1), above_zero(diffs), verdicts,
                               *blowups])
     return table, estimates
 

@@ -19,7 +19,7 @@ import numpy as np
 import seaborn as sns
 
 from sac_utils import stats
-from sac_utils.report import Report, format_ci, format_step, markdown_table, seed_cells
+from sac_utils.report import Report, above_zero, format_ci, format_step, markdown_table, seed_cells
 from sac_utils.scores import Curve, Runs, Task, group_rank, own_action, paired_groups, paired_values
 
 # Measured at the states the mode policy visited (sac_corrected.py's eval.csv).
@@ -247,7 +247,7 @@ def report_study(report: Report, study: dict[str, Dimension], labels, order: Seq
                 table.append([task, d.action_dim, labels.algorithm(group[0]), group[1],
                               runs_n, f"{f:g} ({format_step(step)})", raw, t_cell,
                               seed_cells(diffs / d.scale, (point, low, high))[0],
-                              f"{int((diffs > 0).sum())} of {runs_n}"])
+                              above_zero(diffs)])
         for column, values in d.shift.items():
             report.row("dimension_shift", task, "corrected", column, d.steps[1.0], values.size,
                        *estimates[task, column])

@@ -48,6 +48,12 @@ def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
     return format_ci(*estimate, digits=digits), t_cell
 
 
+def above_zero(values: np.ndarray) -> str:
+    """summary.md's 'above zero' cell: how many of the values are positive, a count of signs
+    that decides nothing (the verdicts are stats.verdict's and the t-interval's)."""
+    return f"{int((values > 0).sum())} of {values.size}"
+
+
 def markdown_table(header: Sequence[str], rows: Sequence[Sequence]) -> str:
     """A GitHub markdown table."""
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
