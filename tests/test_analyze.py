@@ -192,6 +192,19 @@ def test_iqm_per_step_is_rliables_iqm_at_every_step():
     assert np.allclose(analyze.iqm_per_step(scores), expected)
 
 
+def test_iqm_is_rliables_iqm_to_the_bit():
+    from rliable import metrics
+
+    rng = np.random.default_rng(4)
+    for shape in [(1, 1), (2, 1), (3, 1), (5, 4), (2, 2), (7, 3), (300, 1), (20, 9)]:
+        for k in range(50):
+            scores = rng.normal(size=shape) * 10.0 ** rng.integers(-3, 4)
+            scores = np.round(scores, 1) if k % 2 else scores  # ties
+            assert analyze.iqm(scores) == metrics.aggregate_iqm(scores), (shape, k)
+    scores[0, 0] = np.nan
+    assert np.isnan(analyze.iqm(scores)) and np.isnan(metrics.aggregate_iqm(scores))
+
+
 @pytest.mark.slow
 def test_same_seed_same_report_other_seed_other_intervals(tmp_path):
     write_paper_like_folder(tmp_path / "runs", seeds=3, evaluations=10)
