@@ -64,6 +64,7 @@ from sac_utils.report import (
     format_step,
     markdown_table,
     seed_cells,
+    share_above_zero,
 )
 from sac_utils.scores import (
     ACTIONS,
@@ -266,7 +267,7 @@ def difference_rows(report: Report, section: str, task: str, key: Key | str, ste
                        *(v / divisor for v in boot))
             report.row(section, task, key, f"{unit}{suffix}_t", step, n,
                        *(v / divisor for v in t_values))
-    report.row(section, task, key, f"share_above_zero{suffix}", step, n, int((diffs > 0).sum()) / n,
+    report.row(section, task, key, f"share_above_zero{suffix}", step, n, share_above_zero(diffs),
                math.nan, math.nan)
 
 
@@ -286,8 +287,7 @@ def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str,
     report.row(section, "all", key, "mean_score", step, seeds, *boot)
     report.row(section, "all", key, "mean_score_t", step, seeds, *t_values)
     report.row(section, "all", key, "share_above_zero", step, scores.size,
-               int((scores > 0).sum()) / scores.size,
-               math.nan, math.nan)
+               share_above_zero(scores), math.nan, math.nan)
     return (over_tasks_cell(scores, boot, t_values, {t: shapes[t] for t in per_task}),
             [len(per_task), seeds, format_ci(*boot, runs=seeds),
              f"[{t_values[1]:.3f}, {t_values[2]:.3f}]", above_zero(scores)])

@@ -48,10 +48,15 @@ def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
     return format_ci(*estimate, digits=digits), t_cell
 
 
+def share_above_zero(values: np.ndarray) -> float:
+    """summary.csv's share_above_zero: the fraction of the values that are positive, a count of
+    signs that decides nothing (the verdicts are stats.verdict's and the t-interval's)."""
+    return int((values > 0).sum()) / values.size
+
+
 def above_zero(values: np.ndarray) -> str:
-    """summary.md's 'above zero' cell: how many of the values are positive, a count of signs
-    that decides nothing (the verdicts are stats.verdict's and the t-interval's)."""
-    return f"{int((values > 0).sum())} of {values.size}"
+    """summary.md's 'above zero' cell: share_above_zero as a count, "k of n"."""
+    return f"{round(share_above_zero(values) * values.size)} of {values.size}"
 
 
 def markdown_table(header: Sequence[str], rows: Sequence[Sequence]) -> str:
