@@ -240,6 +240,18 @@ def few_seeds_lines(seeds: Sequence[int]) -> list[str]:
             "the data allow: read the t-interval."] if seeds and min(seeds) <= FEW_SEEDS else []
 
 
+def band_line(scores: dict[Key, np.ndarray], band: str) -> str:
+    """A figure's line on what its `band` shows: rliable's stratified-bootstrap CIs, over how
+    many runs of how many tasks, and, from FEW_SEEDS runs or fewer, that they only resample the
+    few values seen."""
+    runs = sorted({values.shape[0] for values in scores.values()})
+    tasks = next(iter(scores.values())).shape[1]
+    line = (f"{band}: {CONFIDENCE:.0%} stratified-bootstrap CIs (rliable), "
+            f"{counted(' or '.join(map(str, runs)), 'run')} x {counted(tasks, 'task')}")
+    return line + (";\nfrom this few runs they are narrower than the data allow"
+                   if runs[0] <= FEW_SEEDS else "")
+
+
 def iqm_note(runs: Sequence[int], tasks: int) -> str:
     """With few runs per task, what IQM is: rliable's 25% trimmed mean over all runs x tasks
     keeps the middle ones; and with one task rliable's median (over tasks of each task's mean)
@@ -302,6 +314,7 @@ def figure_6(report: Report, scores: dict, names: Sequence[str], labels: Callabl
     gap = len(names) == len(AGGREGATE_METRICS)
     point, interval = interval_estimates(scores, functools.partial(aggregate_metrics, gap=gap),
                                          args.reps, args.seed)
+    note = "\n".join(filter(None, [note, band_line(scores, "bars")]))
     report.figure(plot_aggregate_metrics(point, interval, names, colors, xlabel, labels, note),
                   name)
     return point, interval
@@ -314,6 +327,7 @@ def figure_7(report: Report, scores: dict, labels: Callable, colors: dict, xlabe
     taus = profile_thresholds(scores)
     seed_bootstrap(args.seed)
     profiles, cis = rly.create_performance_profile(scores, taus, reps=args.curve_reps)
+    title = f"{title}\n{band_line(scores, 'bands')}"
     report.figure(plot_performance_profiles(taus, profiles, cis, colors, xlabel, labels, title),
                   name)
 
@@ -324,6 +338,7 @@ def figure_8(report: Report, frames: np.ndarray, scores: dict, labels: Callable,
     """The IQM of each group's (runs, tasks, frames) scores at every frame with rliable's CIs
     (--curve-reps), drawn as Figure 8."""
     point, interval = interval_estimates(scores, iqm_per_step, args.curve_reps, args.seed)
+    title = f"{title}\n{band_line(scores, 'bands')}"
     report.figure(plot_sample_efficiency(frames, point, interval, colors, ylabel, labels, title,
                                          by_fraction), name)
     return point, interval

@@ -205,6 +205,15 @@ def test_iqm_is_rliables_iqm_to_the_bit():
     assert np.isnan(analyze.iqm(scores)) and np.isnan(metrics.aggregate_iqm(scores))
 
 
+def test_a_figures_band_line_says_how_many_runs_and_warns_when_few():
+    few = analyze.band_line({"a": np.zeros((2, 1)), "b": np.zeros((3, 1))}, "bars")
+    assert few.startswith("bars: 95% stratified-bootstrap CIs (rliable), 2 or 3 runs x 1 task")
+    assert "narrower than the data allow" in few
+    many = analyze.band_line({"a": np.zeros((analyze.FEW_SEEDS + 1, 4))}, "bands")
+    assert many == (f"bands: 95% stratified-bootstrap CIs (rliable), {analyze.FEW_SEEDS + 1} runs"
+                    " x 4 tasks")
+
+
 @pytest.mark.slow
 def test_same_seed_same_report_other_seed_other_intervals(tmp_path):
     write_paper_like_folder(tmp_path / "runs", seeds=3, evaluations=10)
