@@ -37,6 +37,7 @@ from humanoid_envs.base import H1HandEnv  # noqa: E402
 from humanoid_envs.robot import NV_ROBOT  # noqa: E402
 from sac_utils.eval_rounds import episode_end  # noqa: E402
 from sac_utils.policies import load_policy  # noqa: E402
+from sac_utils.stats import standard_error  # noqa: E402
 
 # qvel of the two hands: after the free base's 6 dofs and the 21 of legs, torso and arms.
 HAND_DOFS = slice(6 + 21, NV_ROBOT)
@@ -130,14 +131,14 @@ def main() -> None:
                  else str(path))
         gap = rows["HumanoidBench"]["returns"] - rows["ours"]["returns"]
         for name, row in rows.items():
-            r, n = row["returns"], args.episodes
-            paired = (f"{gap.mean():+.2f} +- {gap.std(ddof=1) / np.sqrt(n):.2f}"
+            r = row["returns"]
+            paired = (f"{gap.mean():+.2f} +- {standard_error(gap):.2f}"
                       if name == "HumanoidBench" else "")
             ends = ", ".join(f"{e} {c}" for e, c in sorted(row["ends"].items()))
             extra = ("| | |" if not args.sampled_steps else
                      f"| {row['episodes']}, {row['return']:.2f} | {row['fast'][100]} / "
                      f"{row['fast'][1000]}, {row['fast']['blow-up']} |")
-            print(f"| {label} | {name} | {r.mean():.2f} +- {r.std(ddof=1) / np.sqrt(n):.2f} | "
+            print(f"| {label} | {name} | {r.mean():.2f} +- {standard_error(r):.2f} | "
                   f"{paired} | {row['length']:.1f} | {ends} {extra}", flush=True)
 
 
