@@ -109,7 +109,13 @@ from sac_utils.scores import (
     shift_curves,
     standard_from_paired,
 )
-from sac_utils.stats import CONFIDENCE, seed_mean_estimates, t_interval, welch_interval
+from sac_utils.stats import (
+    CONFIDENCE,
+    FEW_SEEDS,
+    seed_mean_estimates,
+    t_interval,
+    welch_interval,
+)
 
 # ============================================================================== what to edit
 # A task's success bar and a new evaluation action: sac_utils/scores.py (SUCCESS_BARS, ACTIONS).
@@ -135,9 +141,6 @@ NORMALIZATIONS = {
 }
 SCORE_NAMES = {"success-bar": "Success-bar normalised score",
                "min-max": "Min-max normalised score", "none": "Return"}
-# Up to this many seeds a percentile bootstrap of the mean is narrower than the data allow: it
-# only resamples the few values seen, so summary.md puts a Student-t interval beside it.
-FEW_SEEDS = 5
 
 
 @dataclasses.dataclass

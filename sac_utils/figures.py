@@ -341,7 +341,9 @@ def plot_over_training(steps: dict[str, np.ndarray], differences: dict, estimate
         mark_restarts(ax, marks, unit)
         n = " or ".join(map(str, sorted(seeds)))
         how = (f"thin: each round's mean over seeds; thick: mean of the last {ROLLING_ROUNDS} "
-               "rounds" if rolling else "mean over seeds, 95% bootstrap CI; thin: each seed")
+               "rounds" if rolling else "mean over seeds, 95% bootstrap CI; thin: each seed"
+               + ("\n(from this few seeds the CI is narrower than the data allow)"
+                  if seeds and min(seeds) <= stats.FEW_SEEDS else ""))
         ax.set_title(f"{task}, n = {counted(n, 'seed')}\n{how}", fontsize="medium")
         ax.set_ylabel("Return minus tanh(mu)'s")
         ax.legend(fontsize="small", frameon=False)

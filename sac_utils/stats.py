@@ -18,6 +18,9 @@ import scipy.stats
 CONFIDENCE = 0.95
 BASELINE = "tanh_mu"  # the action every other one is compared with: Standard SAC's
 VERDICT_SE = 3.0  # a seed is ahead or behind when its difference is this many SEs from zero
+# Up to this many seeds a percentile bootstrap of the mean is narrower than the data allow: it
+# only resamples the few values seen, so a t-interval goes beside it or the figure says so.
+FEW_SEEDS = 5
 
 
 def paired_difference(returns: np.ndarray, baseline: np.ndarray) -> np.ndarray:

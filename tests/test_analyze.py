@@ -13,7 +13,7 @@ import pytest
 import scipy.stats
 
 import analyze
-from sac_utils import figures, scores
+from sac_utils import figures, scores, stats
 
 EVAL_COLUMNS = ["global_step", "wall_time", "eval_round", "return_mean", "return_std",
                 "return_min", "return_max", "length_mean", "success_rate"]
@@ -209,8 +209,8 @@ def test_a_figures_band_line_says_how_many_runs_and_warns_when_few():
     few = analyze.band_line({"a": np.zeros((2, 1)), "b": np.zeros((3, 1))}, "bars")
     assert few.startswith("bars: 95% stratified-bootstrap CIs (rliable), 2 or 3 runs x 1 task")
     assert "narrower than the data allow" in few
-    many = analyze.band_line({"a": np.zeros((analyze.FEW_SEEDS + 1, 4))}, "bands")
-    assert many == (f"bands: 95% stratified-bootstrap CIs (rliable), {analyze.FEW_SEEDS + 1} runs"
+    many = analyze.band_line({"a": np.zeros((stats.FEW_SEEDS + 1, 4))}, "bands")
+    assert many == (f"bands: 95% stratified-bootstrap CIs (rliable), {stats.FEW_SEEDS + 1} runs"
                     " x 4 tasks")
 
 
