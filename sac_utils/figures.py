@@ -346,7 +346,8 @@ def plot_over_training(steps: dict[str, np.ndarray], differences: dict, estimate
                   if seeds and min(seeds) <= stats.FEW_SEEDS else ""))
         ax.set_title(f"{task}, n = {counted(n, 'seed')}\n{how}", fontsize="medium")
         ax.set_ylabel("Return minus tanh(mu)'s")
-        ax.legend(fontsize="small", frameon=False)
+        ax.legend(fontsize="small", frameon=False, loc="upper center", ncols=3,
+                  bbox_to_anchor=(0.5, -0.16))  # under the axes: clear of the restart marks
         for ax, column, title in zip(row[1:], shift_columns, titles, strict=True):
             values = shifts.get(task, {}).get(column)
             if values is None:
