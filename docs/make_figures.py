@@ -42,6 +42,7 @@ from mode_search import (  # noqa: E402
     summed_shift_by_dimension,
     tanh_normal_log_prob,
 )
+from sac_utils.report import save_palette_png as palette_png  # noqa: E402
 
 # Pendulum-v1 learns in a few thousand steps on a CPU; short enough to keep the docs cheap.
 TINY_RUN = [
@@ -53,8 +54,7 @@ SEEDS = (0, 1, 2)
 
 
 def save_palette_png(image: Image.Image, path: Path) -> None:
-    # Plots and renders have few distinct colours; a palette PNG is a third of the RGB one.
-    image.convert("RGB").quantize(256, method=Image.Quantize.FASTOCTREE).save(path, optimize=True)
+    palette_png(image, path, Image.Quantize.FASTOCTREE)
     print(f"wrote {path.relative_to(ROOT)} ({path.stat().st_size / 1024:.0f} KB)")
 
 

@@ -50,15 +50,29 @@ def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
     return format_ci(*estimate, digits=digits), t_cell
 
 
+def positives(values: np.ndarray) -> int:
+    """How many of the values are above zero: a count of signs that decides nothing (the
+    verdicts are stats.verdict's and the t-interval's)."""
+    return int((values > 0).sum())
+
+
 def share_above_zero(values: np.ndarray) -> float:
-    """summary.csv's share_above_zero: the fraction of the values that are positive, a count of
-    signs that decides nothing (the verdicts are stats.verdict's and the t-interval's)."""
-    return int((values > 0).sum()) / values.size
+    """summary.csv's share_above_zero: the fraction of the values above zero."""
+    return positives(values) / values.size
 
 
 def above_zero(values: np.ndarray) -> str:
-    """summary.md's 'above zero' cell: share_above_zero as a count, "k of n"."""
-    return f"{round(share_above_zero(values) * values.size)} of {values.size}"
+    """summary.md's 'above zero' cell, "k of n"."""
+    return f"{positives(values)} of {values.size}"
+
+
+def save_palette_png(image: Image.Image, path: Path,
+                     method: Image.Quantize = Image.Quantize.MEDIANCUT) -> None:
+    """A 256-colour PNG: plots have few distinct colours, so it is about 40% of the RGB file with
+    no difference to see (git keeps every version a campaign commits). Median cut keeps the
+    plots' faint grid lines; octree, the renders' small saturated objects."""
+    image.convert("RGB").quantize(256, method=method, dither=Image.Dither.NONE).save(
+        path, optimize=True)
 
 
 def markdown_table(header: Sequence[str], rows: Sequence[Sequence]) -> str:
@@ -93,13 +107,9 @@ class Report:
             if fmt != "png":
                 fig.savefig(self.figures[-1], dpi=150, bbox_inches="tight")
                 continue
-            # In 256 colours a report's PNGs take about 40% of the bytes, with no difference
-            # to see; git keeps every version a campaign commits at each stop.
             buffer = io.BytesIO()
             fig.savefig(buffer, format="png", dpi=150, bbox_inches="tight")
-            image = Image.open(buffer).convert("RGB")
-            image.quantize(256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE
-                           ).save(self.figures[-1], optimize=True)
+            save_palette_png(Image.open(buffer), self.figures[-1])
         plt.close(fig)
 
     def section(self, title: str, *lines: str) -> None:
