@@ -77,7 +77,8 @@ class Args:
     are one episode: 0.01 (HumanoidBench's own elsewhere) gives distinct starts"""
     steps: tuple[int, ...] = ()
     """with a folder of runs: evaluate the snapshots (or final weights) at these steps only
-    (default: every snapshot and the final weights)"""
+    (default: every snapshot and the final weights); --out stays unfinished while some are not
+    there yet, and the same command later evaluates them"""
     selectors: tuple[Literal["mode", "tanh_mu", "mean", "q_best", "sample"], ...] = (
         "mode", "tanh_mu")
     """evaluation actions: the mode, tanh(mu), the mean E[tanh(u)], the critic's pick of those
@@ -348,8 +349,9 @@ def is_campaign(source: Path) -> bool:
         and next(source.rglob("config.json"), None) is not None
 
 
-def campaign_policies(root: Path, steps: tuple[int, ...]) -> list[Policy]:
-    """The final weights stand for a snapshot at their step."""
+def campaign_policies(root: Path, steps: tuple[int, ...]) -> tuple[list[Policy], list[str]]:
+    """The policies there, and those at --steps not there yet ("run step N"). The final weights
+    stand for a snapshot at their step."""
     run_dirs = sorted(p.parent for p in root.rglob("config.json"))
     if len({d.name for d in run_dirs}) < len(run_dirs):  # the output is one folder per name
         fail(f"{root}: two run folders share a name; evaluate them separately")
@@ -371,9 +373,7 @@ def campaign_policies(root: Path, steps: tuple[int, ...]) -> list[Policy]:
         fail(f"{root}: no run under it holds final_model.pt or snapshots"
              f"{' at --steps ' + ' '.join(map(str, steps)) if steps else ''}; train with "
              "--snapshot-interval, or give a run folder")
-    if missing:
-        print(f"not there yet, skipped: {', '.join(missing)}", file=sys.stderr)
-    return policies
+    return policies, missing
 
 
 def evaluate_campaign(args: Args) -> None:
@@ -382,7 +382,7 @@ def evaluate_campaign(args: Args) -> None:
     if args.out is None or args.video is not None:
         fail(f"{args.source} is a folder of runs: give --out (where each run's episodes.csv and "
              "the summary go), and no --video")
-    policies = campaign_policies(args.source, args.steps)
+    policies, missing = campaign_policies(args.source, args.steps)
     for env_id in sorted({p.env_id for p in policies}):
         check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
     actions = list(dict.fromkeys(args.selectors))
@@ -405,7 +405,8 @@ def evaluate_campaign(args: Args) -> None:
         summarize_campaign(args.out)
         return
     print(f"{args.out}: {len(finished)} of {len(policies)} policies already evaluated, "
-          f"{len(left)} left", file=sys.stderr)
+          f"{len(left)} left" + (f", {len(missing)} not there yet" if missing else ""),
+          file=sys.stderr)
     planned = [plan_policy(policy, actions, args) for policy in left]  # fails before writing
     try:
         args.out.mkdir(parents=True, exist_ok=True)
@@ -413,6 +414,11 @@ def evaluate_campaign(args: Args) -> None:
                                     recorded.get("seconds", 0.0) if recorded else 0.0)
         for run in dict.fromkeys(p.run for p in policies):  # as one attempt would leave them:
             write_run_files(args.out, run, finished)  # rows of policies now gone, dropped
+        if missing:  # a campaign still training: --out stays open for them, to be resumed
+            print(f"{args.out} is not finished ({PARTIAL_FILE}): not there yet at --steps: "
+                  f"{', '.join(missing)}; once they are, the same command evaluates them and "
+                  "writes the summary", file=sys.stderr)
+            return
         # evaluation.json marks --out complete: written last, in one step.
         complete = {k: v for k, v in settings.items() if k != "steps"} | {
             "seconds": round(seconds, 1), "workers": args.workers,

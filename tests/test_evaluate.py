@@ -667,6 +667,31 @@ def test_a_resume_rewrites_a_policy_whose_rows_are_incomplete(campaign, tmp_path
 
 
 @pytest.mark.slow
+def test_a_campaign_still_training_stays_unfinished_until_its_steps_are_there(campaign, tmp_path,
+                                                                              capsys):
+    source, out = tmp_path / "runs", tmp_path / "out"
+    shutil.copytree(campaign, source)
+    asked = (*CAMPAIGN_ARGS, "--steps", "800", "2400")
+    code, printed, err = run(capsys, str(source), "--out", str(out), *asked)
+    assert code == 0 and "0 of 2 policies already evaluated, 2 left, 2 not there yet" in err, err
+    assert ("not there yet at --steps: run0 step 2400, run1 step 2400; once they are, the same "
+            "command evaluates them") in err and printed == ""
+    # Not sealed: the step-800 rows and the marker, no evaluation.json, no summary.
+    assert sorted(p.name for p in out.iterdir() if p.is_file()) == [evaluate.PARTIAL_FILE]
+    assert {r["step"] for r in read_rows(out / "run1" / "episodes.csv")} == {"800"}
+    refused(capsys, "not finished yet (evaluation.partial.json): run its command again", str(out))
+    for seed in (0, 1):  # the runs trained on to their next snapshot
+        shutil.copy(source / f"run{seed}" / "snapshots" / "step800.pt",
+                    source / f"run{seed}" / "snapshots" / "step2400.pt")
+    code, printed, err = run(capsys, str(source), "--out", str(out), *asked)
+    assert code == 0 and "2 of 4 policies already evaluated, 2 left" in err, err
+    assert "not there yet" not in err and "Precision check" in printed
+    code, _, err = run(capsys, str(source), "--out", str(tmp_path / "whole"), *asked)
+    assert code == 0, err
+    assert files(out) == files(tmp_path / "whole")
+
+
+@pytest.mark.slow
 def test_a_resume_with_other_settings_is_refused(campaign, tmp_path, monkeypatch, capsys):
     out = tmp_path / "out"
     interrupted(campaign, out, monkeypatch, capsys)
