@@ -9,16 +9,16 @@
 set -u
 N=$1; MILLIONS=$((N / 1000000)); EPISODES=$([ "$N" -ge 10000000 ] && echo 300 || echo 100)
 CAMPAIGN=${CAMPAIGN:-~/campaign/powerlift-10M}; EVALUATE=${EVALUATE:-evaluate.py}
-MAIN=$(cd "$(dirname "$0")/../.." && pwd)
+MAIN=$(cd "$(dirname "$0")/../.." && pwd); R=results/powerlift-10M
 # snapshots are written whole (renamed into place), so one that is there is complete
 until [ "$(ls "$CAMPAIGN"/*/snapshots/step$N.pt 2>/dev/null | wc -l)" -ge 2 ]; do sleep 60; done
 for r in "$CAMPAIGN"/*/; do
-  run=$(basename "$r"); mkdir -p "$MAIN/results/powerlift-10M/runs/$run/snapshots"
-  cp "$r/snapshots/step$N.pt" "$MAIN/results/powerlift-10M/runs/$run/snapshots/"
+  run=$(basename "$r"); mkdir -p "$MAIN/$R/runs/$run/snapshots"
+  cp "$r/snapshots/step$N.pt" "$MAIN/$R/runs/$run/snapshots/"
 done
 pids=$(pgrep -f "campaign/src/sac_corrected.py")
 echo "$(date -u) pausing $pids"; kill -STOP $pids
-cd "$MAIN" && .venv/bin/python "$EVALUATE" results/powerlift-10M/runs \
-  --out results/powerlift-10M/robust-${MILLIONS}M --steps $N --reset-noise 0.01 \
-  --episodes $EPISODES --selectors mode tanh_mu mean q_best --workers 2 --reps 20000
+cd "$MAIN" && .venv/bin/python "$EVALUATE" $R/runs --out $R/robust-${MILLIONS}M \
+  --steps $N --reset-noise 0.01 --episodes $EPISODES \
+  --selectors mode tanh_mu mean q_best --workers 2 --reps 20000
 echo "$(date -u) evaluate.py exited with $?; resuming $pids"; kill -CONT $pids
