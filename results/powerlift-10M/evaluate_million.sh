@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # One million's robust evaluation of powerlift's two runs (README: "The robust evaluation, million
-# by million"): wait until both runs on this machine have written snapshots/step<N>.pt, copy them
+# by million"): wait until every run on this machine has written snapshots/step<N>.pt, copy them
 # into the checkout's runs/, pause the training runs (SIGSTOP), evaluate from 100 starts per seed
 # (300 at 10M) on both cores into robust-<N/1M>M/, and resume the runs (SIGCONT).
 #   setsid nohup results/powerlift-10M/evaluate_million.sh 4000000 > ~/campaign/eval-4M.log 2>&1 &
@@ -11,7 +11,8 @@ N=$1; MILLIONS=$((N / 1000000)); EPISODES=$([ "$N" -ge 10000000 ] && echo 300 ||
 CAMPAIGN=${CAMPAIGN:-~/campaign/powerlift-10M}; EVALUATE=${EVALUATE:-evaluate.py}
 MAIN=$(cd "$(dirname "$0")/../.." && pwd); R=results/powerlift-10M
 # snapshots are written whole (renamed into place), so one that is there is complete
-until [ "$(ls "$CAMPAIGN"/*/snapshots/step$N.pt 2>/dev/null | wc -l)" -ge 2 ]; do sleep 60; done
+RUNS=$(ls -d "$CAMPAIGN"/*/ | wc -l)
+until [ "$(ls "$CAMPAIGN"/*/snapshots/step$N.pt 2>/dev/null | wc -l)" -ge "$RUNS" ]; do sleep 60; done
 for r in "$CAMPAIGN"/*/; do
   run=$(basename "$r"); mkdir -p "$MAIN/$R/runs/$run/snapshots"
   cp "$r/snapshots/step$N.pt" "$MAIN/$R/runs/$run/snapshots/"
@@ -21,4 +22,5 @@ echo "$(date -u) pausing $pids"; kill -STOP $pids
 cd "$MAIN" && .venv/bin/python "$EVALUATE" $R/runs --out $R/robust-${MILLIONS}M \
   --steps $N --reset-noise 0.01 --episodes $EPISODES \
   --selectors mode tanh_mu mean q_best --workers 2 --reps 20000
-echo "$(date -u) evaluate.py exited with $?; resuming $pids"; kill -CONT $pids
+rc=$?  # read before any other command: $(date) would overwrite it
+echo "$(date -u) evaluate.py exited with $rc; resuming $pids"; kill -CONT $pids
