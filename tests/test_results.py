@@ -176,3 +176,20 @@ def test_robust_summary_reproduces_from_the_committed_episodes(folder: Path,
     assert any(str(folder.relative_to(ROOT)) in spec["args"]
                for spec in reports_of(folder.parent).values()), (
         f"no report of {folder.parent.name} reads {folder.name} with --robust")
+
+
+@pytest.mark.parametrize("folder", [
+    pytest.param(folder, id=str(folder.relative_to(RESULTS)))
+    for folder in sorted(RESULTS.glob("*/robust*/"))
+    if (folder.parent / "fall_split.py").is_file()])
+def test_fall_split_table_is_what_the_episodes_give(folder: Path) -> None:
+    """A campaign's fall_split.py, run on each of its robust evaluations, prints the rows of the
+    README's table of where the differences are: the README's numbers are the script's."""
+    result = subprocess.run([sys.executable, str(folder.parent / "fall_split.py"), str(folder)],
+                            cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-3000:]
+    rows = result.stdout.splitlines()
+    assert rows, f"{folder}: no episodes.csv found"
+    readme = (folder.parent / "README.md").read_text()
+    for row in rows:
+        assert row in readme, f"{folder.parent.name}/README.md lacks the fall_split row {row!r}"
