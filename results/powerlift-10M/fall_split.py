@@ -25,23 +25,38 @@ def cell(values: list[float]) -> str:
     return f"{len(values)}, {statistics.fmean(values):+.2f} +- {se:.2f}"
 
 
+if len(sys.argv) not in (2, 3):
+    sys.exit("usage: fall_split.py ROBUST_FOLDER [ACTION]  (a folder evaluate.py wrote; see above)")
 folder, action = Path(sys.argv[1]), sys.argv[2] if len(sys.argv) > 2 else "mode"
-for episodes in sorted(folder.glob("*/episodes.csv")):
+found = sorted(folder.glob("*/episodes.csv"))
+if not found:
+    sys.exit(f"fall_split.py: no <run>/episodes.csv in {folder}: give a folder evaluate.py wrote")
+for episodes in found:
     with episodes.open() as file:
-        rows = {(row["selector"], row["episode"]): row for row in csv.DictReader(file)}
-    parts: dict[tuple[bool, bool], list[float]] = {
-        (False, False): [],
-        (True, False): [],
-        (False, True): [],
-        (True, True): [],
-    }
-    steps = set()
-    for (name, episode), row in rows.items():
-        if name == action:
-            base = rows["tanh_mu", episode]
-            ends = (row["end"] == "fell", base["end"] == "fell")
-            parts[ends].append(float(row["return"]) - float(base["return"]))
-            steps.add(int(row["step"]))
+        rows = {(r["step"], r["selector"], r["episode"]): r for r in csv.DictReader(file)}
+    selectors = {name for _, name, _ in rows}
+    if action not in selectors or "tanh_mu" not in selectors:
+        sys.exit(
+            f"fall_split.py: {episodes} has actions {sorted(selectors)}; it needs {action} "
+            "and tanh_mu"
+        )
+    if "end" not in next(iter(rows.values())):
+        sys.exit(
+            f"fall_split.py: {episodes} does not record how episodes ended (no 'end' "
+            "column): re-run evaluate.py on it"
+        )
     seed = re.search(r"seed(\d+)", episodes.parent.name).group(1)
-    step = "/".join(f"{s / 1e6:g}M" for s in sorted(steps))
-    print(f"| {seed} | {step} | " + " | ".join(cell(v) for v in parts.values()) + " |")
+    for step in sorted({int(s) for s, _, _ in rows}):
+        parts: dict[tuple[bool, bool], list[float]] = {
+            (False, False): [],
+            (True, False): [],
+            (False, True): [],
+            (True, True): [],
+        }
+        for (at, name, episode), row in rows.items():
+            if int(at) == step and name == action:
+                base = rows[at, "tanh_mu", episode]
+                ends = (row["end"] == "fell", base["end"] == "fell")
+                parts[ends].append(float(row["return"]) - float(base["return"]))
+        cells = " | ".join(cell(values) for values in parts.values())
+        print(f"| {seed} | {step / 1e6:g}M | {cells} |")
