@@ -12,51 +12,58 @@ whether the falls carry the whole difference.
 """
 
 import csv
-import re
-import statistics
+import json
 import sys
 from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+from sac_utils.stats import BASELINE, paired_difference, standard_error  # noqa: E402
 
 
 def cell(values: list[float]) -> str:
     if len(values) < 2:
         return f"{len(values)}" + (f", {values[0]:+.2f}" if values else "")
-    se = statistics.stdev(values) / len(values) ** 0.5
-    return f"{len(values)}, {statistics.fmean(values):+.2f} +- {se:.2f}"
+    return f"{len(values)}, {np.mean(values):+.2f} +- {standard_error(values):.2f}"
 
 
 if len(sys.argv) not in (2, 3):
     sys.exit("usage: fall_split.py ROBUST_FOLDER [ACTION]  (a folder evaluate.py wrote; see above)")
 folder, action = Path(sys.argv[1]), sys.argv[2] if len(sys.argv) > 2 else "mode"
-found = sorted(folder.glob("*/episodes.csv"))
-if not found:
-    sys.exit(f"fall_split.py: no <run>/episodes.csv in {folder}: give a folder evaluate.py wrote")
-for episodes in found:
+if not (folder / "evaluation.json").is_file():
+    sys.exit(f"fall_split.py: no evaluation.json in {folder}: give a folder evaluate.py wrote")
+for run, about in json.loads((folder / "evaluation.json").read_text())["runs"].items():
+    episodes = folder / run / "episodes.csv"
     with episodes.open() as file:
         rows = {(r["step"], r["selector"], r["episode"]): r for r in csv.DictReader(file)}
     selectors = {name for _, name, _ in rows}
-    if action not in selectors or "tanh_mu" not in selectors:
+    if action not in selectors or BASELINE not in selectors:
         sys.exit(
             f"fall_split.py: {episodes} has actions {sorted(selectors)}; it needs {action} "
-            "and tanh_mu"
+            f"and {BASELINE}"
         )
-    if "end" not in next(iter(rows.values())):
+    if not next(iter(rows.values())).get("end"):
         sys.exit(
             f"fall_split.py: {episodes} does not record how episodes ended (no 'end' "
             "column): re-run evaluate.py on it"
         )
-    seed = re.search(r"seed(\d+)", episodes.parent.name).group(1)
     for step in sorted({int(s) for s, _, _ in rows}):
+        pairs = [
+            (row, rows[at, BASELINE, episode])
+            for (at, name, episode), row in rows.items()
+            if int(at) == step and name == action
+        ]
+        differences = paired_difference(
+            [float(it["return"]) for it, _ in pairs], [float(base["return"]) for _, base in pairs]
+        )
         parts: dict[tuple[bool, bool], list[float]] = {
             (False, False): [],
             (True, False): [],
             (False, True): [],
             (True, True): [],
         }
-        for (at, name, episode), row in rows.items():
-            if int(at) == step and name == action:
-                base = rows[at, "tanh_mu", episode]
-                ends = (row["end"] == "fell", base["end"] == "fell")
-                parts[ends].append(float(row["return"]) - float(base["return"]))
+        for (it, base), difference in zip(pairs, differences, strict=True):
+            parts[it["end"] == "fell", base["end"] == "fell"].append(difference)
         cells = " | ".join(cell(values) for values in parts.values())
-        print(f"| {seed} | {step / 1e6:g}M | {cells} |")
+        print(f"| {about['seed']} | {step / 1e6:g}M | {cells} |")
