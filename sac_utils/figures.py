@@ -294,11 +294,16 @@ def mark_restarts(ax: plt.Axes, marks: Sequence[tuple[int, int]], unit: float,
     """A dashed vertical line where a run restarted from a snapshot (its checkpoint lost): past
     it the curve is a new sample from that step, not the lost run's future. `named`: the seed
     written beside each line and one legend entry."""
-    for i, (seed, step) in enumerate(marks):
+    seeds_at: dict[int, list[int]] = {}  # runs restarted at one step share a line and a label
+    for seed, step in marks:
+        seeds_at.setdefault(step, []).append(seed)
+    for i, (step, seeds) in enumerate(sorted(seeds_at.items())):
         ax.axvline(step / unit, color="0.25", ls="--", lw=0.9,
                    label="a run restarted from a snapshot" if named and i == 0 else None)
         if named:
-            ax.text(step / unit, 0.98, f"seed {seed} ", rotation=90, ha="right", va="top",
+            listed = ", ".join(map(str, sorted(seeds)))
+            words = f"seed {listed}" if len(seeds) == 1 else f"seeds {listed}"
+            ax.text(step / unit, 0.98, f"{words} ", rotation=90, ha="right", va="top",
                     fontsize="x-small", color="0.25", transform=ax.get_xaxis_transform())
 
 

@@ -295,16 +295,17 @@ def test_a_restart_from_a_snapshot_is_noted(tmp_path):
     marks = scores.restart_marks(runs)
     assert marks == {task: [(1, 20_000)] if task in config_path.parent.name else []
                      for task in runs}
-    # The reward curves mark each restart where it happened, with its seed, in one legend entry.
+    # The reward curves mark each restart where it happened, with its seed, in one legend entry;
+    # runs restarted at the same step share one line and one label.
     task = next(t for t, m in marks.items() if m)
     steps = np.array([10_000, 20_000, 30_000])
     curve = (np.ones(3), (np.zeros(3), 2 * np.ones(3)))
     fig = figures.plot_reward_curves({task: steps}, {task: {"g": curve}}, {"g": "C0"}, str,
                                      {(task, "g"): "-"}, {}, "heading",
-                                     {task: [*marks[task], (0, 25_000)]})
+                                     {task: [*marks[task], (2, 25_000), (0, 25_000)]})
     lines = [line for line in fig.axes[0].get_lines() if line.get_linestyle() == "--"]
     assert [list(line.get_xdata()) for line in lines] == [[20.0, 20.0], [25.0, 25.0]]  # 1000s
-    assert [text.get_text() for text in fig.axes[0].texts] == ["seed 1 ", "seed 0 "]
+    assert [text.get_text() for text in fig.axes[0].texts] == ["seed 1 ", "seeds 0, 2 "]
     legend = [text.get_text() for text in fig.legends[0].get_texts()]
     assert legend == ["g", "a run restarted from a snapshot"]
 
