@@ -182,18 +182,30 @@ def test_robust_summary_reproduces_from_the_committed_episodes(folder: Path,
             f"no report of {folder.parent.name} reads {folder.name} with --robust")
 
 
-@pytest.mark.parametrize("folder", [
-    pytest.param(folder, id=str(folder.relative_to(RESULTS)))
-    for folder in sorted(RESULTS.glob("*/robust*/"))
-    if (folder.parent / "fall_split.py").is_file()])
-def test_fall_split_table_is_what_the_episodes_give(folder: Path) -> None:
-    """A campaign's fall_split.py, run on each of its robust evaluations, prints the rows of the
-    README's table of where the differences are: the README's numbers are the script's."""
-    result = subprocess.run([sys.executable, str(folder.parent / "fall_split.py"), str(folder)],
+def table_cases() -> list:
+    """A campaign's table printers with each evaluation they read: fall_split.py's rows (where
+    the differences are) for each robust*/ folder, per_seed_rows.py's (the per-seed table) for
+    each robust*/ and machine-check*/ folder."""
+    return [pytest.param(folder.parent / script, folder,
+                         id=f"{script.removesuffix('.py')}:{folder.relative_to(RESULTS)}")
+            for script, patterns in (("fall_split.py", ("*/robust*/",)),
+                                     ("per_seed_rows.py", ("*/robust*/", "*/machine-check*/")))
+            for pattern in patterns for folder in sorted(RESULTS.glob(pattern))
+            if (folder.parent / script).is_file()]
+
+
+@pytest.mark.parametrize(("script", "folder"), table_cases())
+def test_readme_tables_are_what_the_evaluations_give(script: Path, folder: Path) -> None:
+    """The script, run on the folder, prints rows the campaign's README holds: its numbers are
+    the script's. A machine check's rows stand beside the same million's, with the machine in
+    place of the step, so from their third cell on."""
+    result = subprocess.run([sys.executable, str(script), str(folder)],
                             cwd=ROOT, capture_output=True, text=True)
     assert result.returncode == 0, result.stderr[-3000:]
     rows = result.stdout.splitlines()
-    assert rows, f"{folder}: no episodes.csv found"
+    assert rows, f"{script.name} printed nothing for {folder}"
     readme = (folder.parent / "README.md").read_text()
     for row in rows:
-        assert row in readme, f"{folder.parent.name}/README.md lacks the fall_split row {row!r}"
+        if folder.name.startswith("machine-check"):
+            row = row.split(" | ", 2)[2]
+        assert row in readme, f"{folder.parent.name}/README.md lacks the {script.name} row {row!r}"

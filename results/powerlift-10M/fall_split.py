@@ -29,7 +29,8 @@ def cell(values: list[float]) -> str:
 
 
 if len(sys.argv) not in (2, 3):
-    sys.exit("usage: fall_split.py ROBUST_FOLDER [ACTION]  (a folder evaluate.py wrote; see above)")
+    sys.exit("usage: fall_split.py FOLDER [ACTION]  (a folder evaluate.py wrote: "
+             "results/powerlift-10M/robust-5M)")
 folder, action = Path(sys.argv[1]), sys.argv[2] if len(sys.argv) > 2 else "mode"
 if not (folder / "evaluation.json").is_file():
     sys.exit(f"fall_split.py: no evaluation.json in {folder}: give a folder evaluate.py wrote")
