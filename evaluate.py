@@ -50,6 +50,7 @@ from sac_utils.eval_rounds import (
 )
 from sac_utils.files import complete_lines, write_json, write_text_atomically
 from sac_utils.policies import build_actor, build_critic, load_policy, load_weights, read_config
+from sac_utils.run_folder import machine
 
 # Episodes per job. Fixed, not derived from --workers: a job's episodes share one batch per
 # actor call, and the numbers must not depend on how many processes ran the jobs.
@@ -419,9 +420,10 @@ def evaluate_campaign(args: Args) -> None:
                   f"{', '.join(missing)}; once they are, the same command evaluates them and "
                   "writes the summary", file=sys.stderr)
             return
-        # evaluation.json marks --out complete: written last, in one step.
+        # evaluation.json marks --out complete: written last, in one step. The machine too: on
+        # another kind of CPU the same command's episodes are other draws (docs/evaluate.md).
         complete = {k: v for k, v in settings.items() if k != "steps"} | {
-            "seconds": round(seconds, 1), "workers": args.workers,
+            "seconds": round(seconds, 1), "workers": args.workers, "machine": machine(),
             "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
         write_json(args.out / CAMPAIGN_FILE, complete)
         (args.out / PARTIAL_FILE).unlink(missing_ok=True)

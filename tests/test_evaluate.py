@@ -21,6 +21,7 @@ import evaluate
 from mode_search import tanh_normal_log_prob
 from sac_utils import policies
 from sac_utils.eval_rounds import Q_BEST_CANDIDATES, Round, eval_seeds, run_round
+from sac_utils.run_folder import machine
 from tests.test_sac import EAGER
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -505,6 +506,8 @@ def test_a_campaign_is_evaluated_per_seed_and_step_and_summarised(campaign, tmp_
     # Per seed only: across seeds is analyze.py's (--robust).
     assert sorted(p.name for p in out.iterdir() if p.is_file()) == [
         "evaluation.json", "per_seed.csv", "summary.md"]
+    # Where it ran: another kind of CPU would give other episodes.
+    assert json.loads((out / "evaluation.json").read_text())["machine"] == machine()
     summary = (out / "summary.md").read_text()
     assert "Precision check:" in summary and summary in printed
     for row in per_seed:
