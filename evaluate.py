@@ -657,9 +657,7 @@ def _fell(row: dict) -> str:
     if row.get("fell_difference_mean") is None:
         return ""
     mean, se = row["fell_difference_mean"], row["fell_difference_se"]
-    verdict = stats.verdict(mean, se)
-    word = {"ahead": "more", "behind": "fewer"}.get(verdict, verdict)
-    return f"{mean:+.3f} +- {se:.3f} ({word})"
+    return f"{mean:+.3f} +- {se:.3f} ({stats.fall_verdict(mean, se)})"
 
 
 def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:

@@ -301,8 +301,7 @@ def mark_restarts(ax: plt.Axes, marks: Sequence[tuple[int, int]], unit: float,
         ax.axvline(step / unit, color="0.25", ls="--", lw=0.9,
                    label="a run restarted from a snapshot" if named and i == 0 else None)
         if named:
-            listed = ", ".join(map(str, sorted(seeds)))
-            words = f"seed {listed}" if len(seeds) == 1 else f"seeds {listed}"
+            words = f"seed{'s' * (len(seeds) > 1)} {', '.join(map(str, sorted(seeds)))}"
             ax.text(step / unit, 0.98, f"{words} ", rotation=90, ha="right", va="top",
                     fontsize="x-small", color="0.25", transform=ax.get_xaxis_transform())
 

@@ -49,6 +49,13 @@ def verdict(mean: float, se: float) -> str:
     return "ahead" if mean > 0 else "behind"
 
 
+def fall_verdict(mean: float, se: float) -> str:
+    """verdict() for a paired difference in the share of episodes that fell, where more is
+    worse: "more" or "fewer" beyond VERDICT_SE standard errors, else "level"."""
+    word = verdict(mean, se)
+    return {"ahead": "more", "behind": "fewer"}.get(word, word)
+
+
 def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
     """(mean, low, high) of one value per seed: mean +- t_{n-1} * sd / sqrt(n).
 

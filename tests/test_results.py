@@ -27,6 +27,8 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "results"
 FLOAT_COLUMNS = ("estimate", "ci_low", "ci_high")
 RTOL = 1e-9
+# A robust evaluation repeated on another kind of CPU: no report reads it (its million is there).
+MACHINE_CHECK = "machine-check"
 
 
 def campaigns() -> list[Path]:
@@ -137,7 +139,7 @@ def robust_cases() -> list:
     """Every committed robust evaluation (evaluate.py over a campaign's runs): its folder. A
     machine-check*/ folder is one evaluated again on another kind of CPU, which no report reads."""
     return [pytest.param(folder.parent, id=str(folder.parent.relative_to(RESULTS)))
-            for pattern in ("*/robust*/evaluation.json", "*/machine-check*/evaluation.json")
+            for pattern in ("*/robust*/evaluation.json", f"*/{MACHINE_CHECK}*/evaluation.json")
             for folder in sorted(RESULTS.glob(pattern))]
 
 
@@ -176,7 +178,7 @@ def test_robust_summary_reproduces_from_the_committed_episodes(folder: Path,
     assert " ".join(settings["command"][1:]) in readme, "the README must give the command"
     # Its numbers across seeds are a report's: its campaign's report reads it with --robust
     # (a machine check repeats a million the report has).
-    if not folder.name.startswith("machine-check"):
+    if not folder.name.startswith(MACHINE_CHECK):
         assert any(str(folder.relative_to(ROOT)) in spec["args"]
                    for spec in reports_of(folder.parent).values()), (
             f"no report of {folder.parent.name} reads {folder.name} with --robust")
@@ -189,7 +191,7 @@ def table_cases() -> list:
     return [pytest.param(folder.parent / script, folder,
                          id=f"{script.removesuffix('.py')}:{folder.relative_to(RESULTS)}")
             for script, patterns in (("fall_split.py", ("*/robust*/",)),
-                                     ("per_seed_rows.py", ("*/robust*/", "*/machine-check*/")))
+                                     ("per_seed_rows.py", ("*/robust*/", f"*/{MACHINE_CHECK}*/")))
             for pattern in patterns for folder in sorted(RESULTS.glob(pattern))
             if (folder.parent / script).is_file()]
 
@@ -206,6 +208,6 @@ def test_readme_tables_are_what_the_evaluations_give(script: Path, folder: Path)
     assert rows, f"{script.name} printed nothing for {folder}"
     readme = (folder.parent / "README.md").read_text()
     for row in rows:
-        if folder.name.startswith("machine-check"):
+        if folder.name.startswith(MACHINE_CHECK):
             row = row.split(" | ", 2)[2]
         assert row in readme, f"{folder.parent.name}/README.md lacks the {script.name} row {row!r}"

@@ -15,10 +15,9 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from sac_utils.stats import BASELINE, VERDICT_SE, verdict  # noqa: E402
+from sac_utils.stats import BASELINE, VERDICT_SE, fall_verdict, verdict  # noqa: E402
 
 ACTIONS = ("mode", "mean", "q_best")
-FALLS = {"ahead": "more", "behind": "fewer", "level": "level"}  # for falls, more is worse
 
 
 def distance(mean: float, se: float) -> str:
@@ -30,9 +29,8 @@ def judged(word: str) -> str:
     return word if word == "level" else f"**{word}**"
 
 
-def difference(mean: float, se: float, digits: int, words: dict[str, str] | None = None) -> str:
-    word = verdict(mean, se)
-    word = words[word] if words else word
+def difference(mean: float, se: float, digits: int, judge=verdict) -> tuple[str, str]:
+    word = judge(mean, se)
     return f"{mean:+.{digits}f} +- {se:.{digits}f}", f"{judged(word)}, {distance(mean, se)} SE"
 
 
@@ -60,7 +58,7 @@ for (seed, step), by in sorted(policies.items()):
         cells.append(f"{value} ({word})")
     mode = by["mode"]
     value, word = difference(float(mode["fell_difference_mean"]),
-                             float(mode["fell_difference_se"]), 2, FALLS)
+                             float(mode["fell_difference_se"]), 2, fall_verdict)
     cells.append(f"{mode['end_fell']} / {base['end_fell']} ({value}: {word})")
     cells.append(f"{mode['end_time_limit']} / {base['end_time_limit']}")
     print(f"| {seed} | {step / 1e6:g}M | " + " | ".join(cells) + " |")
