@@ -12,6 +12,7 @@ Standard errors from zero get a third digit within 0.1 of the line, where the ve
 
 import csv
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
@@ -29,7 +30,8 @@ def judged(word: str) -> str:
     return word if word == "level" else f"**{word}**"
 
 
-def difference(mean: float, se: float, digits: int, judge=verdict) -> tuple[str, str]:
+def difference(mean: float, se: float, digits: int,
+               judge: Callable[[float, float], str] = verdict) -> tuple[str, str]:
     word = judge(mean, se)
     return f"{mean:+.{digits}f} +- {se:.{digits}f}", f"{judged(word)}, {distance(mean, se)} SE"
 
