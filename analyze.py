@@ -87,6 +87,7 @@ from sac_utils.scores import (
     align,
     blowups_recorded,
     build_aggregate,
+    cpu_name,
     eval_suffix,
     group_name,
     group_rank,
@@ -746,15 +747,27 @@ def robust_over_tasks(report: Report, analysis: Analysis,
     return over, [*lines, markdown_table(["action", *OVER_TASKS_HEADER], table), ""]
 
 
+def robust_ticks(steps: dict[int, RobustStep]) -> list[str]:
+    """A task's ticks, one per step evaluated, in short lines: a campaign's ten steps side by
+    side must not run into each other. The CPU too where the steps were evaluated on more than
+    one kind (one draw of the episodes per kind)."""
+    machines = {at.machine for at in steps.values()}
+    return [f"{format_step(s)}\n{episodes_span(at.episodes)} starts\nx {at.episodes.size} seeds"
+            + (f"\n{at.machine or 'CPU n/r'}" if len(machines) > 1 else "")
+            for s, at in steps.items()]
+
+
 def robust_settings_lines(robust: Robust) -> list[str]:
     """summary.md's account of each --robust folder: where, episodes, reset noise, actions."""
     lines = []
     for folder, settings in robust.settings.items():
-        noise = settings.get("reset_noise")
+        noise, cpu = settings.get("reset_noise"), cpu_name(settings)
         lines.append(f"- `{folder}`: {len(settings['runs'])} runs, "
                      f"{settings.get('episodes', '?')} episodes per policy, reset noise "
                      f"{'the task' + chr(39) + 's own' if noise is None else f'+-{noise}'}, "
-                     f"actions {', '.join(settings.get('selectors', []))}")
+                     f"actions {', '.join(settings.get('selectors', []))}"
+                     + (f", on {cpu} ({settings['machine'].get('cores', '?')} cores)" if cpu
+                        else ""))
     return lines
 
 
@@ -809,9 +822,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     labels, colors = robust_labels_colors(robust.actions)
     rows = []
     for task, steps in by_task.items():
-        # Three short lines: a campaign's ten steps side by side must not run into each other.
-        ticks = [f"{format_step(s)}\n{episodes_span(at.episodes)} starts\nx {at.episodes.size} "
-                 "seeds" for s, at in steps.items()]
+        ticks = robust_ticks(steps)
         cells = {(i, a): PairedCell(d, estimates[f"{task}|{step}", a], t_interval(d),
                                     at.errors.get(a), seeds=at.seeds)
                  for i, (step, at) in enumerate(steps.items()) for a, d in at.differences.items()}

@@ -645,7 +645,7 @@ def load_robust(folders: Sequence[Path]) -> Robust:
     settings, frames = {}, []
     for folder in folders:
         settings[folder], rows = read_robust_folder(folder)
-        frames.append(rows)
+        frames.append(rows.assign(machine=cpu_name(settings[folder])))
     rows = pd.concat(frames, ignore_index=True)
     twice = rows[rows.duplicated(["env_id", "seed", "step", "selector"], keep=False)]
     if len(twice):
@@ -662,6 +662,17 @@ def load_robust(folders: Sequence[Path]) -> Robust:
     return Robust(rows, settings, actions)
 
 
+def cpu_name(settings: dict) -> str | None:
+    """The CPU an evaluation.json records, without trademarks and clock ("Intel Xeon"): on
+    another kind of CPU the same evaluation plays other draws of its episodes."""
+    machine = settings.get("machine")
+    cpu = machine.get("cpu") if isinstance(machine, dict) else None
+    if not isinstance(cpu, str) or not cpu.strip():
+        return None
+    words = cpu.replace("(R)", "").replace("(TM)", "").split("@")[0].split()
+    return " ".join(w for w in words if w not in ("Processor", "CPU")) or cpu.strip()
+
+
 @dataclasses.dataclass
 class RobustStep:
     """One task's robust evaluation at one step: per action, one value per seed (seed order)."""
@@ -675,6 +686,7 @@ class RobustStep:
     played: dict[str, int]  # each action's episodes over its seeds
     unstable: dict[str, int | None]  # of those, ended by a physics blow-up (None: not recorded)
     ends: dict[str, collections.Counter | None]  # how they ended (None: not recorded)
+    machine: str | None = None  # the CPU its evaluation.json records (None: not recorded)
 
 
 def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]]:
@@ -683,8 +695,9 @@ def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]
     reasons = [c for c in robust.rows.columns if c.startswith(ROBUST_END_PREFIX)]
     for (task, step), rows in robust.rows.groupby(["env_id", "step"], sort=False):
         baseline = rows[rows.selector == BASELINE]
+        machines = sorted(set(rows.machine.dropna()))
         at = RobustStep({}, {}, {}, {}, baseline.episodes.to_numpy(), baseline.seed.to_numpy(),
-                        {}, {}, {})
+                        {}, {}, {}, " + ".join(machines) if machines else None)
         for action, seeds in rows.groupby("selector", sort=False):
             at.returns[action] = seeds.return_mean.to_numpy()
             at.played[action] = int(seeds.episodes.sum())

@@ -1296,6 +1296,31 @@ def test_robust_task_without_a_bar_is_left_out_of_the_aggregate(tmp_path):
     assert "No success bar for Hopper-v5" in (out / "summary.md").read_text()
 
 
+def test_robust_ticks_name_the_cpu_only_where_a_task_changed_machine(tmp_path):
+    """On another kind of CPU an evaluation plays other draws of its episodes: a task whose steps
+    were evaluated on two kinds says which on each step's tick, and summary.md names each
+    folder's CPU where evaluation.json records it."""
+    machines = {500_000: "AMD EPYC", 1_000_000: "Intel(R) Xeon(R) Processor @ 2.80GHz"}
+    folders = []
+    for step, cpu in machines.items():
+        folders.append(tmp_path / f"robust-{step}")
+        write_robust_folder(folders[-1], ROBUST_TASKS, seeds=2, steps=(step,))
+        settings = json.loads((folders[-1] / "evaluation.json").read_text())
+        (folders[-1] / "evaluation.json").write_text(json.dumps(
+            {**settings, "machine": {"cpu": cpu, "cores": 2}}))
+    by_task = scores.robust_paired_differences(scores.load_robust(folders))
+    assert analyze.robust_ticks(by_task[ROBUST_TASKS[0]]) == [
+        "500k\n4 starts\nx 2 seeds\nAMD EPYC", "1M\n4 starts\nx 2 seeds\nIntel Xeon"]
+    one_kind = scores.robust_paired_differences(scores.load_robust(folders[:1]))
+    assert analyze.robust_ticks(one_kind[ROBUST_TASKS[0]]) == ["500k\n4 starts\nx 2 seeds"]
+    out = tmp_path / "out"
+    assert run_analysis(write_small_runs(tmp_path / "runs"), out, "--robust",
+                        *map(str, folders)) == 0
+    text = (out / "summary.md").read_text()
+    assert "actions mode, tanh_mu, mean, on AMD EPYC (2 cores)" in text
+    assert "on Intel Xeon (2 cores)" in text
+
+
 @pytest.mark.slow
 def test_robust_curve_leaves_out_a_task_evaluated_at_one_step(tmp_path):
     """A task whose final weights alone were evaluated (no snapshots) cannot join the robust
