@@ -66,10 +66,13 @@ class Args:
     episodes: int = 50
     """episodes per evaluation action"""
     seed: int = 0
-    """episode k of every action resets with a seed derived from (--seed, --eval-round, k)"""
+    """episode k of every action resets with a seed derived from (--seed, --eval-round, k); for a
+    folder of runs, from (the run's own seed, --eval-round, k), and --seed seeds only the
+    bootstrap intervals"""
     eval_round: int = 0
     """with a run's seed, its evaluation round N gives the same start states as the run's
-    N-th evaluation (0, the default, is a round no training run evaluates)"""
+    N-th evaluation (0, the default, is a round no training run evaluates; so is a large N, for
+    other starts)"""
     solver: Literal["exact", "grid"] = "exact"
     """how to find the mode (mode_search.py)"""
     reset_noise: float | None = None

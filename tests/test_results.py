@@ -27,8 +27,9 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "results"
 FLOAT_COLUMNS = ("estimate", "ci_low", "ci_high")
 RTOL = 1e-9
-# A robust evaluation repeated on another kind of CPU: no report reads it (its million is there).
-MACHINE_CHECK = "machine-check"
+# A robust evaluation repeated, on another kind of CPU (machine-check*/) or from other starts
+# (recheck*/): no report reads it (its million is there).
+REPEATS = ("machine-check", "recheck")
 
 
 def campaigns() -> list[Path]:
@@ -137,9 +138,11 @@ def test_report_reproduces_from_the_committed_runs(campaign: Path, report: str,
 
 def robust_cases() -> list:
     """Every committed robust evaluation (evaluate.py over a campaign's runs): its folder. A
-    machine-check*/ folder is one evaluated again on another kind of CPU, which no report reads."""
+    machine-check*/ or recheck*/ folder is a million evaluated again (REPEATS), which no report
+    reads."""
     return [pytest.param(folder.parent, id=str(folder.parent.relative_to(RESULTS)))
-            for pattern in ("*/robust*/evaluation.json", f"*/{MACHINE_CHECK}*/evaluation.json")
+            for pattern in ("*/robust*/evaluation.json",
+                            *(f"*/{repeat}*/evaluation.json" for repeat in REPEATS))
             for folder in sorted(RESULTS.glob(pattern))]
 
 
@@ -177,8 +180,8 @@ def test_robust_summary_reproduces_from_the_committed_episodes(folder: Path,
     readme = (folder.parent / "README.md").read_text()
     assert " ".join(settings["command"][1:]) in readme, "the README must give the command"
     # Its numbers across seeds are a report's: its campaign's report reads it with --robust
-    # (a machine check repeats a million the report has).
-    if not folder.name.startswith(MACHINE_CHECK):
+    # (a repeat evaluates a million the report has).
+    if not folder.name.startswith(REPEATS):
         assert any(str(folder.relative_to(ROOT)) in spec["args"]
                    for spec in reports_of(folder.parent).values()), (
             f"no report of {folder.parent.name} reads {folder.name} with --robust")
@@ -187,11 +190,12 @@ def test_robust_summary_reproduces_from_the_committed_episodes(folder: Path,
 def table_cases() -> list:
     """A campaign's table printers with each evaluation they read: fall_split.py's rows (where
     the differences are) for each robust*/ folder, per_seed_rows.py's (the per-seed table) for
-    each robust*/ and machine-check*/ folder."""
+    each robust*/ folder and each repeat (REPEATS)."""
     return [pytest.param(folder.parent / script, folder,
                          id=f"{script.removesuffix('.py')}:{folder.relative_to(RESULTS)}")
             for script, patterns in (("fall_split.py", ("*/robust*/",)),
-                                     ("per_seed_rows.py", ("*/robust*/", f"*/{MACHINE_CHECK}*/")))
+                                     ("per_seed_rows.py",
+                                      ("*/robust*/", *(f"*/{repeat}*/" for repeat in REPEATS))))
             for pattern in patterns for folder in sorted(RESULTS.glob(pattern))
             if (folder.parent / script).is_file()]
 
@@ -199,8 +203,8 @@ def table_cases() -> list:
 @pytest.mark.parametrize(("script", "folder"), table_cases())
 def test_readme_tables_are_what_the_evaluations_give(script: Path, folder: Path) -> None:
     """The script, run on the folder, prints rows the campaign's README holds: its numbers are
-    the script's. A machine check's rows stand beside the same million's, with the machine in
-    place of the step, so from their third cell on."""
+    the script's. A repeat's rows stand beside the same million's, with the machine or the starts
+    in place of the step, so from their third cell on."""
     result = subprocess.run([sys.executable, str(script), str(folder)],
                             cwd=ROOT, capture_output=True, text=True)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -208,6 +212,6 @@ def test_readme_tables_are_what_the_evaluations_give(script: Path, folder: Path)
     assert rows, f"{script.name} printed nothing for {folder}"
     readme = (folder.parent / "README.md").read_text()
     for row in rows:
-        if folder.name.startswith(MACHINE_CHECK):
+        if folder.name.startswith(REPEATS):
             row = row.split(" | ", 2)[2]
         assert row in readme, f"{folder.parent.name}/README.md lacks the {script.name} row {row!r}"
