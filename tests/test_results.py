@@ -30,6 +30,8 @@ RTOL = 1e-9
 # A robust evaluation repeated, on another kind of CPU (machine-check*/) or from other starts
 # (recheck*/): no report reads it (its million is there).
 REPEATS = ("machine-check", "recheck")
+# Every evaluation folder's name begins with one of these.
+EVALUATIONS = ("robust", *REPEATS)
 
 
 def campaigns() -> list[Path]:
@@ -141,9 +143,8 @@ def robust_cases() -> list:
     machine-check*/ or recheck*/ folder is a million evaluated again (REPEATS), which no report
     reads."""
     return [pytest.param(folder.parent, id=str(folder.parent.relative_to(RESULTS)))
-            for pattern in ("*/robust*/evaluation.json",
-                            *(f"*/{repeat}*/evaluation.json" for repeat in REPEATS))
-            for folder in sorted(RESULTS.glob(pattern))]
+            for prefix in EVALUATIONS
+            for folder in sorted(RESULTS.glob(f"*/{prefix}*/evaluation.json"))]
 
 
 @pytest.mark.parametrize("folder", robust_cases())
@@ -194,8 +195,7 @@ def table_cases() -> list:
     return [pytest.param(folder.parent / script, folder,
                          id=f"{script.removesuffix('.py')}:{folder.relative_to(RESULTS)}")
             for script, patterns in (("fall_split.py", ("*/robust*/",)),
-                                     ("per_seed_rows.py",
-                                      ("*/robust*/", *(f"*/{repeat}*/" for repeat in REPEATS))))
+                                     ("per_seed_rows.py", tuple(f"*/{p}*/" for p in EVALUATIONS)))
             for pattern in patterns for folder in sorted(RESULTS.glob(pattern))
             if (folder.parent / script).is_file()]
 
