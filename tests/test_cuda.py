@@ -81,7 +81,7 @@ def test_graph_update_agrees_with_eager(buffer_device):
 
 def test_compiled_update_in_a_graph_agrees_with_eager():
     """The scripts' default on a GPU: the compiled update, captured in a CUDA graph. Kernels
-    fused differently round differently: close, not equal (tolerance not yet run on a GPU)."""
+    fused differently round differently: close, not equal (passed on an H200, 2026-11-30)."""
     eager, eager_actor = losses_over_updates(False, CUDA, updates=100)
     compiled, compiled_actor = losses_over_updates(True, CUDA, updates=100, compiled=True)
     torch.testing.assert_close(compiled, eager, rtol=1e-3, atol=1e-3)
