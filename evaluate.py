@@ -71,8 +71,8 @@ class Args:
     bootstrap intervals"""
     eval_round: int = 0
     """with a run's seed, its evaluation round N gives the same start states as the run's
-    N-th evaluation (0, the default, is a round no training run evaluates; so is a large N, for
-    other starts)"""
+    N-th evaluation (0, the default, is a round no training run evaluates; so is any N above the
+    run's number of rounds, for other starts)"""
     solver: Literal["exact", "grid"] = "exact"
     """how to find the mode (mode_search.py)"""
     reset_noise: float | None = None
