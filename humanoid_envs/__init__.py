@@ -30,3 +30,7 @@ ENVS = {
 for _env_id, (_entry_point, _episode_steps) in ENVS.items():
     if _env_id not in gym.registry:
         gym.register(id=_env_id, entry_point=_entry_point, max_episode_steps=_episode_steps)
+
+# HumanoidBench's own scenes of cube and powerlift (h1hand-<task>-hbscene-v0), loaded from the
+# checkout $HUMANOIDBENCH names when made.
+from humanoid_envs import humanoidbench_scene  # noqa: E402,F401

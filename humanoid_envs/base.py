@@ -7,6 +7,8 @@ else: compiling the scene, the action -> control map, the physics loop, physics 
 rendering.
 """
 
+from __future__ import annotations
+
 import math
 from typing import Any
 

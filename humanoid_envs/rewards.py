@@ -1,6 +1,8 @@
 """The one tolerance function every reward is built from (dm_control's `rewards.tolerance`),
 and the three terms HumanoidBench's h1hand tasks share."""
 
+from __future__ import annotations
+
 import math
 
 import numpy as np

@@ -4,6 +4,8 @@ simple: always the trophy, book_c, chalk, book_e, book_b, to the goals in order;
 the twelve objects drawn without replacement, and the goals permuted, every episode.
 """
 
+from __future__ import annotations
+
 import math
 from typing import Any, NamedTuple
 

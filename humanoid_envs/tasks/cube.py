@@ -1,5 +1,7 @@
 """cube: hold a cube on each palm and turn both to the target cube's orientation."""
 
+from __future__ import annotations
+
 import math
 from typing import Any
 

@@ -1,5 +1,7 @@
 """powerlift: lift a 104 kg dumbbell from the floor above the head."""
 
+from __future__ import annotations
+
 from typing import Any
 
 import mujoco

@@ -1,5 +1,7 @@
 """stand: keep standing still (not in the paper; a small task for quick learning checks)."""
 
+from __future__ import annotations
+
 from typing import Any
 
 from humanoid_envs import rewards
