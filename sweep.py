@@ -66,20 +66,24 @@ ROOT = Path(__file__).resolve().parent
 PAPER_ENV_IDS = ("h1hand-powerlift-v0", "h1hand-cube-v0", "h1hand-bookshelf_simple-v0",
                  "h1hand-bookshelf_hard-v0")
 CLASSIC_ENV_IDS = ("Hopper-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
+# The standard suite as the published SACs report it (SAC's paper, SB3 / RL Zoo, CleanRL).
+SUITE_ENV_IDS = ("Hopper-v5", "HalfCheetah-v5", "Walker2d-v5", "Ant-v5", "Humanoid-v5")
 PAPER_SEEDS = (0, 1, 2, 3, 4)
 DEFAULT_SCRIPTS = ("sac_standard.py", "sac_corrected.py")
 
 
 @dataclass(frozen=True)
 class Preset:
-    """A named grid. The scripts' defaults are the paper's protocol, so a preset adds no
-    arguments beyond a step budget for some env ids (the others get the script's 10M)."""
+    """A named grid. The scripts' defaults are the paper's protocol, so a preset adds a step
+    budget for some env ids (the others get the script's 10M) and, where it runs another
+    protocol, the flags that make it (`run_args`, before those after `--`, which win)."""
 
     env_ids: tuple[str, ...]
     seeds: tuple[int, ...]
     scripts: tuple[str, ...]
     total_timesteps: dict[str, int]
     why: str
+    run_args: tuple[str, ...] = ()
 
 
 ONE_RUN_IS_BOTH = ("sac_corrected.py only: each run's paired tanh(mu) evaluation is the "
@@ -92,6 +96,15 @@ PRESETS = {
         (*CLASSIC_ENV_IDS, *PAPER_ENV_IDS), PAPER_SEEDS, ("sac_corrected.py",),
         dict.fromkeys(CLASSIC_ENV_IDS, 1_000_000),
         ONE_RUN_IS_BOTH + "; classic tasks 1M steps each, h1hand tasks the paper's 10M"),
+    # The published SACs' setting (the SAC paper's, as SB3's RL Zoo runs MuJoCo): batch 256 and
+    # target entropy -|A| where HumanoidBench's defaults have 64 and -|A|/2; the rest (3e-4,
+    # one update per step, 10k random steps, a 1M buffer, 256x256) the scripts' defaults.
+    "classic": Preset(
+        SUITE_ENV_IDS, PAPER_SEEDS, ("sac_corrected.py",),
+        dict.fromkeys(SUITE_ENV_IDS, 1_000_000),
+        ONE_RUN_IS_BOTH + "; 1M steps each, the published SACs' batch 256 and target entropy "
+        "-|A|, snapshots every 250k",
+        ("--batch-size", "256", "--target-entropy-scale", "1.0", "--snapshot-interval", "250000")),
 }
 # sweep.py sets these for every run itself; the same flags after `--` would contradict them.
 SWEEP_FLAGS = ("--env-id", "--seed", "--output-dir", "--run-name", "--resume",
@@ -114,10 +127,12 @@ class Args:
     scripts: list[str] = field(default_factory=list)
     """training scripts of the grid (paths, or names of the project's scripts; default: both, or
     the preset's)"""
-    preset: Literal["paper", "dimensions"] | None = None
+    preset: Literal["paper", "dimensions", "classic"] | None = None
     """`paper`: four h1hand tasks, seeds 0-4, sac_corrected.py (its paired columns are the
     standard runs); `dimensions`: the same on Hopper, HalfCheetah, Ant, Humanoid (3-17 action
-    dims, 1M steps) and the h1hand tasks (61); --env-ids/--seeds/--scripts override"""
+    dims, 1M steps) and the h1hand tasks (61); `classic`: Hopper, HalfCheetah, Walker2d, Ant and
+    Humanoid, seeds 0-4, 1M steps, with the published SACs' batch 256 and target entropy -|A|;
+    --env-ids/--seeds/--scripts override"""
     output_dir: str = "runs"
     """folder that holds one folder per run"""
     launcher: Literal["local", "slurm"] = "local"
@@ -247,6 +262,7 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     scripts = [resolve_script(script) for script in dict.fromkeys(args.scripts or preset.scripts)]
     check_env_ids(env_ids)
     run_args, eval_workers = split_eval_workers(extra_args)
+    run_args = with_preset_args(preset.run_args, run_args)
     output_dir = Path(args.output_dir).resolve()
     entity = ("--wandb-entity", args.wandb_entity) if args.wandb_entity else ()
     tracking = ("--track", "--wandb-project-name", args.wandb_project_name, *entity) \
@@ -284,6 +300,17 @@ def check_ranges(args: Args) -> None:
     )
     if message := broken_rule(args, rules):
         raise SweepError(message)
+
+
+def with_preset_args(preset_args: tuple[str, ...], run_args: tuple[str, ...]) -> tuple[str, ...]:
+    """The preset's flags, less those the arguments after `--` give too, then those arguments."""
+    given = {arg.partition("=")[0] for arg in run_args if arg.startswith("--")}
+    kept, i = [], 0
+    while i < len(preset_args):  # the preset's flags each take one value: "--flag value"
+        if preset_args[i] not in given:
+            kept += preset_args[i : i + 2]
+        i += 2
+    return (*kept, *run_args)
 
 
 def given_total_timesteps(extra_args: tuple[str, ...]) -> str | None:
@@ -508,6 +535,8 @@ def print_plan(runs: list[Run], states: dict[Run, str], args: Args,
     print(f"output folder: {runs[0].output_dir}")
     if args.preset and not args.scripts:
         print(f"preset {args.preset}: {PRESETS[args.preset].why}")
+    if args.preset and PRESETS[args.preset].run_args:
+        print(f"each run also gets: {shlex.join(runs[0].extra_args)}")
     total = steps_left = longest = 0
     for run in runs:
         given = given_total_timesteps(run.extra_args)

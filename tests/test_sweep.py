@@ -317,6 +317,31 @@ def test_a_preset_with_per_env_budgets_accepts_its_own_runs(tmp_path):
         sweep_module.check_output_dir(grid("dimensions", "--total-timesteps", "5000"))
 
 
+def test_the_classic_preset_runs_the_published_sacs_setting(tmp_path):
+    """--preset classic: the five standard tasks x seeds 0-4, sac_corrected.py, 1M steps, batch
+    256, target entropy -|A|, snapshots every 250k; a flag after `--` replaces the preset's."""
+    import sweep as sweep_module
+
+    def grid(*extra: str) -> list:
+        args = sweep_module.Args(preset="classic", output_dir=str(tmp_path / "runs"))
+        return sweep_module.build_grid(args, extra)
+
+    runs = grid()
+    assert len(runs) == 25
+    assert {r.env_id for r in runs} == {"Hopper-v5", "HalfCheetah-v5", "Walker2d-v5", "Ant-v5",
+                                        "Humanoid-v5"}
+    assert {r.seed for r in runs} == {0, 1, 2, 3, 4}
+    assert {r.script.name for r in runs} == {"sac_corrected.py"}
+    assert {r.extra_args for r in runs} == {(
+        "--total-timesteps", "1000000", "--batch-size", "256", "--target-entropy-scale", "1.0",
+        "--snapshot-interval", "250000")}
+    mine = grid("--batch-size", "64", "--eval-interval", "5000")[0].extra_args
+    assert mine == ("--total-timesteps", "1000000", "--target-entropy-scale", "1.0",
+                    "--snapshot-interval", "250000", "--batch-size", "64", "--eval-interval",
+                    "5000")
+    assert grid("--total-timesteps", "2000")[0].extra_args[-2:] == ("--total-timesteps", "2000")
+
+
 # ----------------------------------------------------------------------------- bad input
 @pytest.mark.parametrize(("args", "message"), [
     (["--env-ids", "Pendulum-v1", "--seeds", "0", "--scripts", "sac_nope.py"],
