@@ -102,7 +102,7 @@ class Args:
     cudagraphs: bool = True
     """on CUDA: replay the update and the training action as CUDA graphs"""
     gpu_buffer: bool = True
-    """on CUDA: keep the replay buffer in GPU memory (2.5 GB per 1M h1hand transitions)"""
+    """on CUDA: keep the replay buffer in GPU memory (1.6-2.7 GB per 1M h1hand transitions)"""
     torch_threads: int = 1
     """torch CPU threads (1 is fastest for batch 64 on small CPUs; see docs/speed.md)"""
     capture_video: bool = False
