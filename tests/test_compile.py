@@ -25,10 +25,12 @@ TINY = ["--env-id", "Pendulum-v1", "--seed", "5", "--total-timesteps", "1200",
         "--learning-starts", "300", "--eval-interval", "400", "--eval-episodes", "2",
         "--hidden-sizes", "32", "32", "--batch-size", "32", "--log-interval", "100",
         "--print-interval", "1200", "--checkpoint-interval", "600", "--eval-workers", "0"]
-# Compiled and eager runs of the same seed: equal up to the rounding of differently fused
-# kernels. Measured here over these runs' 900 updates: losses at most 8e-6 apart (5e-7
-# relative); the tolerances leave ~100x of room.
-RUN_RTOL, RUN_ATOL = 1e-4, 1e-3
+# Compiled and eager runs of the same seed: equal up to rounding, which the run's feedback
+# (batches of its own actions) amplifies. Since issue 87 the eager path is the textbook update
+# (fused torch.optim.Adam), the compiled one torch.func's gradients and foreach Adam: measured
+# over these runs (300 eager updates, then 600 compiled, against 900 compiled), losses at most
+# 0.57% apart by the end (2e-5 after the first 100). The tolerances leave ~3x of room.
+RUN_RTOL, RUN_ATOL = 2e-2, 5e-2
 LOSSES = ("qf1_loss", "qf2_loss", "qf1_value", "qf2_value", "actor_loss", "alpha", "alpha_loss",
           "entropy")
 
