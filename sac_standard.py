@@ -16,16 +16,15 @@ import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn as nn
-from torch.func import functional_call
+import torch.nn.functional as F
 
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
 
 # Not the algorithm (docs/scripts.md), from sac_utils/: cli (bad input), run_folder (RunFolder: the
-# folder, logs, evaluation rounds, checkpoints; with checkpoints), speedups (compile, CUDA graphs).
-from sac_utils import cli
+# folder, logs, evaluation rounds, checkpoints), speedups (torch.compile, CUDA graphs).
+from sac_utils import cli, speedups
 from sac_utils.checkpoints import EpisodeRecord
 from sac_utils.run_folder import RunFolder, StopRequest
-from sac_utils.speedups import ReLU, adam_state, adam_step, compile_at_start, cuda_graph, grad
 
 ALGORITHM = "standard"
 
@@ -39,7 +38,7 @@ class Args:
     total_timesteps: int = 10_000_000
     """total environment steps of the run"""
     buffer_size: int = 1_000_000
-    """the replay buffer size (observations stored, about one per transition)"""
+    """the replay buffer size (transitions; each stores its observation and next observation)"""
     gamma: float = 0.99
     """the discount factor gamma"""
     tau: float = 0.005
@@ -96,11 +95,12 @@ class Args:
     cuda: bool = True
     """use a CUDA GPU if there is one"""
     compile: bool = True
-    """torch.compile the update and the acting at start-up (~1.6x faster on a CPU; needs g++)"""
+    """torch.compile the acting and the update (the same losses, their gradients and Adam's step
+    in one graph: sac_utils/speedups.py) at start-up (faster on a CPU; needs g++)"""
     cudagraphs: bool = True
     """on CUDA: replay the update and the training action as CUDA graphs"""
     gpu_buffer: bool = True
-    """on CUDA: keep the replay buffer in GPU memory (1.2 GB per 1M h1hand observations)"""
+    """on CUDA: keep the replay buffer in GPU memory (1.6-2.7 GB per 1M h1hand transitions)"""
     torch_threads: int = 1
     """torch CPU threads (1 is fastest for batch 64 on small CPUs; see docs/speed.md)"""
     capture_video: bool = False
@@ -142,34 +142,21 @@ def make_vector_env(env_id: str) -> gym.vector.VectorEnv:
                                     autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
 
 
-class Linear(nn.Module):
-    """nn.Linear with its weight stored (in, out), not (out, in): no transpose in the matmul,
-    whose forward and backward are then ~20% cheaper on a CPU (bench/bench_sac.py)."""
-
-    def __init__(self, in_features: int, out_features: int):
-        super().__init__()
-        self.weight = nn.Parameter(torch.empty(in_features, out_features))
-        self.bias = nn.Parameter(torch.zeros(out_features))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        # bmm, not addmm: compiled, inductor sums a one-output layer's gradient in another order
-        # for mm, and runs made before issue 37 would no longer be reproduced bit for bit.
-        return torch.baddbmm(self.bias, x[None], self.weight[None])[0]
-
-
 def mlp(sizes: tuple[int, ...]) -> nn.Sequential:
-    """An MLP with ReLU (speedups.ReLU: torch.relu, faster compiled) between layers, not after."""
-    layers = [m for i, o in zip(sizes, sizes[1:], strict=False) for m in (Linear(i, o), ReLU())]
+    """Linear layers with a ReLU between each two, none after the last."""
+    layers = [m for i, o in zip(sizes, sizes[1:], strict=False) for m in (nn.Linear(i, o),
+                                                                           nn.ReLU())]
     return nn.Sequential(*layers[:-1])
 
 
 def init_glorot(module: nn.Module, generator: torch.Generator | None) -> None:
-    """Glorot-uniform weights on every layer, output heads included (Linear's biases start at
-    zero): HumanoidBench's jaxrl_m networks (flax's variance_scaling(1, "fan_avg", "uniform")),
-    not PyTorch's default."""
+    """Glorot-uniform weights and zero biases on every layer, output heads included:
+    HumanoidBench's jaxrl_m networks (flax's variance_scaling(1, "fan_avg", "uniform")), not
+    PyTorch's default."""
     for layer in module.modules():
-        if isinstance(layer, Linear):
+        if isinstance(layer, nn.Linear):
             nn.init.xavier_uniform_(layer.weight, generator=generator)
+            nn.init.zeros_(layer.bias)
 
 
 class Actor(nn.Module):
@@ -177,9 +164,9 @@ class Actor(nn.Module):
                  log_std_min: float, log_std_max: float, generator: torch.Generator | None = None):
         super().__init__()
         sizes, action_dim = (obs_dim, *hidden), int(np.prod(action_space.shape))
-        self.trunk = nn.Sequential(*mlp(sizes), ReLU())
-        self.fc_mean = Linear(sizes[-1], action_dim)
-        self.fc_logstd = Linear(sizes[-1], action_dim)
+        self.trunk = nn.Sequential(*mlp(sizes), nn.ReLU())
+        self.fc_mean = nn.Linear(sizes[-1], action_dim)
+        self.fc_logstd = nn.Linear(sizes[-1], action_dim)
         low, high = (torch.as_tensor(b, dtype=torch.float32) for b in (action_space.low,
                                                                       action_space.high))
         self.register_buffer("action_scale", (high - low) / 2)
@@ -194,12 +181,12 @@ class Actor(nn.Module):
 
     def squash(self, mu: torch.Tensor, log_std: torch.Tensor,
                noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The sample scale * tanh(u) + bias, u = mu + sigma * noise, and its log-density."""
+        """The sample scale * tanh(u) + bias, u = mu + sigma * noise (reparameterized: the noise
+        is drawn outside, so that every path draws the same numbers), and its log-density."""
         u = mu + noise * log_std.exp()
         # log N(u) - log|d tanh(u)/du| - log(scale), with the stable form of log(1 - tanh(u)^2).
         log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * np.log(2 * np.pi)
-                    - 2 * (np.log(2) - u - nn.functional.softplus(-2 * u))
-                    - self.action_scale.log())
+                    - 2 * (np.log(2) - u - F.softplus(-2 * u)) - self.action_scale.log())
         return self.scale(torch.tanh(u)), log_prob.sum(-1)
 
     def scale(self, y: torch.Tensor) -> torch.Tensor:
@@ -208,7 +195,7 @@ class Actor(nn.Module):
 
 
 class TwinQ(nn.Module):
-    """The twin critics Q1 and Q2, two MLPs (one batched matmul measured no faster on a CPU)."""
+    """The twin critics Q1 and Q2, two MLPs in one module."""
 
     def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...],
                  generator: torch.Generator | None = None):
@@ -223,13 +210,11 @@ class TwinQ(nn.Module):
 
 
 class ReplayBuffer:
-    """The replay buffer, float32 tensors on `device`, each observation stored once: slot i's
-    next observation is in slot i + 1. An episode's last transition is followed by a slot that
-    holds only its final observation (never sampled): a truncated episode bootstraps from its
-    true final observation, and no transition spans a reset."""
+    """CleanRL's replay buffer, as float32 tensors on `device`: each transition with its
+    observation and next observation (a truncated episode's is its true final one), a ring of
+    `size` transitions, batches drawn uniformly over those stored."""
 
-    DRAWS_PER_ROW = 16  # slots drawn per batch row (see sample)
-    ARRAYS = ("obs", "actions", "rewards", "terminated", "valid")  # what a checkpoint keeps
+    ARRAYS = ("obs", "actions", "rewards", "next_obs", "terminated")  # what a checkpoint keeps
 
     def __init__(self, size: int, obs_dim: int, action_dim: int, device: torch.device):
         self.size, self.obs_dim, self.action_dim = size, obs_dim, action_dim
@@ -237,98 +222,91 @@ class ReplayBuffer:
         self.obs = torch.zeros((size, obs_dim), device=device)
         self.actions = torch.zeros((size, action_dim), device=device)
         self.rewards = torch.zeros(size, device=device)
+        self.next_obs = torch.zeros((size, obs_dim), device=device)
         self.terminated = torch.zeros(size, device=device)
-        self.valid = torch.zeros(size, dtype=torch.bool, device=device)  # holds a transition
 
     def add(self, obs: np.ndarray, action: np.ndarray, reward: float, terminated: bool,
-            next_obs: np.ndarray, episode_end: bool, blow_up: bool = False) -> None:
-        """One transition, in one copy to the buffer's device. A `blow_up` one (a physics
-        blow-up, reporting the previous observation) is not stored: its episode ends at the slot
-        of that observation, the last it reached soundly."""
-        i, j = self.ptr, (self.ptr + 1) % self.size
-        if blow_up:  # rare
-            self.ptr = j if self.valid[(i - 1) % self.size] else i
-            return
+            next_obs: np.ndarray) -> None:
+        """One transition, in one copy to the buffer's device."""
         packed = torch.as_tensor(np.concatenate([obs, action, [reward, terminated], next_obs],
                                                 dtype=np.float32)).to(self.obs.device)
         o, a, r, t, n = packed.split([self.obs_dim, self.action_dim, 1, 1, self.obs_dim])
-        self.obs[i], self.actions[i], self.rewards[i], self.terminated[i] = o, a, r[0], t[0]
-        self.valid[i] = True
-        self.obs[j], self.valid[j] = n, False
-        self.ptr = (j + 1) % self.size if episode_end else j
-        self.filled = self.size if j == 0 else max(self.filled, j + 1)
+        i = self.ptr
+        self.obs[i], self.actions[i], self.rewards[i], self.next_obs[i] = o, a, r[0], n
+        self.terminated[i] = t[0]
+        self.ptr, self.filled = (i + 1) % self.size, min(self.filled + 1, self.size)
 
     def sample(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
-        """Uniform over the stored transitions: obs, actions, rewards, next_obs, 1 - terminated.
-        Each row keeps the first of DRAWS_PER_ROW random slots that holds a transition (no
-        data-dependent loop, no host sync on a GPU); if none does (probability (episodes /
-        slots)^16), the slot before, that episode's last transition."""
-        slots = torch.randint(2**62, (self.DRAWS_PER_ROW, batch_size),
-                              device=self.obs.device) % self.filled
-        first = self.valid[slots].byte().argmax(0)  # argmax returns the first maximum
-        idx = slots.gather(0, first[None])[0]
-        idx = torch.where(self.valid[idx], idx, (idx - 1) % self.size)
-        batch = (self.obs[idx], self.actions[idx], self.rewards[idx],
-                 self.obs[(idx + 1) % self.size], 1 - self.terminated[idx])
+        """A batch of stored transitions, uniformly with replacement: obs, actions, rewards,
+        next_obs, 1 - terminated."""
+        idx = torch.randint(self.filled, (batch_size,), device=self.obs.device)
+        batch = (self.obs[idx], self.actions[idx], self.rewards[idx], self.next_obs[idx],
+                 1 - self.terminated[idx])
         return tuple(t.to(device, non_blocking=True) for t in batch)
 
-    def zero_batch(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
-        """A batch shaped as sample()'s, all zeros (for a first call that must not learn)."""
-        return tuple(torch.zeros((batch_size, *shape), device=device) for shape in (
-            (self.obs_dim,), (self.action_dim,), (), (self.obs_dim,), ()))
+
+# The losses, written once: sac_update steps them as PyTorch users do; the compiled path
+# (speedups.compiled_update) takes the same functions' gradients in one graph.
 
 
-def sac_losses(params: tuple[dict, dict, torch.Tensor], qf_target_params: dict,
-               batch: tuple[torch.Tensor, ...], noise: torch.Tensor, actor: Actor, qf: TwinQ,
-               gamma: float, target_entropy: float) -> tuple[torch.Tensor, tuple]:
-    """The critic, actor and temperature losses, summed: the critics' parameters get the critic
-    loss's gradient (the actor loss sees them detached), the actor's the actor loss's, log alpha
-    the temperature loss's. noise: (2, batch, A). Also returns what train.csv logs."""
-    # functional_call runs an nn.Module on the parameters given here, which grad differentiates.
-    actor_params, qf_params, log_alpha = params
-
-    def policy(obs: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return actor.squash(*functional_call(actor, actor_params, obs), noise)
-
-    def q(params: dict, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        return functional_call(qf, params, (obs, action))
-
-    b_obs, b_actions, b_rewards, b_next_obs, b_not_done = batch
-    alpha = log_alpha.exp().detach()
+def critic_loss(qf: TwinQ, qf_target: TwinQ, actor: Actor, alpha: torch.Tensor,
+                batch: tuple[torch.Tensor, ...], noise: torch.Tensor,
+                gamma: float) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+    """Q1's and Q2's mean squared TD errors, summed, against the soft target: the reward plus
+    the discounted min of the target critics at the next state and the policy's next action,
+    entropy bonus included. Also returns each critic's loss and Q values, (2,) and (2, batch)."""
+    obs, actions, rewards, next_obs, not_done = batch
     with torch.no_grad():
-        next_actions, next_log_pi = policy(b_next_obs, noise[0])
-        min_qf_next = q(qf_target_params, b_next_obs, next_actions).min(0).values
-        next_q_value = b_rewards + b_not_done * gamma * (min_qf_next - alpha * next_log_pi)
-    qf_values = q(qf_params, b_obs, b_actions)
+        next_actions, next_log_pi = actor.squash(*actor(next_obs), noise)
+        min_qf_next = qf_target(next_obs, next_actions).min(0).values
+        next_q_value = rewards + not_done * gamma * (min_qf_next - alpha * next_log_pi)
+    qf_values = qf(obs, actions)
     qf_losses = (qf_values - next_q_value).pow(2).mean(-1)
-    pi, log_pi = policy(b_obs, noise[1])
-    frozen_qf = {name: p.detach() for name, p in qf_params.items()}
-    actor_loss = (alpha * log_pi - q(frozen_qf, b_obs, pi).min(0).values).mean()
-    alpha_loss = -(log_alpha.exp() * (log_pi.detach() + target_entropy)).mean()
-    total = qf_losses.sum() + actor_loss + alpha_loss
-    return total, (qf_losses, qf_values, actor_loss, alpha, alpha_loss, log_pi)
+    return qf_losses.sum(), (qf_losses, qf_values)
 
 
-@torch.no_grad()  # grad turns gradients on for the losses alone
-def sac_update(tensors: dict, batch: tuple[torch.Tensor, ...], noise: torch.Tensor,
-               actor: Actor, qf: TwinQ, gamma: float, tau: float,
+def actor_loss(actor: Actor, qf: TwinQ, alpha: torch.Tensor, obs: torch.Tensor,
+               noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """alpha * log pi - min(Q1, Q2) at the policy's own actions, and their log pi."""
+    pi, log_pi = actor.squash(*actor(obs), noise)
+    return (alpha * log_pi - qf(obs, pi).min(0).values).mean(), log_pi
+
+
+def alpha_loss(log_alpha: torch.Tensor, log_pi: torch.Tensor,
+               target_entropy: float) -> torch.Tensor:
+    """The temperature's loss: alpha rises while the policy's entropy is below the target."""
+    return -(log_alpha.exp() * (log_pi.detach() + target_entropy)).mean()
+
+
+def sac_update(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.Tensor,
+               optimizers: tuple[torch.optim.Optimizer, ...], batch: tuple[torch.Tensor, ...],
+               noise: torch.Tensor, gamma: float, tau: float,
                target_entropy: float) -> tuple[torch.Tensor, ...]:
-    """One gradient step of the critics, actor and temperature, and the critics' Polyak-averaged
-    targets, in place on `tensors` (agent_tensors): tensors in, so that it
-    compiles whole, once. As HumanoidBench's jaxrl_m, all three losses use the parameters from
-    before this update, and the target moves towards that critic. Returns train.csv's logs."""
-    params = (tensors["actor"], tensors["qf"], tensors["log_alpha"])
-    # grad: torch.func.grad's (sac_utils/speedups.py: torch.autograd's when not compiled, the same
-    # numbers).
-    grads, logs = grad(sac_losses)(params, tensors["qf_target"], batch, noise, actor, qf, gamma,
-                                   target_entropy)
-    torch._foreach_lerp_(list(tensors["qf_target"].values()), list(tensors["qf"].values()), tau)
-    for p, g, state in zip(params, grads, tensors["adam"], strict=True):
-        if isinstance(p, dict):
-            adam_step(list(p.values()), list(g.values()), state)
-        else:
-            adam_step([p], [g], state)
-    return logs
+    """One gradient step of the critics, the actor and the temperature, and the Polyak step of
+    the target critics. As HumanoidBench's jaxrl_m: all three losses from the parameters before
+    this update (the actor scored by the critic before its step), the target moved towards that
+    critic. noise: (2, batch, A), the next action's and the action's. Returns train.csv's logs."""
+    actor_optimizer, q_optimizer, alpha_optimizer = optimizers
+    alpha = log_alpha.exp().detach()
+    qf_loss, (qf_losses, qf_values) = critic_loss(qf, qf_target, actor, alpha, batch, noise[0],
+                                                  gamma)
+    pi_loss, log_pi = actor_loss(actor, qf, alpha, batch[0], noise[1])
+    temperature_loss = alpha_loss(log_alpha, log_pi, target_entropy)
+
+    q_optimizer.zero_grad()
+    qf_loss.backward()
+    actor_optimizer.zero_grad()
+    pi_loss.backward(inputs=list(actor.parameters()))  # not into the critics that score it
+    alpha_optimizer.zero_grad()
+    temperature_loss.backward()
+    with torch.no_grad():  # before the critics' step
+        for param, target_param in zip(qf.parameters(), qf_target.parameters(), strict=True):
+            target_param.lerp_(param, tau)
+    q_optimizer.step()
+    actor_optimizer.step()
+    alpha_optimizer.step()
+    return (qf_losses.detach(), qf_values.detach(), pi_loss.detach(), alpha,
+            temperature_loss.detach(), log_pi.detach())
 
 
 def make_agent(args: Args, obs_dim: int, action_space: gym.spaces.Box,
@@ -341,23 +319,12 @@ def make_agent(args: Args, obs_dim: int, action_space: gym.spaces.Box,
                   generator).to(device)
     qf = TwinQ(obs_dim, action_space.shape[0], args.hidden_sizes, generator).to(device)
     log_alpha = torch.tensor(float(np.log(args.alpha_init)), device=device, requires_grad=True)
-    # The optimizers hold Adam's state (for checkpoints); sac_update steps it. fused: a loaded
-    # state_dict puts the step counts on the parameters' device, as a CUDA graph needs.
+    # fused: one kernel per step; capturable: step counts on the GPU, as a CUDA graph needs.
     adam = functools.partial(torch.optim.Adam, fused=True, capturable=device.type == "cuda")
     return {"actor": actor, "qf": qf, "qf_target": copy.deepcopy(qf), "log_alpha": log_alpha,
             "actor_optimizer": adam(actor.parameters(), lr=args.policy_lr),
             "q_optimizer": adam(qf.parameters(), lr=args.q_lr),
             "alpha_optimizer": adam([log_alpha], lr=args.alpha_lr)}
-
-
-def agent_tensors(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.Tensor,
-                  actor_optimizer: torch.optim.Optimizer, q_optimizer: torch.optim.Optimizer,
-                  alpha_optimizer: torch.optim.Optimizer) -> dict:
-    """What sac_update reads and changes, make_agent's own tensors (so an update changes them in
-    place; call this after a checkpoint's load, which replaces the optimizers' tensors)."""
-    return {"actor": dict(actor.named_parameters()), "qf": dict(qf.named_parameters()),
-            "qf_target": dict(qf_target.named_parameters()), "log_alpha": log_alpha,
-            "adam": [adam_state(o) for o in (actor_optimizer, q_optimizer, alpha_optimizer)]}
 
 
 def ends_without_bootstrap(terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
@@ -367,7 +334,8 @@ def ends_without_bootstrap(terminated: np.ndarray, truncated: np.ndarray) -> np.
 
 
 def physics_blow_up(info: dict, episode_end: bool) -> bool:
-    """Whether the env's last step was a physics blow-up (h1hand's info["physics_unstable"])."""
+    """Whether the env's last step was a physics blow-up (h1hand's info["physics_unstable"]):
+    its transition, which reports the previous observation, is not stored."""
     final = info.get("final_info", {})
     return episode_end and bool(final.get("physics_unstable", [False])[0])
 
@@ -391,29 +359,35 @@ if __name__ == "__main__":
     obs_dim, action_dim = envs.single_observation_space.shape[0], action_space.shape[0]
 
     agent = make_agent(args, obs_dim, action_space, device)
-    actor, qf = agent["actor"], agent["qf"]
+    actor, qf, qf_target, log_alpha = (agent[k] for k in ("actor", "qf", "qf_target",
+                                                          "log_alpha"))
+    optimizers = (agent["actor_optimizer"], agent["q_optimizer"], agent["alpha_optimizer"])
     target_entropy = -args.target_entropy_scale * action_dim
     rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim,
                       device if args.gpu_buffer else torch.device("cpu"))
-    global_step, obs = run.open(agent, rb, action_space, envs, device)  # fresh or resumed
 
-    # Acting: a sampled action from the observation and the noise, (1, obs) -> (1, A).
-    act = torch.no_grad()(lambda obs, noise: actor.squash(*actor(obs), noise)[0])
-    tensors = agent_tensors(**agent)
-    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=args.gamma, tau=args.tau,
-                               target_entropy=target_entropy)
+    run.open(obs_dim, action_dim, device)  # locked, checked, logs and evaluation workers open
+    obs, _ = envs.reset(seed=args.seed)
+    global_step, updates_from = 0, args.learning_starts
+    if run.resuming:  # the agent, buffer, random streams and episode under way of checkpoint.pt
+        global_step, obs, updates_from = run.resume(agent, rb, action_space, envs)
+
+    def act(obs: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+        """A sampled action, (1, obs) -> (1, A)."""
+        with torch.no_grad():
+            return actor.squash(*actor(obs), noise)[0]
+
+    update = functools.partial(sac_update, actor, qf, qf_target, log_alpha, optimizers,
+                               gamma=args.gamma, tau=args.tau, target_entropy=target_entropy)
     noise_shape = (2, args.batch_size, action_dim)  # the next action's and the action's
-    # Speed (sac_utils/speedups.py): both compiled whole at start-up and, on a GPU, replayed as CUDA
-    # graphs; the warm-up calls leave the agent as it was.
-    if args.compile:
-        act = compile_at_start(act, (torch.zeros((1, obs_dim), device=device),
-                                     torch.zeros((1, action_dim), device=device)), (), "acting")
-        update = compile_at_start(update, (tensors, rb.zero_batch(args.batch_size, device),
-                                           torch.zeros(noise_shape, device=device)),
-                                  tuple(agent.values()), "the update")
-    update = functools.partial(update, tensors)  # the agent's tensors change in place
-    if device.type == "cuda" and args.cudagraphs:
-        act, update = cuda_graph(act), cuda_graph(update, tuple(agent.values()))
+    if args.compile:  # the same losses, their gradients and Adam in one graph: speedups.py
+        act = speedups.compile_at_start(act, (torch.zeros((1, obs_dim), device=device),
+                                              torch.zeros((1, action_dim), device=device)))
+        update = speedups.compiled_update(agent, (critic_loss, actor_loss, alpha_loss),
+                                          args.gamma, args.tau, target_entropy,
+                                          (args.batch_size, obs_dim, action_dim), device)
+    if device.type == "cuda" and args.cudagraphs:  # one replay instead of ~300 kernel launches
+        act, update = speedups.cuda_graph(act), speedups.cuda_graph(update, agent.values())
 
     losses = None
     while global_step < args.total_timesteps:
@@ -428,12 +402,13 @@ if __name__ == "__main__":
         episode_end = bool(terminated[0] or truncated[0])
         # An ended episode's env has already reset: its final observation is in info.
         final_obs = info["final_obs"][0] if episode_end else next_obs[0]
-        rb.add(obs[0], action[0], reward[0], ends_without_bootstrap(terminated, truncated)[0],
-               final_obs, episode_end, physics_blow_up(info, episode_end))
+        if not physics_blow_up(info, episode_end):
+            rb.add(obs[0], action[0], reward[0],
+                   ends_without_bootstrap(terminated, truncated)[0], final_obs)
         obs = next_obs
         run.count_step(reward[0], episode_end)
 
-        if global_step >= run.updates_from:  # --learning-starts (later after a restart)
+        if global_step >= updates_from:  # --learning-starts (later after a restart)
             batch = rb.sample(args.batch_size, device)
             losses = update(batch, torch.randn(noise_shape, device=device))
 
@@ -445,7 +420,7 @@ if __name__ == "__main__":
         if global_step % args.print_interval == 0:
             run.print_progress(global_step)
         if args.snapshot_interval > 0 and global_step % args.snapshot_interval == 0:
-            run.save_snapshot(global_step, actor, qf, agent["log_alpha"])
+            run.save_snapshot(global_step, actor, qf, log_alpha)
         if stop.requested or (args.checkpoint_interval > 0
                               and global_step % args.checkpoint_interval == 0):
             run.checkpoint(global_step, agent, rb, action_space, envs, stop.requested)

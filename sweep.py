@@ -667,7 +667,7 @@ def main(argv: list[str]) -> int:
             return 0
         if argv[:1] == ["restart"]:
             given = tyro.cli(RestartArgs, args=argv[1:], prog="sweep.py restart")
-            from sac_utils.checkpoints import restart_from_snapshot  # torch: only here
+            from sac_utils.restart import restart_from_snapshot  # torch: only here
 
             record = restart_from_snapshot(Path(given.run_dir), given.refill)
             print(f"{given.run_dir}: checkpoint.pt written from {record['snapshot']}; the run "

@@ -36,7 +36,9 @@ import sac_standard  # noqa: E402
 from sac_standard import (  # noqa: E402
     ReplayBuffer,
     TwinQ,
-    agent_tensors,
+    actor_loss,
+    alpha_loss,
+    critic_loss,
     ends_without_bootstrap,
     eval_actions,
     make_agent,
@@ -48,7 +50,7 @@ from sac_standard import (  # noqa: E402
 )
 from sac_utils import cli  # noqa: E402
 from sac_utils.eval_rounds import Round, eval_seeds, run_round  # noqa: E402
-from sac_utils.speedups import compile_at_start, cuda_graph  # noqa: E402
+from sac_utils.speedups import compile_at_start, compiled_update, cuda_graph  # noqa: E402
 
 # The timings' clock: process CPU seconds; the main block sets wall-clock seconds on --wall-clock.
 clock = time.process_time
@@ -139,17 +141,16 @@ def script_update(script: sac_standard.Args, agent: dict, rb: ReplayBuffer,
                   device: torch.device):
     """update(batch, noise) of this agent (script_agent), set up as sac_standard.py's main
     block does: compiled at start-up with --compile, a CUDA graph on CUDA with --cudagraphs."""
-    actor, qf = agent["actor"], agent["qf"]
-    tensors = agent_tensors(*agent.values())
-    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=script.gamma, tau=script.tau,
-                               target_entropy=-script.target_entropy_scale * rb.action_dim)
-    noise_shape = (2, script.batch_size, rb.action_dim)
+    target_entropy = -script.target_entropy_scale * rb.action_dim
+    optimizers = (agent["actor_optimizer"], agent["q_optimizer"], agent["alpha_optimizer"])
+    update = functools.partial(sac_update, agent["actor"], agent["qf"], agent["qf_target"],
+                               agent["log_alpha"], optimizers, gamma=script.gamma,
+                               tau=script.tau, target_entropy=target_entropy)
     restore = tuple(agent.values())
     if script.compile:
-        update = compile_at_start(update, (tensors, rb.zero_batch(script.batch_size, device),
-                                           torch.zeros(noise_shape, device=device)),
-                                  restore, "the update")
-    update = functools.partial(update, tensors)
+        update = compiled_update(agent, (critic_loss, actor_loss, alpha_loss), script.gamma,
+                                 script.tau, target_entropy,
+                                 (script.batch_size, rb.obs_dim, rb.action_dim), device)
     if device.type == "cuda" and script.cudagraphs:
         update = cuda_graph(update, restore)
     return update
@@ -161,7 +162,7 @@ def script_act(script: sac_standard.Args, actor, obs_dim: int, action_dim: int,
     act = torch.no_grad()(lambda obs, noise: actor.squash(*actor(obs), noise)[0])
     if script.compile:
         act = compile_at_start(act, (torch.zeros((1, obs_dim), device=device),
-                                     torch.zeros((1, action_dim), device=device)), (), "acting")
+                                     torch.zeros((1, action_dim), device=device)))
     if device.type == "cuda" and script.cudagraphs:
         act = cuda_graph(act)
     return act
@@ -177,12 +178,12 @@ def training_step(script: sac_standard.Args, rb: ReplayBuffer, update, device: t
 
 def random_buffer(size: int, obs_dim: int, action_dim: int,
                   device: torch.device) -> ReplayBuffer:
-    """A full buffer of random transitions in episodes of 500 steps."""
+    """A full buffer of random transitions."""
     rb = ReplayBuffer(size, obs_dim, action_dim, device)
     rng = np.random.default_rng(0)
-    for i in range(size):
+    for _ in range(size):
         rb.add(rng.normal(size=obs_dim), rng.uniform(-1, 1, action_dim), rng.normal(), False,
-               rng.normal(size=obs_dim), i % 500 == 499)
+               rng.normal(size=obs_dim))
     return rb
 
 
@@ -288,8 +289,9 @@ def time_loop_parts(args: Args, start: int = 1000) -> dict[str, float]:
         t2 = clock()
         episode_end = bool(terminated[0] or truncated[0])
         final_obs = info["final_obs"][0] if episode_end else next_obs[0]
-        rb.add(obs[0], action[0], reward[0], ends_without_bootstrap(terminated, truncated)[0],
-               final_obs, episode_end, physics_blow_up(info, episode_end))
+        if not physics_blow_up(info, episode_end):
+            rb.add(obs[0], action[0], reward[0],
+                   ends_without_bootstrap(terminated, truncated)[0], final_obs)
         obs = next_obs
         t3 = clock()
         if step < start:

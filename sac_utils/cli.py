@@ -128,7 +128,7 @@ def check_args(args, eval_actions: Callable) -> None:
     rules = (
         ("seed", args.seed >= 0, "a non-negative integer"),
         ("total_timesteps", args.total_timesteps >= 1, "at least 1"),
-        ("buffer_size", args.buffer_size >= 2, "at least 2 (a transition takes two slots)"),
+        ("buffer_size", args.buffer_size >= 1, "at least 1"),
         ("batch_size", 1 <= args.batch_size <= args.buffer_size,
          f"between 1 and --buffer-size ({args.buffer_size})"),
         ("gamma", 0 <= args.gamma <= 1, "in [0, 1]"),

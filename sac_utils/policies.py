@@ -15,6 +15,7 @@ import torch
 import torch.nn as nn
 
 import sac_corrected as sac
+from sac_utils.checkpoints import to_linear_layout
 from sac_utils.cli import fail, read_config_json
 
 
@@ -103,13 +104,14 @@ def load_weights(path: Path) -> dict:
         fail(f"{path}: the actor's {broken} holds NaN/inf (training diverged); evaluate "
              "an earlier model")
     # Files written with --num-seeds (results/*-1M's) hold the actor and critic with a leading
-    # seed axis of 1: (1, in, out) weights and (1, 1, out) biases, not (in, out) and (out,).
+    # seed axis of 1: (1, in, out) weights and (1, 1, out) biases, not (in, out) and (out,); and
+    # every file written before issue 87 holds (in, out) weights, not nn.Linear's (out, in).
     def fit(key: str, value: torch.Tensor) -> torch.Tensor:
         if value.dim() != 3:
             return value
         return value[0] if key.endswith(".weight") else value[0, 0]
 
-    return state | {part: {k: fit(k, v) for k, v in state[part].items()}
+    return state | {part: to_linear_layout({k: fit(k, v) for k, v in state[part].items()})
                     for part in ("actor", "qf") if tensors(state.get(part))}
 
 
@@ -142,12 +144,12 @@ def build_actor(weights: dict, env_id: str, config: dict, path: Path) -> sac.Act
     if not trunk or trunk[0].dim() != 2 or "fc_mean.weight" not in weights:
         fail(f"{path} holds no actor of sac_standard.py or sac_corrected.py (no trunk or "
              "fc_mean layers); give a final_model.pt or a run folder")
-    shapes = (trunk[0].shape[0], weights["fc_mean.weight"].shape[1])
+    shapes = (trunk[0].shape[1], weights["fc_mean.weight"].shape[0])
     if shapes != (obs_dim, action_dim):
         fail(f"{path} was trained on {shapes[0]}-dim observations and {shapes[1]}-dim "
              f"actions; {env_id} has {obs_dim} and {action_dim}: pass the --env-id it was "
              "trained on")
-    actor = sac.Actor(obs_dim, tuple(w.shape[1] for w in trunk), env.action_space,
+    actor = sac.Actor(obs_dim, tuple(w.shape[0] for w in trunk), env.action_space,
                       config.get("log_std_min", sac.Args.log_std_min),
                       config.get("log_std_max", sac.Args.log_std_max))
     load_into(actor, weights, path, "actor does not fit our Actor")
@@ -160,13 +162,13 @@ def build_critic(state: dict, actor: sac.Actor, path: Path) -> sac.TwinQ:
         fail(f"{path} holds no critic weights ('qf'), which q_best needs; give a "
              f"final_model.pt or checkpoint.pt that holds them{drop}")
     qf1 = layers(weights, "qf1.")
-    obs_dim, action_dim = actor.trunk[0].weight.shape[0], actor.fc_mean.weight.shape[1]
-    if not qf1 or any(w.dim() != 2 for w in qf1) or qf1[-1].shape[1] != 1 \
-            or qf1[0].shape[0] != obs_dim + action_dim:
+    obs_dim, action_dim = actor.trunk[0].weight.shape[1], actor.fc_mean.weight.shape[0]
+    if not qf1 or any(w.dim() != 2 for w in qf1) or qf1[-1].shape[0] != 1 \
+            or qf1[0].shape[1] != obs_dim + action_dim:
         fail(f"{path}: its 'qf' is not a critic of sac_standard.py or sac_corrected.py for "
              f"{obs_dim}-dim observations and {action_dim}-dim actions; give the run's own "
              f"final_model.pt{drop}")
-    critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[1] for w in qf1[:-1]))
+    critic = sac.TwinQ(obs_dim, action_dim, tuple(w.shape[0] for w in qf1[:-1]))
     load_into(critic, weights, path, "critic does not fit our TwinQ", drop)
     if broken := non_finite(weights):
         fail(f"{path}: the critic's {broken} holds NaN/inf (training diverged); evaluate "

@@ -58,8 +58,9 @@ class StopRequest:
 
 class RunFolder:
     """One run's folder and bookkeeping. Created first thing (a finished run exits here, code 0)
-    with the script's evaluation actions; `open` locks the folder, starts it or resumes it and
-    opens its logs and evaluation workers; the training loop then reports to it (count_step,
+    with the script's evaluation actions; `open` locks the folder, starts it or checks it for a
+    resume and opens its logs and evaluation workers; `resume` loads the checkpoint; the
+    training loop then reports to it (count_step,
     log_train, print_progress), has it evaluate (evaluate, poll_evaluations) and keep state
     (save_snapshot, checkpoint); `stop` or `finish` ends the run."""
 
@@ -74,53 +75,64 @@ class RunFolder:
             sys.exit(0)
         self.pending_rounds: list[dict] = []
 
-    def open(self, agent: dict, buffer, action_space: gym.Space,
-             envs: gym.vector.VectorEnv, device: torch.device) -> tuple[int, np.ndarray]:
-        """Locks the folder (one writer) and checks it before writing; then a fresh start
-        (config.json, the env reset with the seed) or a resume from checkpoint.pt (in place into
-        `agent`, the buffer and the random streams, the episode under way replayed). Returns
-        the step and the observation the run goes on from."""
+    def open(self, obs_dim: int, action_dim: int, device: torch.device) -> None:
+        """Locks the folder (one writer) and checks it before writing; a fresh run writes
+        config.json, a resumed one (`resuming`: --resume and a checkpoint.pt) has its CSVs cut
+        back to the checkpoint's step. Then the logs and the evaluation workers open."""
         args, self.device = self.args, device
         lock = lock_run_folder(self.dir)
-        ckpt = checkpoints.find_checkpoint(self.dir) if args.resume is not None else None
-        if ckpt is not None:
-            check_checkpoint_args(self.dir, ckpt, args)
+        self.ckpt = checkpoints.find_checkpoint(self.dir) if args.resume is not None else None
+        self.elapsed, self.pending_rounds = 0.0, []
+        self.progress = {"episode_returns": [], "episode_lengths": [], "last_eval": None,
+                         "episode_return": 0.0, "episode_length": 0}
+        if self.ckpt is not None:
+            check_checkpoint_args(self.dir, self.ckpt, args)
+            checkpoints.check_layout(self.dir / "checkpoint.pt", self.ckpt)
             check_csv(self.dir / "eval.csv", self.eval_columns)
             check_csv(self.dir / "train.csv", list(TRAIN_COLUMNS))
-            global_step, self.elapsed, self.progress = checkpoints.load_checkpoint(
-                ckpt, agent, buffer, action_space, device)
-            obs = checkpoints.replay_episode(envs, args.seed, ckpt)
-            self.pending_rounds = ckpt.get("pending_rounds", [])
-            print(f"resuming {self.dir} at step {global_step}", flush=True)
-            if self.progress.get("updates_from", 0) > global_step:
-                print(f"restarted from a snapshot: acting to refill the replay buffer, updates "
-                      f"resume at step {self.progress['updates_from']}", flush=True)
         else:
-            global_step, self.elapsed = 0, 0.0
-            self.progress = {"episode_returns": [], "episode_lengths": [], "last_eval": None,
-                             "episode_return": 0.0, "episode_length": 0}
             for old in self.dir.glob("events.out.tfevents.*"):  # a restart from step 0
                 old.unlink()
-            config = run_metadata(args, envs.single_observation_space.shape[0],
-                                  action_space.shape[0], self.algorithm, self.script, device)
+            config = run_metadata(args, obs_dim, action_dim, self.algorithm, self.script,
+                                  device)
             atomic_write(self.dir / "config.json",
                          lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
-            obs, _ = envs.reset(seed=args.seed)
-        # The first update's step: --learning-starts, or later where a run restarted from a
-        # snapshot (checkpoints.restart_from_snapshot) refills its replay buffer first.
-        self.updates_from = self.progress.get("updates_from", args.learning_starts)
         record_holder(lock)
+        global_step = 0 if self.ckpt is None else self.ckpt["global_step"]
         self.logs = open_logs(args, self.dir, self.eval_columns, list(TRAIN_COLUMNS),
-                              global_step, ckpt is not None, self.algorithm)
+                              global_step, self.resuming, self.algorithm)
         self.session_start = self.row_start = time.time()
         self.row_step = global_step
         workers = eval_rounds.default_workers() if args.eval_workers is None else args.eval_workers
         self.eval_pool = eval_rounds.EvalPool(workers, self.log_round)
+
+    @property
+    def resuming(self) -> bool:
+        return self.ckpt is not None
+
+    def resume(self, agent: dict, buffer, action_space: gym.Space,
+               envs: gym.vector.VectorEnv) -> tuple[int, np.ndarray, int]:
+        """The run's state from checkpoint.pt, in place into `agent`, the buffer and the random
+        streams, the episode under way replayed, the evaluation rounds a stop left unfinished
+        rerun. Returns the step, the observation and the step of the first update
+        (--learning-starts, or later where a run restarted from a snapshot refills its buffer)."""
+        ckpt = self.ckpt
+        global_step, self.elapsed, self.progress = checkpoints.load_checkpoint(
+            ckpt, agent, buffer, action_space, self.device)
+        self.row_step = global_step
+        obs = checkpoints.replay_episode(envs, self.args.seed, ckpt)
+        print(f"resuming {self.dir} at step {global_step}", flush=True)
+        updates_from = self.progress.get("updates_from", self.args.learning_starts)
+        if updates_from > global_step:
+            print(f"restarted from a snapshot: acting to refill the replay buffer, updates "
+                  f"resume at step {updates_from}", flush=True)
+        self.pending_rounds = ckpt.get("pending_rounds", [])
         for state in self.pending_rounds:  # the rounds a stop left unfinished, rerun first
             self.eval_pool.submit(self.evaluation_round(
                 state["global_step"], state["wall_time"],
                 *checkpoints.pending_round_networks(agent["actor"], agent["qf"], state)))
-        return global_step, obs
+        self.ckpt = None  # mmapped: let it go
+        return global_step, obs, updates_from
 
     def evaluate(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
         """Submits this step's evaluation round to a worker (sac_utils/eval_rounds.py); its eval.csv

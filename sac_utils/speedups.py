@@ -1,11 +1,11 @@
-"""Speed, for both SAC scripts (docs/speed.md): torch.compile at start-up (compile_at_start), CUDA
-graphs (cuda_graph), and building blocks with which the whole update compiles into one graph and
-still runs fast eager: the gradient (grad), torch.optim.Adam's step as foreach ops (adam_step) and
-a ReLU whose backward inductor runs fast (ReLU). The algorithm itself is in the scripts.
+"""Speed, for both SAC scripts (docs/speed.md): torch.compile at start-up (compile_at_start), the
+compiled update (compiled_update) and CUDA graphs (cuda_graph). The algorithm is the scripts':
+compiled_update takes the gradients of the scripts' own loss functions, so `--compile` and
+`--no-compile` train alike (tests/test_compile.py pins them to each other).
 """
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import torch
 import torch.nn as nn
@@ -14,53 +14,67 @@ import torch.utils._pytree as pytree
 from sac_utils.cli import fail
 
 
-class ReLUFromOutput(torch.autograd.Function):
-    """ReLU whose backward multiplies by sign(output), 1 where it passed and 0 where it clipped:
-    torch.relu's gradient, from a float tensor instead of a boolean mask of the input, which
-    inductor's CPU code stores ~10x slower (docs/speed.md; the update has ten ReLUs)."""
-
-    @staticmethod
-    def forward(x: torch.Tensor) -> torch.Tensor:
-        return x.clamp_min(0)
-
-    @staticmethod
-    def setup_context(ctx, inputs, output) -> None:  # torch.func.grad needs this form
-        ctx.save_for_backward(output)
-
-    @staticmethod
-    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
-        (output,) = ctx.saved_tensors
-        return grad * output.sign()
-
-
-class ReLU(nn.Module):
-    """torch.relu, as ReLUFromOutput when compiled (the same gradient; eager, plain torch.relu)."""
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return ReLUFromOutput.apply(x) if torch.compiler.is_compiling() else torch.relu(x)
+def compile_at_start(fn: Callable, example: tuple, restore: Iterable = (),
+                     name: str = "acting") -> Callable:
+    """fn compiled whole (fullgraph) and called once on `example` at start-up, so that the cost and
+    any failure show at once (the tensors of `restore` are put back). Inductor caches its work (in
+    /tmp): a second run on the machine compiles in a fraction of the time."""
+    compiled = torch.compile(fn, fullgraph=True)
+    saved = [(t, t.detach().clone()) for t in training_state(*restore)]
+    start = time.time()
+    try:
+        compiled(*example)
+    except Exception as error:  # inductor's errors run to pages: the first line, and the fixes
+        cause = next((line for line in str(error).splitlines() if line.strip()), "")[:300]
+        fail(f"compiling {name} failed ({type(error).__name__}: {cause}); run with "
+             "--no-compile, or if a C++ compiler or Python's headers are missing, install them "
+             "(apt-get install g++ python3-dev)")
+    with torch.no_grad():
+        for t, value in saved:
+            t.copy_(value)
+    print(f"compiled {name} in {time.time() - start:.1f} s", flush=True)
+    return compiled
 
 
-def grad(f: Callable) -> Callable:
-    """torch.func.grad(f, has_aux=True): the gradient of f's first output with respect to its first
-    argument (a pytree of tensors), and its second output, detached. Compiled, torch.func's
-    (torch.autograd.grad would break the graph); eager, torch.autograd's: the same numbers ~1.3x
-    faster on a CPU, without torch.func's dispatch around each of the update's ~300 small ops."""
-    if torch.compiler.is_compiling():
-        return torch.func.grad(f, has_aux=True)
-
-    def autograd_grad(params, *args) -> tuple:
-        with torch.enable_grad():
-            total, aux = f(params, *args)
-            leaves, spec = pytree.tree_flatten(params)
-            grads = pytree.tree_unflatten(list(torch.autograd.grad(total, leaves)), spec)
-        return grads, pytree.tree_map(torch.Tensor.detach, aux)
-
-    return autograd_grad
+# The compiled update. torch.compile of the scripts' sac_update as it reads (three backward calls
+# and three optimizer steps) runs ~1.5x slower on a CPU than this (docs/speed.md): the same losses,
+# each one's gradient with respect to its own parameters by torch.func, and Adam's step as foreach
+# ops, so that the whole update is one function of tensors and compiles into one graph.
 
 
-def adam_step(params: list[torch.Tensor], grads: list[torch.Tensor], state: dict) -> None:
-    """torch.optim.Adam's step (eps outside the square root, as optax's), in place on `state`
-    (adam_state), as foreach ops that compile with the rest of the update."""
+class Bound:
+    """A module run on the given parameters (torch.func.functional_call) wherever a loss calls it;
+    its other attributes (an Actor's squash, which reads buffers only) are the module's."""
+
+    def __init__(self, module: nn.Module, params: dict[str, torch.Tensor]):
+        self.module, self.params = module, params
+
+    def __call__(self, *args: torch.Tensor):
+        return torch.func.functional_call(self.module, self.params, args)
+
+    def __getattr__(self, name: str):
+        return getattr(self.module, name)
+
+
+def adam_state(optimizer: torch.optim.Optimizer) -> dict:
+    """A torch.optim.Adam's tensors (created as its first step would) and settings, for adam_step:
+    the optimizer keeps holding them, for checkpoints and for the uncompiled path."""
+    group = optimizer.param_groups[0]
+    for p in group["params"]:
+        if not optimizer.state[p]:
+            optimizer.state[p] = {"step": torch.zeros((), device=p.device),
+                                  "exp_avg": torch.zeros_like(p),
+                                  "exp_avg_sq": torch.zeros_like(p)}
+    states = [optimizer.state[p] for p in group["params"]]
+    return {"params": list(group["params"]), "steps": [s["step"] for s in states],
+            "exp_avgs": [s["exp_avg"] for s in states],
+            "exp_avg_sqs": [s["exp_avg_sq"] for s in states], "lr": group["lr"],
+            "betas": group["betas"], "eps": group["eps"]}
+
+
+def adam_step(grads: list[torch.Tensor], state: dict) -> None:
+    """torch.optim.Adam's step (eps outside the square root, as optax's) on state["params"], in
+    place on `state` (adam_state), as foreach ops that compile with the rest of the update."""
     beta1, beta2 = state["betas"]
     torch._foreach_add_(state["steps"], 1)
     torch._foreach_lerp_(state["exp_avgs"], grads, 1 - beta1)
@@ -73,22 +87,54 @@ def adam_step(params: list[torch.Tensor], grads: list[torch.Tensor], state: dict
     torch._foreach_add_(denominators, state["eps"])
     steps = torch._foreach_div(state["exp_avgs"], denominators)
     torch._foreach_mul_(steps, state["lr"] / bias_correction1)
-    torch._foreach_sub_(params, steps)
+    torch._foreach_sub_(state["params"], steps)
 
 
-def adam_state(optimizer: torch.optim.Optimizer) -> dict:
-    """A torch.optim.Adam's tensors (created as its first step would) and settings, for adam_step:
-    the optimizer keeps holding them, for checkpoints."""
-    group = optimizer.param_groups[0]
-    for p in group["params"]:
-        if not optimizer.state[p]:
-            optimizer.state[p] = {"step": torch.zeros((), device=p.device),
-                                  "exp_avg": torch.zeros_like(p),
-                                  "exp_avg_sq": torch.zeros_like(p)}
-    states = [optimizer.state[p] for p in group["params"]]
-    return {"steps": [s["step"] for s in states], "exp_avgs": [s["exp_avg"] for s in states],
-            "exp_avg_sqs": [s["exp_avg_sq"] for s in states], "lr": group["lr"],
-            "betas": group["betas"], "eps": group["eps"]}
+def functional_update(agent: dict, losses: tuple[Callable, Callable, Callable], gamma: float,
+                      tau: float, target_entropy: float) -> Callable:
+    """The script's sac_update, computed otherwise: update(batch, noise) -> the same logs. Call
+    it after a checkpoint's load (it holds the optimizers' state tensors)."""
+    critic_loss, actor_loss, alpha_loss = losses
+    actor, qf, qf_target, log_alpha = (agent[k] for k in ("actor", "qf", "qf_target",
+                                                          "log_alpha"))
+    actor_params, qf_params = dict(actor.named_parameters()), dict(qf.named_parameters())
+    states = [adam_state(agent[k]) for k in ("actor_optimizer", "q_optimizer",
+                                             "alpha_optimizer")]
+    grad = torch.func.grad_and_value
+
+    @torch.no_grad()  # torch.func.grad turns gradients on for the losses alone
+    def update(batch: tuple[torch.Tensor, ...], noise: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        alpha = log_alpha.exp()
+        frozen_actor = Bound(actor, {k: p.detach() for k, p in actor_params.items()})
+        frozen_qf = Bound(qf, {k: p.detach() for k, p in qf_params.items()})
+        qf_grads, (_, (qf_losses, qf_values)) = grad(lambda p: critic_loss(
+            Bound(qf, p), qf_target, frozen_actor, alpha, batch, noise[0], gamma),
+            has_aux=True)(qf_params)
+        actor_grads, (pi_loss, log_pi) = grad(lambda p: actor_loss(
+            Bound(actor, p), frozen_qf, alpha, batch[0], noise[1]), has_aux=True)(actor_params)
+        alpha_grad, temperature_loss = grad(lambda p: alpha_loss(p, log_pi, target_entropy))(
+            log_alpha)
+        # The target towards the critics before their step, then the three Adam steps.
+        torch._foreach_lerp_(list(qf_target.parameters()), list(qf_params.values()), tau)
+        adam_step(list(qf_grads.values()), states[1])
+        adam_step(list(actor_grads.values()), states[0])
+        adam_step([alpha_grad], states[2])
+        return qf_losses, qf_values, pi_loss, alpha, temperature_loss, log_pi
+
+    return update
+
+
+def compiled_update(agent: dict, losses: tuple[Callable, Callable, Callable], gamma: float,
+                    tau: float, target_entropy: float, shapes: tuple[int, int, int],
+                    device: torch.device) -> Callable:
+    """functional_update, compiled whole at start-up; shapes: (batch, obs, action) sizes."""
+    batch_size, obs_dim, action_dim = shapes
+    zeros = [torch.zeros(s, device=device) for s in ((batch_size, obs_dim),
+             (batch_size, action_dim), (batch_size,), (batch_size, obs_dim), (batch_size,))]
+    return compile_at_start(functional_update(agent, losses, gamma, tau, target_entropy),
+                            (tuple(zeros), torch.zeros((2, batch_size, action_dim),
+                                                       device=device)),
+                            agent.values(), "the update")
 
 
 # CUDA graphs (LeanRL's recipe with torch.cuda.graphs): eager PyTorch launches ~300 small kernels
@@ -108,13 +154,13 @@ def training_state(*objects: nn.Module | torch.optim.Optimizer | torch.Tensor) -
     return tensors
 
 
-def cuda_graph(fn: Callable, restore: tuple = ()) -> Callable:
+def cuda_graph(fn: Callable, restore: Iterable = ()) -> Callable:
     """fn, captured as a CUDA graph at its first call and replayed at every call: the tensors of
     the arguments are copied into the graph's inputs; the outputs are overwritten by the next
     replay. So that the capture's eager warm-up calls do not change the run, the tensors of
     `restore` and the random generators are put back afterwards (optimizer states the warm-up
     created zeroed): a run is the same whenever the capture happens (at start or after a resume)."""
-    graph, inputs, outputs = None, (), None
+    graph, inputs, outputs, restore = None, (), None, tuple(restore)
 
     def replay(*args):
         nonlocal graph, inputs, outputs
@@ -144,24 +190,3 @@ def cuda_graph(fn: Callable, restore: tuple = ()) -> Callable:
         return outputs
 
     return replay
-
-
-def compile_at_start(fn: Callable, example: tuple, restore: tuple, name: str) -> Callable:
-    """fn compiled whole (fullgraph) and called once on `example` at start-up, so that the cost and
-    any failure show at once (the tensors of `restore` are put back). Inductor caches its work (in
-    /tmp): a second run on the machine compiles in a fraction of the time."""
-    compiled = torch.compile(fn, fullgraph=True)
-    saved = [(t, t.detach().clone()) for t in training_state(*restore)]
-    start = time.time()
-    try:
-        compiled(*example)
-    except Exception as error:  # inductor's errors run to pages: the first line, and the fixes
-        cause = next((line for line in str(error).splitlines() if line.strip()), "")[:300]
-        fail(f"compiling {name} failed ({type(error).__name__}: {cause}); run with "
-             "--no-compile, or if a C++ compiler or Python's headers are missing, install them "
-             "(apt-get install g++ python3-dev)")
-    with torch.no_grad():
-        for t, value in saved:
-            t.copy_(value)
-    print(f"compiled {name} in {time.time() - start:.1f} s", flush=True)
-    return compiled

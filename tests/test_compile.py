@@ -6,7 +6,6 @@ The other tests run the scripts with --no-compile (tests/test_sac.py, EAGER): co
 makes every compile after the first a fraction of the first.
 """
 
-import copy
 import functools
 import os
 import shutil
@@ -26,86 +25,100 @@ TINY = ["--env-id", "Pendulum-v1", "--seed", "5", "--total-timesteps", "1200",
         "--learning-starts", "300", "--eval-interval", "400", "--eval-episodes", "2",
         "--hidden-sizes", "32", "32", "--batch-size", "32", "--log-interval", "100",
         "--print-interval", "1200", "--checkpoint-interval", "600", "--eval-workers", "0"]
-# Compiled and eager runs of the same seed: equal up to the rounding of differently fused
-# kernels. Measured here over these runs' 900 updates: losses at most 8e-6 apart (5e-7
-# relative); the tolerances leave ~100x of room.
-RUN_RTOL, RUN_ATOL = 1e-4, 1e-3
+# Compiled and eager runs of the same seed: equal up to rounding, which the run's feedback
+# (batches of its own actions) amplifies. Since issue 87 the eager path is the textbook update
+# (fused torch.optim.Adam), the compiled one torch.func's gradients and foreach Adam: measured
+# over these runs (300 eager updates, then 600 compiled, against 900 compiled), losses at most
+# 0.57% apart by the end (5e-5 in the second logged row). The tolerances leave ~3x of room.
+RUN_RTOL, RUN_ATOL = 2e-2, 5e-2
 LOSSES = ("qf1_loss", "qf2_loss", "qf1_value", "qf2_value", "actor_loss", "alpha", "alpha_loss",
           "entropy")
 
 
-def small_learner(seed: int) -> tuple:
-    """The scripts' networks and optimizers, Hopper's dimensions."""
-    from sac_standard import Actor, TwinQ
+def small_learner(seed: int) -> dict:
+    """make_agent's networks and optimizers, Hopper's dimensions."""
+    from sac_standard import Args, make_agent
 
-    generator = torch.Generator().manual_seed(seed)
     space = gym.spaces.Box(-1.0, 1.0, (3,), np.float32)
-    actor = Actor(11, (64, 64), space, -10.0, 2.0, generator)
-    qf = TwinQ(11, 3, (64, 64), generator)
-    qf_target = copy.deepcopy(qf)
-    log_alpha = torch.zeros((), requires_grad=True)
-    adam = functools.partial(torch.optim.Adam, lr=3e-4, fused=True)
-    return (actor, qf, qf_target, log_alpha,
-            (adam(actor.parameters()), adam(qf.parameters()), adam([log_alpha])))
+    return make_agent(Args(seed=seed, hidden_sizes=(64, 64)), 11, space, torch.device("cpu"))
 
 
-def updates(compiled: bool, steps: int = 200) -> tuple[list, dict]:
+def batches(steps: int) -> list[tuple]:
+    g = torch.Generator().manual_seed(1)
+    return [((torch.randn(32, 11, generator=g), torch.rand(32, 3, generator=g) * 2 - 1,
+              torch.randn(32, generator=g), torch.randn(32, 11, generator=g),
+              (torch.rand(32, generator=g) > 0.05).float()), torch.randn(2, 32, 3, generator=g))
+            for _ in range(steps)]
+
+
+def updates(path: str, steps: int = 200) -> tuple[list, dict]:
     """Each update's logged tensors over `steps` updates on fixed random batches, and the final
-    actor."""
+    agent's tensors: path "textbook" (the script's sac_update, what --no-compile runs),
+    "functional" (speedups.functional_update, eager) or "compiled" (what --compile runs)."""
+    import sac_standard as sac
+    from sac_utils import speedups
+
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # the scripts' default; and both paths then sum alike
     try:
-        return run_updates(compiled, steps)
+        agent = small_learner(0)
+        losses = (sac.critic_loss, sac.actor_loss, sac.alpha_loss)
+        if path == "textbook":
+            optimizers = (agent["actor_optimizer"], agent["q_optimizer"],
+                          agent["alpha_optimizer"])
+            update = functools.partial(sac.sac_update, agent["actor"], agent["qf"],
+                                       agent["qf_target"], agent["log_alpha"], optimizers,
+                                       gamma=0.99, tau=0.005, target_entropy=-1.5)
+        elif path == "functional":
+            update = speedups.functional_update(agent, losses, 0.99, 0.005, -1.5)
+        else:
+            torch._dynamo.reset()
+            torch._dynamo.utils.counters.clear()
+            update = speedups.compiled_update(agent, losses, 0.99, 0.005, -1.5, (32, 11, 3),
+                                              torch.device("cpu"))
+        logs = [[t.detach().clone() for t in update(*b)] for b in batches(steps)]
     finally:
         torch.set_num_threads(threads)
+    state = {f"{name}.{k}": v.detach().clone() for name in ("actor", "qf", "qf_target")
+             for k, v in agent[name].state_dict().items()}
+    return logs, state | {"log_alpha": agent["log_alpha"].detach().clone()}
 
 
-def run_updates(compiled: bool, steps: int) -> tuple[list, dict]:
-    from sac_standard import agent_tensors, sac_update
-    from sac_utils.speedups import compile_at_start
+def assert_close_runs(a: tuple, b: tuple, rtol: float, atol: float) -> None:
+    for step_a, step_b in zip(a[0], b[0], strict=True):
+        for x, y in zip(step_a, step_b, strict=True):
+            torch.testing.assert_close(x, y, rtol=rtol, atol=atol)
+    assert a[1].keys() == b[1].keys()
+    for name, value in b[1].items():
+        torch.testing.assert_close(a[1][name], value, rtol=rtol, atol=atol, msg=name)
 
-    actor, qf, qf_target, log_alpha, optimizers = small_learner(0)
-    tensors = agent_tensors(actor, qf, qf_target, log_alpha, *optimizers)
-    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=0.99, tau=0.005,
-                               target_entropy=-1.5)
-    if compiled:
-        torch._dynamo.reset()
-        torch._dynamo.utils.counters.clear()
-        zero = (torch.zeros(32, 11), torch.zeros(32, 3), torch.zeros(32), torch.zeros(32, 11),
-                torch.zeros(32))
-        update = compile_at_start(update, (tensors, zero, torch.zeros(2, 32, 3)),
-                                  (actor, qf, qf_target, log_alpha, *optimizers), "the update")
-    g = torch.Generator().manual_seed(1)
-    logs = []
-    for _ in range(steps):
-        batch = (torch.randn(32, 11, generator=g), torch.rand(32, 3, generator=g) * 2 - 1,
-                 torch.randn(32, generator=g), torch.randn(32, 11, generator=g),
-                 (torch.rand(32, generator=g) > 0.05).float())
-        logs.append([t.detach().clone() for t in update(tensors, batch,
-                                                        torch.randn(2, 32, 3, generator=g))])
-    return logs, actor.state_dict()
+
+def test_the_fast_update_is_the_textbook_update():
+    """speedups.functional_update (what --compile compiles) against the script's sac_update (what
+    --no-compile runs): the same losses, so the same parameters after 20 updates, to float
+    rounding. Measured (torch 2.13, one thread): parameters within 3e-7; a log-probability
+    (entropy's, per sample) within 2e-5, as it sums terms of the squashing's Jacobian."""
+    textbook, functional = updates("textbook", 20), updates("functional", 20)
+    assert_close_runs(functional, textbook, rtol=1e-4, atol=1e-4)
+    for name, value in textbook[1].items():  # the parameters, tighter
+        torch.testing.assert_close(functional[1][name], value, rtol=1e-5, atol=3e-6, msg=name)
+    assert not torch.equal(textbook[0][0][0], textbook[0][-1][0])  # they learned
 
 
 @pytest.mark.slow
-def test_the_compiled_update_is_the_eager_update_in_one_graph():
-    eager, eager_actor = updates(compiled=False)
-    compiled, compiled_actor = updates(compiled=True)
+def test_the_compiled_update_is_the_textbook_update_in_one_graph():
+    textbook, compiled = updates("textbook"), updates("compiled")
     # One graph for the whole update, compiled once: no graph break (fullgraph would have
     # failed) and no recompile in 200 calls.
     assert torch._dynamo.utils.counters["stats"]["unique_graphs"] == 1
     # Inductor fuses kernels and orders float sums its own way. Measured here (torch 2.13, one
-    # thread): every logged tensor of the 200 updates within 2e-6 of eager's, the final actor's
-    # parameters within 6e-8. The tolerances leave ~50x of room.
-    for step_compiled, step_eager in zip(compiled, eager, strict=True):
-        for a, b in zip(step_compiled, step_eager, strict=True):
-            torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-4)
-    for name, value in eager_actor.items():
-        torch.testing.assert_close(compiled_actor[name], value, rtol=1e-5, atol=3e-6, msg=name)
-    assert not torch.equal(eager[0][0], eager[-1][0])  # they learned
+    # thread): after 200 updates every logged tensor and parameter within ~1e-6 of the textbook
+    # path's. The tolerances leave room.
+    assert_close_runs(compiled, textbook, rtol=1e-4, atol=1e-4)
 
 
-def test_the_update_steps_adam_as_torch_optim_adam_does():
-    """sac_update's own Adam step (foreach ops, so that it compiles) against torch's."""
+def test_the_fast_update_steps_adam_as_torch_optim_adam_does():
+    """speedups.adam_step (foreach ops, so that it compiles) against torch's Adam."""
     from sac_utils.speedups import adam_state, adam_step
 
     torch.manual_seed(0)
@@ -117,7 +130,7 @@ def test_the_update_steps_adam_as_torch_optim_adam_does():
     for step in range(50):
         grads = [torch.randn_like(p) * 10.0 ** (step % 4 - 2) for p in params]
         with torch.no_grad():
-            adam_step(params, grads, state)
+            adam_step(grads, state)
         for p, grad in zip(reference, grads, strict=True):
             p.grad = grad
         torch_adam.step()
@@ -226,33 +239,3 @@ def test_without_a_cpp_compiler_the_run_names_the_fix_in_one_line(tmp_path):
     last = result.stderr.strip().splitlines()[-1]
     assert "compiling " in last and " failed (" in last
     assert "apt-get install g++ python3-dev" in last and "--no-compile" in last
-
-
-def test_the_eager_gradient_is_torch_funcs():
-    """Uncompiled, speedups.grad takes sac_losses's gradient from torch.autograd (faster eager);
-    the graph is traced from torch.func.grad. Both give the same gradient and the same logs, and
-    neither leaves the logs attached to an autograd graph."""
-    from sac_standard import agent_tensors, sac_losses
-    from sac_utils.speedups import grad
-
-    actor, qf, qf_target, log_alpha, optimizers = small_learner(seed=3)
-    tensors = agent_tensors(actor, qf, qf_target, log_alpha, *optimizers)
-    torch.manual_seed(4)
-    batch = (torch.randn(32, 11), torch.rand(32, 3) * 2 - 1, torch.randn(32),
-             torch.randn(32, 11), (torch.rand(32) > 0.1).float())
-    noise = torch.randn(2, 32, 3)
-    params = (tensors["actor"], tensors["qf"], tensors["log_alpha"])
-    args = (params, tensors["qf_target"], batch, noise, actor, qf, 0.99, -1.5)
-    with torch.no_grad():  # as sac_update calls it
-        ours, our_logs = grad(sac_losses)(*args)
-        reference, reference_logs = torch.func.grad(sac_losses, has_aux=True)(*args)
-    for mine, theirs in zip(ours[:2], reference[:2], strict=True):
-        assert mine.keys() == theirs.keys()
-        for name in theirs:
-            torch.testing.assert_close(mine[name], theirs[name], rtol=1e-6, atol=1e-7, msg=name)
-            assert mine[name].abs().sum() > 0, name  # every parameter gets a gradient
-    torch.testing.assert_close(ours[2], reference[2], rtol=1e-6, atol=1e-7)
-    for mine, theirs in zip(our_logs, reference_logs, strict=True):
-        torch.testing.assert_close(mine, theirs, rtol=1e-6, atol=1e-7)
-        assert not mine.requires_grad
-    assert all(not p.grad_fn for p in ours[0].values())

@@ -3,7 +3,6 @@
 CI has no GPU, so these tests skip there; they run on a GPU machine (see README, "Speed on a GPU").
 """
 
-import copy
 import functools
 import signal
 import subprocess
@@ -14,8 +13,8 @@ import pytest
 import torch
 
 from mode_search import mode_action
-from sac_standard import Actor, ReplayBuffer, TwinQ, agent_tensors, sac_update
-from sac_utils.speedups import compile_at_start, cuda_graph
+from sac_standard import ReplayBuffer, sac_update
+from sac_utils.speedups import compiled_update, cuda_graph
 from tests.test_sac import SHORT, command, read_csv, run, wait_for
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
@@ -24,31 +23,28 @@ OBS_DIM, ACTION_DIM = 11, 3
 
 
 def learner(buffer_device: torch.device, seed: int = 0, compiled: bool = False):
-    """A small SAC learner on the GPU, its update (compiled or eager), and a replay buffer of
-    random transitions (episodes of 20)."""
+    """A small SAC learner on the GPU (make_agent's), its update (the textbook sac_update, or the
+    compiled one), and a replay buffer of random transitions (episodes of 20)."""
+    import sac_standard as sac
+
     torch.manual_seed(seed)
-    generator = torch.Generator().manual_seed(seed)
     space = gym.spaces.Box(-2.0, 2.0, (ACTION_DIM,), np.float32)
-    actor = Actor(OBS_DIM, (32, 32), space, -10.0, 2.0, generator).to(CUDA)
-    qf = TwinQ(OBS_DIM, ACTION_DIM, (32, 32), generator).to(CUDA)
-    qf_target = copy.deepcopy(qf)
-    log_alpha = torch.zeros((), device=CUDA, requires_grad=True)
-    adam = functools.partial(torch.optim.Adam, lr=3e-4, fused=True, capturable=True)
-    optimizers = (adam(actor.parameters()), adam(qf.parameters()), adam([log_alpha]))
+    agent = sac.make_agent(sac.Args(seed=seed, hidden_sizes=(32, 32)), OBS_DIM, space, CUDA)
     rb = ReplayBuffer(500, OBS_DIM, ACTION_DIM, buffer_device)
     rng = np.random.default_rng(seed)
     for step in range(400):
         rb.add(rng.normal(size=OBS_DIM), rng.uniform(-2, 2, ACTION_DIM), rng.normal(),
-               step % 40 == 39, rng.normal(size=OBS_DIM), step % 20 == 19)
-    tensors = agent_tensors(actor, qf, qf_target, log_alpha, *optimizers)
-    state = (actor, qf, qf_target, log_alpha, *optimizers)
-    update = functools.partial(sac_update, actor=actor, qf=qf, gamma=0.99, tau=0.005,
-                               target_entropy=-ACTION_DIM / 2)
+               step % 40 == 39, rng.normal(size=OBS_DIM))
+    losses = (sac.critic_loss, sac.actor_loss, sac.alpha_loss)
     if compiled:
-        update = compile_at_start(update, (tensors, rb.zero_batch(64, CUDA),
-                                           torch.zeros(2, 64, ACTION_DIM, device=CUDA)),
-                                  state, "the update")
-    return rb, functools.partial(update, tensors), state
+        update = compiled_update(agent, losses, 0.99, 0.005, -ACTION_DIM / 2,
+                                 (64, OBS_DIM, ACTION_DIM), CUDA)
+    else:
+        optimizers = (agent["actor_optimizer"], agent["q_optimizer"], agent["alpha_optimizer"])
+        update = functools.partial(sac_update, agent["actor"], agent["qf"], agent["qf_target"],
+                                   agent["log_alpha"], optimizers, gamma=0.99, tau=0.005,
+                                   target_entropy=-ACTION_DIM / 2)
+    return rb, update, tuple(agent.values())
 
 
 def losses_over_updates(graphs: bool, buffer_device: torch.device, updates: int = 300,

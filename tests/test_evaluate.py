@@ -315,12 +315,13 @@ def test_weights_files_alone(our_run, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_files_in_older_layouts_give_the_same_numbers(our_run, tmp_path, capsys):
-    """final_model.pt with a leading seed axis of 1 (written with --num-seeds, as every committed
-    results/*-1M weight file is) evaluates exactly as the same networks in today's layout ((in,
-    out) weights, (out,) biases)."""
+    """Weights (in, out), as every file written before issue 87 holds them, and with a leading
+    seed axis of 1 too (written with --num-seeds, as every committed results/*-1M weight file
+    is) evaluate exactly as the same networks in today's layout (nn.Linear's (out, in))."""
     state = torch.load(our_run / "final_model.pt", weights_only=True)
-    assert state["actor"]["trunk.0.weight"].shape == (3, 32)  # (in, out)
-    layouts = {"seed_axis": {".weight": lambda v: v[None], ".bias": lambda v: v[None, None]}}
+    assert state["actor"]["trunk.0.weight"].shape == (32, 3)  # (out, in)
+    layouts = {"in_out": {".weight": lambda v: v.T},
+               "seed_axis": {".weight": lambda v: v.T[None], ".bias": lambda v: v[None, None]}}
     for name, layout in layouts.items():  # the action scale and bias buffers stay as they are
         def old(weights: dict, layout: dict = layout) -> dict:
             return {k: next((f(v) for end, f in layout.items() if k.endswith(end)), v)
@@ -334,7 +335,38 @@ def test_files_in_older_layouts_give_the_same_numbers(our_run, tmp_path, capsys)
                            "mode", "tanh_mu", "q_best", "--out", str(tmp_path / source.stem))
         assert code == 0, err
         outputs.append(read_rows(tmp_path / source.stem / "episodes.csv"))
-    assert outputs[0] == outputs[1]
+    assert outputs[0] == outputs[1] == outputs[2]
+
+
+@pytest.mark.parametrize("path", [
+    "results/powerlift-10M/runs/h1hand-powerlift-v0__corrected__seed6__ffb396c1/snapshots/"
+    "step1000000.pt",
+    "results/bookshelf_simple-1M/runs/h1hand-bookshelf_simple-v0__corrected__seed0__007b8ea9/"
+    "final_model.pt"])
+def test_committed_weights_files_load_and_act_as_their_scripts_did(path):
+    """A committed snapshot (weights (in, out)) and a --num-seeds final_model.pt ((1, in, out))
+    load as nn.Linear networks and give the actions and Q values that their scripts' own
+    layers (x @ W + b) give from the raw tensors."""
+    actor, critic, env_id, _ = policies.load_policy(ROOT / path, None, need_critic=True)
+    raw = torch.load(ROOT / path, map_location="cpu", weights_only=True)
+    squeeze = {k: v.reshape(v.shape[-2:]) if k.endswith(".weight") else v.reshape(-1)
+               for part in ("actor", "qf") for k, v in
+               ((f"{part}.{k}", v) for k, v in raw[part].items())}
+
+    def layer(name: str, x: torch.Tensor) -> torch.Tensor:
+        return x @ squeeze[f"{name}.weight"] + squeeze[f"{name}.bias"]
+
+    obs = torch.randn(16, actor.trunk[0].in_features, generator=torch.Generator().manual_seed(0))
+    h = layer("actor.trunk.2", layer("actor.trunk.0", obs).relu()).relu()
+    mu, log_std = actor(obs)
+    torch.testing.assert_close(mu, layer("actor.fc_mean", h), rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(log_std, layer("actor.fc_logstd", h).clamp(-10, 2), rtol=1e-5,
+                               atol=1e-5)
+    x = torch.cat([obs, actor.scale(torch.tanh(mu))], -1)
+    q1 = layer("qf.qf1.4", layer("qf.qf1.2", layer("qf.qf1.0", x).relu()).relu())[:, 0]
+    torch.testing.assert_close(critic(obs, actor.scale(torch.tanh(mu)))[0], q1, rtol=1e-5,
+                               atol=1e-4)
+    assert env_id.startswith("h1hand-")
 
 
 @pytest.mark.slow

@@ -180,23 +180,25 @@ def test_sigterm_checkpoints_exits_3_and_resumes(corrected_run, tmp_path):
         assert read_csv(run_dir / name) == read_csv(corrected_run / name)
 
 
-def test_replay_buffer_keeps_episode_boundaries():
+def test_replay_buffer_samples_stored_transitions_uniformly():
     import numpy as np
 
     from sac_standard import ReplayBuffer
 
-    rb = ReplayBuffer(size=7, obs_dim=1, action_dim=1, device=torch.device("cpu"))
-    # Episode 1: obs 0 -> 1 -> 2 (truncated); episode 2: 10 -> 11 (terminated); 3: 20 -> 21 -> 22.
-    for obs, next_obs, end, terminated in [(0, 1, False, False), (1, 2, True, False),
-                                           (10, 11, True, True), (20, 21, False, False),
-                                           (21, 22, False, False)]:
-        rb.add(np.array([obs]), np.array([obs]), obs, terminated, np.array([next_obs]), end)
-    # 8 slots were needed in a ring of 7: observation 22 overwrote the first transition (0 -> 1).
-    obs, actions, rewards, next_obs, not_done = rb.sample(500, torch.device("cpu"))
-    assert obs.shape == (500, 1) and rewards.shape == not_done.shape == (500,)
-    pairs = {(int(o), int(n), int(d)) for o, n, d in zip(obs[:, 0], next_obs[:, 0], not_done,
-                                                         strict=True)}
-    assert pairs == {(1, 2, 1), (10, 11, 0), (20, 21, 1), (21, 22, 1)}
+    rb = ReplayBuffer(size=4, obs_dim=1, action_dim=1, device=torch.device("cpu"))
+    # Episode 1: obs 0 -> 1 -> 2 (truncated: its true final observation); 2: 10 -> 11
+    # (terminated); 3: 20 -> 21. Five transitions in a ring of four: the first is overwritten.
+    for obs, next_obs, terminated in [(0, 1, False), (1, 2, False), (10, 11, True),
+                                      (20, 21, False), (21, 22, False)]:
+        rb.add(np.array([obs]), np.array([obs]), obs, terminated, np.array([next_obs]))
+    assert (rb.ptr, rb.filled) == (1, 4)
+    torch.manual_seed(0)
+    obs, actions, rewards, next_obs, not_done = rb.sample(2000, torch.device("cpu"))
+    assert obs.shape == (2000, 1) and rewards.shape == not_done.shape == (2000,)
+    pairs = [(int(o), int(n), int(d)) for o, n, d in zip(obs[:, 0], next_obs[:, 0], not_done,
+                                                         strict=True)]
+    assert set(pairs) == {(1, 2, 1), (10, 11, 0), (20, 21, 1), (21, 22, 1)}
+    assert all(400 < pairs.count(p) < 600 for p in set(pairs))  # uniform: 500 each expected
     assert torch.equal(actions[:, 0], obs[:, 0]) and torch.equal(rewards, obs[:, 0])
 
 
@@ -209,7 +211,7 @@ def test_replay_buffer_state_round_trip():
     cpu = torch.device("cpu")
     rb = ReplayBuffer(size=50, obs_dim=3, action_dim=2, device=cpu)
     for i in range(30):
-        rb.add(np.full(3, i), np.array([i, -i]), float(i), False, np.full(3, i + 1), i % 7 == 6)
+        rb.add(np.full(3, i), np.array([i, -i]), float(i), i % 7 == 6, np.full(3, i + 1))
     copy = ReplayBuffer(size=50, obs_dim=3, action_dim=2, device=cpu)
     load_buffer_state(copy, buffer_state(rb))
     torch.manual_seed(3)
@@ -383,14 +385,14 @@ def test_glorot_uniform_init_and_zero_biases():
     import gymnasium as gym
     import numpy as np
 
-    from sac_standard import Actor, Linear, TwinQ
+    from sac_standard import Actor, TwinQ
 
     space = gym.spaces.Box(-1.0, 1.0, (17,), np.float32)
     layers = [m for net in (Actor(40, (256, 256), space, -10.0, 2.0), TwinQ(40, 17, (256, 256)))
-              for m in net.modules() if isinstance(m, Linear)]
+              for m in net.modules() if isinstance(m, torch.nn.Linear)]
     assert len(layers) == 4 + 6  # actor: two hidden, mean and log-sigma heads; critics: 3 each
     for layer in layers:
-        fan_in, fan_out = layer.weight.shape
+        fan_out, fan_in = layer.weight.shape
         bound = (6 / (fan_in + fan_out)) ** 0.5
         assert torch.count_nonzero(layer.bias) == 0
         # Uniform on [-bound, bound]: within it, and reaching near it (PyTorch's default would
@@ -408,7 +410,7 @@ def test_update_scores_the_actor_with_the_pre_update_critic():
     import gymnasium as gym
     import numpy as np
 
-    from sac_standard import Actor, TwinQ, agent_tensors, sac_update
+    from sac_standard import Actor, TwinQ, sac_update
 
     torch.manual_seed(0)
     actor = Actor(3, (8,), gym.spaces.Box(-1.0, 1.0, (2,), np.float32), -10.0, 2.0)
@@ -420,11 +422,11 @@ def test_update_scores_the_actor_with_the_pre_update_critic():
     batch = (torch.randn(16, 3), torch.rand(16, 2) * 2 - 1, torch.randn(16),
              torch.randn(16, 3), (torch.rand(16) > 0.2).float())
     before = [copy.deepcopy(m) for m in (actor, qf, qf_target)]
+    old_actor, old_qf = copy.deepcopy(actor), copy.deepcopy(qf)
     adam = functools.partial(torch.optim.Adam, lr=0.05)
     optimizers = (adam(actor.parameters()), adam(qf.parameters()), adam([log_alpha]))
     noise = torch.randn(2, 16, 2)  # the next action's, then the action's
-    sac_update(agent_tensors(actor, qf, qf_target, log_alpha, *optimizers), batch, noise,
-               actor, qf, 0.99, 0.1, -1.0)
+    sac_update(actor, qf, qf_target, log_alpha, optimizers, batch, noise, 0.99, 0.1, -1.0)
 
     # By hand: the actor's gradient step against the pre-update critic.
     ref_actor, ref_qf, ref_target = before
@@ -444,9 +446,19 @@ def test_update_scores_the_actor_with_the_pre_update_critic():
     stale_loss.backward(inputs=list(stale_actor.parameters()))
     stale_optimizer.step()
     assert not torch.allclose(next(stale_actor.parameters()), next(actor.parameters()))
+    # The critics stepped on their own loss alone (the actor loss's gradient never reached them).
+    ref_qf_optimizer = adam(ref_qf.parameters())
+    with torch.no_grad():
+        next_pi, next_log_pi = old_actor.squash(*old_actor(batch[3]), noise[0])
+        target = batch[2] + batch[4] * 0.99 * (ref_target(batch[3], next_pi).min(0).values
+                                               - alpha * next_log_pi)
+    (ref_qf(batch[0], batch[1]) - target).pow(2).mean(-1).sum().backward()
+    ref_qf_optimizer.step()
+    for p, ref in zip(qf.parameters(), ref_qf.parameters(), strict=True):
+        torch.testing.assert_close(p, ref)
     # The target moved a tenth of the way towards the critic as it was before its step.
     for p, old_target, old_critic in zip(qf_target.parameters(), ref_target.parameters(),
-                                         ref_qf.parameters(), strict=True):
+                                         old_qf.parameters(), strict=True):
         torch.testing.assert_close(p, old_target + 0.1 * (old_critic - old_target))
 
 

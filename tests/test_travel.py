@@ -168,26 +168,21 @@ def test_a_physics_blow_up_never_becomes_a_training_transition(tmp_path):
         "--hidden-sizes", "8", "--batch-size", "16", "--checkpoint-interval", "400",
         "--output-dir", str(tmp_path), "--run-name", "blow")
     buffer = torch.load(tmp_path / "blow" / "checkpoint.pt", weights_only=False)["buffer"]
-    left, valid = buffer["obs"][:, 0], buffer["valid"]
+    left, next_left = buffer["obs"][:, 0], buffer["next_obs"][:, 0]
     # Each episode: 3 real steps (4 -> 3 -> 2 -> 1 steps left), then the blow-up at 1 left.
-    assert int(valid.sum()) == 300
-    assert set(left[valid].tolist()) == {4.0, 3.0, 2.0}
-    nxt = torch.roll(left, -1)
-    assert torch.equal(nxt[valid], left[valid] - 1)  # every stored transition is a real step
-    assert not valid[left == 1].any() and (left == 1).sum() == 100  # final observations
-    assert float(buffer["rewards"][valid].min()) == 1.0  # no blow-up's reward 0
+    assert buffer["filled"] == len(left) == 300
+    assert set(left.tolist()) == {4.0, 3.0, 2.0}
+    assert torch.equal(next_left, left - 1)  # every stored transition is a real step
+    assert float(buffer["rewards"].min()) == 1.0  # no blow-up's reward 0
 
 
-def test_a_blow_up_at_an_episodes_first_step_leaves_nothing_in_the_buffer():
-    from sac_standard import ReplayBuffer
+def test_a_blow_up_is_told_from_the_vector_envs_final_info():
+    from sac_standard import physics_blow_up
 
-    rb = ReplayBuffer(8, 1, 1, torch.device("cpu"))
-    one = lambda x: np.array([x], np.float64)  # noqa: E731
-    rb.add(one(5), one(0.1), 0.0, False, one(6), True, blow_up=True)  # a blow-up at once
-    assert (rb.ptr, rb.filled) == (0, 0) and not rb.valid.any()
-    rb.add(one(7), one(0.2), 1.0, False, one(8), True)  # a real 1-step episode
-    assert (rb.ptr, rb.filled) == (2, 2)
-    assert rb.valid.tolist()[:2] == [True, False] and rb.obs[:2, 0].tolist() == [7, 8]
+    unstable = {"final_info": {"physics_unstable": np.array([True])}}
+    assert physics_blow_up(unstable, episode_end=True)
+    assert not physics_blow_up({"final_info": {"physics_unstable": np.array([False])}}, True)
+    assert not physics_blow_up({}, True) and not physics_blow_up(unstable, episode_end=False)
 
 
 @pytest.mark.slow

@@ -43,7 +43,7 @@ def snapshot(folder: Path) -> dict:
 @pytest.mark.parametrize(("flags", "message"), [
     ({"total_timesteps": -5}, "--total-timesteps -5: must be at least 1"),
     ({"batch_size": 0}, "--batch-size 0: must be between 1 and --buffer-size (1000000)"),
-    ({"buffer_size": 1}, "--buffer-size 1: must be at least 2"),
+    ({"buffer_size": 0}, "--buffer-size 0: must be at least 1"),
     ({"gamma": 1.5}, "--gamma 1.5: must be in [0, 1]"),
     ({"gamma": float("nan")}, "--gamma nan: must be in [0, 1]"),
     ({"tau": 0.0}, "--tau 0.0: must be in (0, 1]"),
