@@ -13,7 +13,7 @@ paper's unpaired rliable statistics: IQM / median / mean / optimality gap, perfo
 profiles, sample efficiency, probability of improvement.
 
 The data (load -> pair -> align -> paired differences -> normalise; the --robust folders) is
-sac_utils/scores.py's, which writes no report; a task or an evaluation action is one entry
+analysis/data.py's, which writes no report; a task or an evaluation action is one entry
 there. Here, top to bottom (docs/analyze.md maps each figure to its code): what to edit (COLORS,
 the labels); the shared tools (rliable's estimators, the paired difference's rows for both
 headlines, the paper's Figures 6-8, labels and colours); one section per report, in summary.md's
@@ -38,35 +38,9 @@ import tyro
 from rliable import library as rly
 from rliable import metrics
 
-from sac_utils import dimension_study as dimensions
-from sac_utils import stats
-from sac_utils.cli import broken_rule
-from sac_utils.figures import (
-    PairedCell,
-    PairedRow,
-    over_tasks_cell,
-    plot_aggregate_metrics,
-    plot_over_training,
-    plot_paired,
-    plot_per_seed,
-    plot_performance_profiles,
-    plot_probability_of_improvement,
-    plot_reward_curves,
-    plot_sample_efficiency,
-    profile_thresholds,
-    task_markers,
-)
-from sac_utils.report import (
-    Report,
-    above_zero,
-    counted,
-    format_ci,
-    format_step,
-    markdown_table,
-    seed_cells,
-    share_above_zero,
-)
-from sac_utils.scores import (
+from analysis import dimension_study as dimensions
+from analysis import estimators
+from analysis.data import (
     ACTIONS,
     BASELINE,
     CHOICE_SHARES,
@@ -110,16 +84,42 @@ from sac_utils.scores import (
     shift_curves,
     standard_from_paired,
 )
-from sac_utils.stats import (
+from analysis.estimators import (
     CONFIDENCE,
     FEW_SEEDS,
     seed_mean_estimates,
     t_interval,
     welch_interval,
 )
+from analysis.figures import (
+    PairedCell,
+    PairedRow,
+    over_tasks_cell,
+    plot_aggregate_metrics,
+    plot_over_training,
+    plot_paired,
+    plot_per_seed,
+    plot_performance_profiles,
+    plot_probability_of_improvement,
+    plot_reward_curves,
+    plot_sample_efficiency,
+    profile_thresholds,
+    task_markers,
+)
+from analysis.report import (
+    Report,
+    above_zero,
+    counted,
+    format_ci,
+    format_step,
+    markdown_table,
+    seed_cells,
+    share_above_zero,
+)
+from sac_utils.cli import broken_rule
 
 # ============================================================================== what to edit
-# A task's success bar and a new evaluation action: sac_utils/scores.py (SUCCESS_BARS, ACTIONS).
+# A task's success bar and a new evaluation action: analysis/data.py (SUCCESS_BARS, ACTIONS).
 # Each (algorithm, action)'s colour, an index in seaborn's colorblind palette, fixed so that
 # colours stay put between reports (an algorithm's actions get distant hues); any other gets a
 # free colour.
@@ -417,7 +417,7 @@ def aggregate_title(agg: Aggregate) -> str:
 # ============================================================================== the reports
 # One section per report, in the order summary.md prints them. Each report_*(report, analysis)
 # computes its estimates, draws its figure and writes its summary.csv rows and summary.md table;
-# it reads `analysis` (the data, sac_utils/scores.py's) and the shared tools, never another section.
+# it reads `analysis` (the data, analysis/data.py's) and the shared tools, never another section.
 
 # --------------------------------------- 1. the header, and where the standard numbers come from
 def found_table(runs: Runs, groups: list[Key]) -> str:
@@ -577,7 +577,7 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
     q_best) minus tanh(mu) of the same actors from the same start states (paired), per task and
     over tasks, with the share of seeds where that action is above zero; at the scored step and
     averaged over the last rounds. Estimator, per task: the mean over seeds of the per-seed
-    differences with the bootstrap CI (seed_mean_estimates: stats.bootstrap_mean), since the
+    differences with the bootstrap CI (seed_mean_estimates: estimators.bootstrap_mean), since the
     pairing makes each seed one value; beside it Student's t-interval, since with 5 seeds or fewer a
     percentile bootstrap is too narrow. Over tasks: paired_over_tasks."""
     args, runs, tasks, norms = analysis.args, analysis.runs, analysis.tasks, analysis.norms
@@ -776,7 +776,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     from evaluate.py's campaign, many noisy starts per seed and step. Per seed: the mean over its
     episodes of each action's return minus tanh(mu)'s from the same start; per task and step,
     the mean over seeds with Student's t-interval (t_interval) and, labelled as such, rliable's
-    bootstrap (seed_mean_estimates: stats.bootstrap_mean): with 5 seeds or
+    bootstrap (seed_mean_estimates: estimators.bootstrap_mean): with 5 seeds or
     fewer the percentile bootstrap resamples only the few values seen and is too narrow, so the
     t-interval is the one to read. Over tasks, at their shared last step, divided by each
     success bar: robust_over_tasks."""
@@ -793,7 +793,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
              f"bootstrap ({args.reps:,} replications). 'return': the mean over seeds of each "
              "seed's mean return; 'above zero': seeds whose difference is positive (a count of "
              "signs that decides nothing); 'ahead / level / "
-             f"behind': seeds more than {stats.VERDICT_SE:g} standard errors of their paired "
+             f"behind': seeds more than {estimators.VERDICT_SE:g} standard errors of their paired "
              "episodes above zero, within, or below."]
     seeds = [d.size for steps in by_task.values() for at in steps.values()
              for d in at.differences.values()]
@@ -1002,7 +1002,7 @@ def report_choice_shares(report: Report, analysis: Analysis) -> None:
     """q_best's choices (no figure): how often the critic picked the mode, tanh(mu) and the
     mean, at each task's scored step, for each evaluation action that logs its choice_shares.
     Estimator: the mean over seeds with rliable's bootstrap CI (seed_mean_estimates:
-    stats.bootstrap_mean), a share per seed being one value per seed."""
+    estimators.bootstrap_mean), a share per seed being one value per seed."""
     for action in CHOICE_SHARES:
         choice_shares_of(report, analysis, action)
 
@@ -1206,10 +1206,10 @@ def report_probability_of_improvement(report: Report, analysis: Analysis) -> Non
 
 
 # ---------------------------------------------------------------------- 11. the dimension study
-# Beyond the paper; sac_utils/dimension_study.py builds, estimates, tabulates and draws it.
+# Beyond the paper; analysis/dimension_study.py builds, estimates, tabulates and draws it.
 def report_dimension_study(report: Report, analysis: Analysis) -> None:
     """Beyond the paper (figure `dimension_study`): what each evaluation action is worth as the
-    action dimension grows, one task per dimension (sac_utils/dimension_study.py)."""
+    action dimension grows, one task per dimension (analysis/dimension_study.py)."""
     study, notes = dimensions.build_study(analysis.runs, analysis.tasks, analysis.derived)
     report.notes.extend(notes)
     dimensions.report_study(report, study, analysis.labels, list(ACTIONS), analysis.args.reps,

@@ -13,9 +13,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 from PIL import Image
 
-from sac_utils import stats
+from analysis import estimators
 
-format_ci = stats.interval_text
+format_ci = estimators.interval_text
 
 
 def counted(n: int | str, noun: str) -> str:
@@ -42,7 +42,7 @@ def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
     point = estimate[0]
     if values.size == 1:
         return f"{point:.{digits}f} (one seed)", "-"
-    _, low, high = stats.t_interval(values)
+    _, low, high = estimators.t_interval(values)
     t_cell = f"[{low:.{digits}f}, {high:.{digits}f}]"
     if values.size == 2:
         a, b = sorted(float(v) for v in values)
@@ -52,7 +52,7 @@ def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
 
 def positives(values: np.ndarray) -> int:
     """How many of the values are above zero: a count of signs that decides nothing (the
-    verdicts are stats.verdict's and the t-interval's)."""
+    verdicts are estimators.verdict's and the t-interval's)."""
     return int((values > 0).sum())
 
 

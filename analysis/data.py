@@ -29,8 +29,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from sac_utils import files, stats
-from sac_utils.report import format_step
+from analysis import estimators
+from analysis.report import format_step
+from sac_utils import files
 
 
 class AnalysisError(Exception):
@@ -58,7 +59,7 @@ OWN_ACTIONS = {CORRECTED: "mode", STANDARD: "tanh_mu"}
 # is one entry here; every report follows.
 ACTIONS = {"tanh_mu": "tanh(mu)", "mode": "mode", "mean": "mean", "q_best": "q_best"}
 # The baseline every other action is compared with: sac_corrected.py always logs it.
-BASELINE = stats.BASELINE
+BASELINE = estimators.BASELINE
 # Optional: how often an action's critic picked each candidate (shares summing to 1).
 CHOICE_SHARES = {"q_best": ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_share_mean")}
 # A group of evaluations: the runs of an algorithm, evaluated with an action.
@@ -511,7 +512,7 @@ def paired_differences(tasks: dict[str, Task], derived: Sequence[str] = ()
     for task, data in tasks.items():
         for group, baseline in paired_groups(data, task in derived):
             own, paired = paired_values(data, group, baseline, np.array([data.scored_step]))
-            differences.setdefault(task, {})[group] = stats.paired_difference(own[:, 0],
+            differences.setdefault(task, {})[group] = estimators.paired_difference(own[:, 0],
                                                                               paired[:, 0])
     return differences
 
@@ -524,7 +525,7 @@ def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
     for task, data in tasks.items():
         for group, baseline in paired_groups(data, task in derived):
             own, paired = paired_values(data, group, baseline, data.steps)
-            curves.setdefault(task, {})[group] = stats.paired_difference(own, paired)
+            curves.setdefault(task, {})[group] = estimators.paired_difference(own, paired)
     return curves
 
 
@@ -680,7 +681,7 @@ class RobustStep:
     returns: dict[str, np.ndarray]  # mean return over each seed's episodes
     differences: dict[str, np.ndarray]  # all but tanh_mu: mean of (it - tanh_mu) per episode
     errors: dict[str, np.ndarray]  # the standard errors of those paired episodes
-    verdicts: dict[str, list[str]]  # stats.verdict per seed
+    verdicts: dict[str, list[str]]  # estimators.verdict per seed
     episodes: np.ndarray  # episodes per seed (of tanh_mu, which every seed played)
     seeds: np.ndarray  # the seeds, in the order of every array above
     played: dict[str, int]  # each action's episodes over its seeds
@@ -711,7 +712,7 @@ def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]
             if action != BASELINE:
                 at.differences[action] = seeds.difference_mean.to_numpy()
                 at.errors[action] = seeds.difference_se.to_numpy()
-                at.verdicts[action] = [stats.verdict(m, se) for m, se in
+                at.verdicts[action] = [estimators.verdict(m, se) for m, se in
                                        zip(at.differences[action], at.errors[action],
                                            strict=True)]
         by_task.setdefault(task, {})[int(step)] = at

@@ -14,8 +14,8 @@ import numpy as np
 from matplotlib.patches import Patch
 from rliable import plot_utils
 
-from sac_utils import stats
-from sac_utils.report import counted
+from analysis import estimators
+from analysis.report import counted
 
 
 def steps_axis(max_step: float) -> tuple[float, str]:
@@ -167,7 +167,7 @@ def draw_seed_summary(ax, x: float, width: float, cell: PairedCell, color: tuple
                         ha="center", va="bottom" if below else "top", fontsize=6,
                         bbox={"fc": "white", "ec": "none", "pad": 0.3, "alpha": 0.8})
         elif inside and errors is not None and np.isfinite(errors[i]):
-            ax.errorbar(xi, value, yerr=stats.VERDICT_SE * errors[i], color=color, lw=0.7,
+            ax.errorbar(xi, value, yerr=estimators.VERDICT_SE * errors[i], color=color, lw=0.7,
                         alpha=0.7, zorder=3)
     ax.bar(x + 0.6 * width, boot[2] - boot[1], bottom=boot[1], width=0.4 * width, color=color,
            alpha=0.4)
@@ -244,7 +244,7 @@ def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str)
     fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3),
                fontsize="small", title="evaluation action", title_fontsize="small")
     episodes = any(c.errors is not None for row in rows for c in row.cells.values())
-    dots = f"dots: seeds, +-{stats.VERDICT_SE:g} SE of their paired episodes" if episodes \
+    dots = f"dots: seeds, +-{estimators.VERDICT_SE:g} SE of their paired episodes" if episodes \
         else "dots: seeds"
     fig.suptitle(f"Each action minus tanh(mu): same actor, same start states\n{how}\n{dots} "
                  "(triangles: beyond the axis)\ntick and whisker: mean over seeds and its 95% "
@@ -257,7 +257,7 @@ def plot_per_seed(rows: Sequence[PairedRow], colors: dict, labels: dict, how: st
     """The robust evaluation's verdicts, seed by seed: plot_paired's task panels with only the
     seeds, each with +-VERDICT_SE standard errors of its paired episodes, on an axis scaled to
     them (with few seeds the mean's t-interval is many times wider and hides them). A marker
-    per seed, filled where stats.verdict says ahead or behind, hollow where level."""
+    per seed, filled where estimators.verdict says ahead or behind, hollow where level."""
     series, slot, offsets = series_slots(rows)
     every = sorted({int(seed) for row in rows for c in row.cells.values() for seed in c.seeds})
     shapes = dict(zip(every, "osD^vP*Xph", strict=False))
@@ -269,8 +269,9 @@ def plot_per_seed(rows: Sequence[PairedRow], colors: dict, labels: dict, how: st
         for (i, s), cell in row.cells.items():
             for seed, value, error in zip(cell.seeds, cell.values, cell.errors, strict=True):
                 x = i + offsets[s] + spread[seeds.index(int(seed))]
-                decided = stats.verdict(value, error) in ("ahead", "behind")
-                ax.errorbar(x, value, yerr=None if np.isnan(error) else stats.VERDICT_SE * error,
+                decided = estimators.verdict(value, error) in ("ahead", "behind")
+                whisker = None if np.isnan(error) else estimators.VERDICT_SE * error
+                ax.errorbar(x, value, yerr=whisker,
                             color=colors[s], lw=0.8, zorder=3, ls="", marker=shapes[int(seed)],
                             ms=4.5, mfc=colors[s] if decided else "white", mec=colors[s])
         frame_panel(ax, row)
@@ -280,7 +281,7 @@ def plot_per_seed(rows: Sequence[PairedRow], colors: dict, labels: dict, how: st
     fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 4),
                fontsize="small", title="evaluation action; seed", title_fontsize="small")
     fig.suptitle(f"Each seed's action minus tanh(mu): same actor, same start states\n{how}\n"
-                 f"whisker: +-{stats.VERDICT_SE:g} SE of the seed's paired episodes; filled: "
+                 f"whisker: +-{estimators.VERDICT_SE:g} SE of the seed's paired episodes; filled: "
                  "beyond it (ahead or behind), hollow: level", fontsize="medium")
     return fig
 
@@ -347,7 +348,7 @@ def plot_over_training(steps: dict[str, np.ndarray], differences: dict, estimate
         how = (f"thin: each round's mean over seeds; thick: mean of the last {ROLLING_ROUNDS} "
                "rounds" if rolling else "mean over seeds, 95% bootstrap CI; thin: each seed"
                + ("\n(from this few seeds the CI is narrower than the data allow)"
-                  if seeds and min(seeds) <= stats.FEW_SEEDS else ""))
+                  if seeds and min(seeds) <= estimators.FEW_SEEDS else ""))
         ax.set_title(f"{task}, n = {counted(n, 'seed')}\n{how}", fontsize="medium")
         ax.set_ylabel("Return minus tanh(mu)'s")
         ax.legend(fontsize="small", frameon=False, loc="upper center", ncols=3,

@@ -3,7 +3,7 @@ one task per dimension (analyze.py's last report section; the classic tasks of
 `sweep.py --preset dimensions` give it several dimensions). Each point is a different task, with
 its own body and reward, not one task swept over its action dimension.
 
-Built from analyze.py's data (sac_utils/scores.py; `build_study`: a `Dimension` per task),
+Built from analyze.py's data (analysis/data.py; `build_study`: a `Dimension` per task),
 then estimated, tabulated and drawn here: summary.csv's sections `dimension` and
 `dimension_shift`, figure `dimension_study`.
 """
@@ -18,9 +18,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 import seaborn as sns
 
-from sac_utils import stats
-from sac_utils.report import Report, above_zero, format_ci, format_step, markdown_table, seed_cells
-from sac_utils.scores import Curve, Runs, Task, group_rank, own_action, paired_groups, paired_values
+from analysis import estimators
+from analysis.data import Curve, Runs, Task, group_rank, own_action, paired_groups, paired_values
+from analysis.report import Report, above_zero, format_ci, format_step, markdown_table, seed_cells
 
 # Measured at the states the mode policy visited (sac_corrected.py's eval.csv).
 SHIFT_COLUMNS = ("mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
@@ -97,7 +97,7 @@ def dimension_estimates(study: dict[str, Dimension], reps: int, seed: int) -> di
     samples = {((t, g), f): by_fraction[f] / d.scale for t, d in study.items()
                for g, by_fraction in d.differences.items() for f in d.steps}
     samples |= {(t, column): v for t, d in study.items() for column, v in d.shift.items()}
-    return stats.seed_mean_estimates(samples, reps, seed)
+    return estimators.seed_mean_estimates(samples, reps, seed)
 
 
 def dimension_positions(study: dict[str, Dimension]) -> dict[str, float]:
@@ -212,7 +212,7 @@ def report_study(report: Report, study: dict[str, Dimension], labels, order: Seq
                  reps: int, seed: int) -> None:
     """Beyond the paper (figure `dimension_study`): what each evaluation action is worth as the
     action dimension grows, one task per dimension. Estimator: the mean over seeds with
-    rliable's bootstrap CI (seed_mean_estimates: stats.bootstrap_mean) of
+    rliable's bootstrap CI (seed_mean_estimates: estimators.bootstrap_mean) of
     each task's per-seed paired difference, normalised by the range of its tanh(mu) returns so
     that tasks of different reward scales share an axis, and of the measured shift; beside it
     Student's t-interval of the raw difference (few seeds). Tasks are not pooled: each point is
@@ -238,7 +238,7 @@ def report_study(report: Report, study: dict[str, Dimension], labels, order: Seq
                            runs_n, point, low, high)
                 report.row("dimension", task, group, f"raw_difference@{f:g}", step, runs_n,
                            *(v * d.scale for v in (point, low, high)))
-                t_values = stats.t_interval(diffs)
+                t_values = estimators.t_interval(diffs)
                 report.row("dimension", task, group, f"normalised_difference_t@{f:g}", step,
                            runs_n, *(v / d.scale for v in t_values))
                 report.row("dimension", task, group, f"raw_difference_t@{f:g}", step, runs_n,
