@@ -585,6 +585,75 @@ def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.n
     return shifts
 
 
+# ---------------------------------------------------------------------- the dimension study
+# Beyond the paper: per task, its action dimension, each evaluation action's paired difference
+# at fractions of training and the shift measured at the final step.
+# Measured at the states the mode policy visited (sac_corrected.py's eval.csv).
+DIMENSION_SHIFT_COLUMNS = ("mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
+# Paired differences at these fractions of each task's shared steps.
+TRAINING_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
+
+
+@dataclasses.dataclass
+class Dimension:
+    """One task of the dimension study: its action dimension, the per-seed paired difference of
+    each evaluation action (minus tanh(mu)) at fractions of training, and the shift measured at
+    its final step."""
+
+    action_dim: int
+    scale: float  # the range of the task's tanh(mu) returns in the folder
+    steps: dict[float, int]  # training fraction -> step
+    # group -> fraction -> per-seed raw difference, groups in the report's order
+    differences: dict[tuple[str, str], dict[float, np.ndarray]]
+    shift: dict[str, np.ndarray]  # DIMENSION_SHIFT_COLUMN -> per-seed value at the final step
+
+def training_fraction_steps(steps: np.ndarray, scored_step: int) -> dict[float, int]:
+    """The shared step at each of TRAINING_FRACTIONS: the last one at or before that share of
+    the scored step (the first shared step if none is), the scored step at 1.0."""
+    picks = {f: int(steps[max(0, np.searchsorted(steps, f * scored_step, side="right") - 1)])
+             for f in TRAINING_FRACTIONS}
+    return {**picks, 1.0: scored_step}
+
+def shift_at(curves: list[Curve], step: int) -> dict[str, np.ndarray]:
+    """Each DIMENSION_SHIFT_COLUMN at `step`, one value per run that logged it (empty cells
+    left out)."""
+    shift = {}
+    for column in DIMENSION_SHIFT_COLUMNS:
+        values = np.array([c.shift[column][c.steps == step][0]
+                           for c in curves if column in c.shift])
+        if np.isfinite(values).any():
+            shift[column] = values[np.isfinite(values)]
+    return shift
+
+def build_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
+                ) -> tuple[dict[str, Dimension], list[str]]:
+    """Each evaluation action's paired difference and the measured shift per task, keyed by
+    action dimension, and notes on the tasks left out."""
+    study, notes = {}, []
+    for task, data in tasks.items():
+        pairs = paired_groups(data, task in derived)
+        if not pairs:
+            continue
+        algorithms = {group[0] for group, _ in pairs}
+        dims = {c.action_dim for a in algorithms for c in runs[task].get((a, own_action(a)), [])}
+        if None in dims or len(dims) != 1:
+            notes.append(f"{task}: its runs' config.json give no single action_dim "
+                         f"({sorted(dims, key=str)}); left out of the dimension study")
+            continue
+        baselines = np.concatenate([data.returns[b].ravel() for b in {b for _, b in pairs}])
+        scale = float(baselines.max() - baselines.min()) or 1.0
+        steps = training_fraction_steps(data.steps, data.scored_step)
+        differences = {}
+        for group, baseline in pairs:
+            own, paired = paired_values(data, group, baseline, np.array(list(steps.values())))
+            differences[group] = dict(zip(steps, estimators.paired_difference(own, paired).T,
+                                          strict=True))
+        shift = {}
+        for key in sorted(((a, own_action(a)) for a in algorithms), key=group_rank):
+            shift = shift or shift_at(runs[task][key], data.scored_step)
+        study[task] = Dimension(dims.pop(), scale, steps, differences, shift)
+    return study, notes
+
 # ------------------------------------------------------------- robust evaluation (evaluate.py)
 # evaluate.py's campaign folders (--robust): every policy (a run's final weights or a snapshot)
 # played each action from the same many noisy starts, and its per_seed.csv holds, per policy and

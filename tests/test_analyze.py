@@ -164,7 +164,7 @@ def test_identical_algorithms_give_even_odds(tmp_path):
     p, low, high = estimate(summary, "probability_of_improvement", "all",
                             "corrected > standard", "P(X > Y)")
     assert p == 0.5 and low < 0.5 < high
-    for metric in analyze.AGGREGATE_METRICS:
+    for metric in estimators.AGGREGATE_METRICS:
         assert estimate(summary, "aggregate", "all", "standard", metric)[0] == \
             estimate(summary, "aggregate", "all", "corrected", metric)[0]
 
@@ -189,7 +189,7 @@ def test_iqm_per_step_is_rliables_iqm_at_every_step():
 
     scores = np.random.default_rng(3).normal(size=(5, 4, 7))
     expected = [metrics.aggregate_iqm(scores[..., i]) for i in range(7)]
-    assert np.allclose(analyze.iqm_per_step(scores), expected)
+    assert np.allclose(estimators.iqm_per_step(scores), expected)
 
 
 def test_iqm_is_rliables_iqm_to_the_bit():
@@ -200,16 +200,16 @@ def test_iqm_is_rliables_iqm_to_the_bit():
         for k in range(50):
             scores = rng.normal(size=shape) * 10.0 ** rng.integers(-3, 4)
             scores = np.round(scores, 1) if k % 2 else scores  # ties
-            assert analyze.iqm(scores) == metrics.aggregate_iqm(scores), (shape, k)
+            assert estimators.iqm(scores) == metrics.aggregate_iqm(scores), (shape, k)
     scores[0, 0] = np.nan
-    assert np.isnan(analyze.iqm(scores)) and np.isnan(metrics.aggregate_iqm(scores))
+    assert np.isnan(estimators.iqm(scores)) and np.isnan(metrics.aggregate_iqm(scores))
 
 
 def test_a_figures_band_line_says_how_many_runs_and_warns_when_few():
-    few = analyze.band_line({"a": np.zeros((2, 1)), "b": np.zeros((3, 1))}, "bars")
+    few = figures.band_line({"a": np.zeros((2, 1)), "b": np.zeros((3, 1))}, "bars")
     assert few.startswith("bars: 95% stratified-bootstrap CIs (rliable), 2 or 3 runs x 1 task")
     assert "narrower than the data allow" in few
-    many = analyze.band_line({"a": np.zeros((estimators.FEW_SEEDS + 1, 4))}, "bands")
+    many = figures.band_line({"a": np.zeros((estimators.FEW_SEEDS + 1, 4))}, "bands")
     assert many == ("bands: 95% stratified-bootstrap CIs (rliable), "
                     f"{estimators.FEW_SEEDS + 1} runs x 4 tasks")
 
@@ -625,11 +625,9 @@ def test_dimension_study_recovers_known_offsets_per_dimension(tmp_path):
 
 
 def test_dimension_positions_spread_tasks_that_share_a_dimension():
-    from analysis.dimension_study import Dimension, dimension_positions
-
-    study = {t: Dimension(d, 1.0, {}, {}, {}) for t, d in
+    study = {t: data.Dimension(d, 1.0, {}, {}, {}) for t, d in
              (("a", 3), ("b", 61), ("c", 61), ("d", 61))}
-    xs = dimension_positions(study)
+    xs = figures.dimension_positions(study)
     assert xs["a"] == 3 and np.isclose(xs["c"], 61) and xs["b"] < 61 < xs["d"]
     assert np.isclose(xs["b"] * xs["d"], 61**2)  # symmetric on the log axis
 
@@ -867,9 +865,9 @@ def test_last_rounds_average_with_t_interval_and_seeds_above_zero(tmp_path):
     summary = read_summary(tmp_path / "out")
     last = np.array(offsets) - 100.0
     key = ("paired_difference", TASKS[2], "corrected")
-    assert np.allclose(estimate(summary, *key, "return_t"), analyze.t_interval(last))
+    assert np.allclose(estimate(summary, *key, "return_t"), estimators.t_interval(last))
     assert np.allclose(estimate(summary, *key, "score_t"),
-                       np.array(analyze.t_interval(last)) / 2000)
+                       np.array(estimators.t_interval(last)) / 2000)
     for k in (20, 50):
         key = ("paired_last_rounds", TASKS[2], "corrected")
         point, low, high = estimate(summary, *key, f"return_last{k}")
@@ -882,7 +880,7 @@ def test_last_rounds_average_with_t_interval_and_seeds_above_zero(tmp_path):
     text = (tmp_path / "out" / "summary.md").read_text()
     assert "With 5 seeds or fewer a percentile bootstrap CI is narrower" in text
     assert "each seed's evaluation at 600k is one episode" in text
-    t_low, t_high = analyze.t_interval(np.array(offsets))[1:]
+    t_low, t_high = estimators.t_interval(np.array(offsets))[1:]
     assert ("| last 20 (410k-600k), one episode each | 5.0 [" in text
             and f"| [{t_low:.1f}, {t_high:.1f}] | 3 of 5 |" in text)
     assert "| last 50 (110k-600k), one episode each | 5.0 [" in text

@@ -1,4 +1,4 @@
-"""analysis.stats: the intervals are Student's and Welch's, the bootstrap is rliable's with an
+"""analysis.estimators: the intervals are Student's and Welch's, the bootstrap is rliable's with an
 explicit generator, and the verdict counts three standard errors."""
 
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import scipy.stats
 from rliable import library as rly
 
-from analysis import estimators
+from analysis import estimators, report
 
 
 def test_t_interval_is_students_and_welchs():
@@ -61,6 +61,6 @@ def test_paired_difference_verdict_and_one_run_without_interval():
     assert math.isnan(estimators.standard_error(np.array([1.0])))
     assert estimators.verdict(3.1, 1.0) == "ahead" and estimators.verdict(-3.1, 1.0) == "behind"
     assert estimators.verdict(3.0, 1.0) == "level" and estimators.verdict(1.0, math.nan) == "n/a"
-    assert estimators.interval_text(0.02, 0.02, 0.02, runs=1) == "0.020 (n/a)"
-    assert estimators.interval_text(0.5, 0.25, 0.75) == "0.500 [0.250, 0.750]"
-    assert estimators.interval_text(0.5, math.nan, math.nan) == "0.500 (n/a)"
+    assert report.interval_text(0.02, 0.02, 0.02, runs=1) == "0.020 (n/a)"
+    assert report.interval_text(0.5, 0.25, 0.75) == "0.500 [0.250, 0.750]"
+    assert report.interval_text(0.5, math.nan, math.nan) == "0.500 (n/a)"
