@@ -12,12 +12,13 @@ it stands in for missing sac_standard.py runs and is checked against present one
 paper's unpaired rliable statistics: IQM / median / mean / optimality gap, performance
 profiles, sample efficiency, probability of improvement.
 
-The data (load -> pair -> align -> paired differences -> normalise; the --robust folders) is
-analysis/data.py's, which writes no report; a task or an evaluation action is one entry
-there. Here, top to bottom (docs/analyze.md maps each figure to its code): what to edit (COLORS,
-the labels); the shared tools (rliable's estimators, the paired difference's rows for both
-headlines, the paper's Figures 6-8, labels and colours); one section per report, in summary.md's
-order, each reading the data and the shared tools, never another section; the pipeline.
+Here: the command line and the report's sections. What they read, estimate, draw and write is
+analysis/'s: the data (load -> pair -> align -> paired differences -> normalise; the --robust
+folders; a task or an evaluation action is one entry there), the estimators, the figures and the
+report writer. Top to bottom (docs/analyze.md maps each figure and table to its code): what to
+edit (COLORS, the labels); the shared tools (the few-seeds warnings, the paired difference's rows
+for both headlines, labels and colours); one section per report, in summary.md's order, each
+reading the data and the shared tools, never another section; the pipeline.
 """
 
 from __future__ import annotations
@@ -177,10 +178,9 @@ class Args:
 
 
 # ============================================================================== shared tools
-# ---------------------------------------------------------------- estimators (rliable's own)
-# rliable's API as the paper uses it, seeded so that a folder and --seed give the same numbers;
-# each report's docstring says which estimator it uses and why. Student's t-intervals sit beside
-# the bootstrap wherever a mean over few seeds is reported.
+# ------------------------------------------------------------------------- few seeds
+# Each report's docstring says which estimator (analysis/estimators.py) it uses and why.
+# Student's t-intervals sit beside the bootstrap wherever a mean over few seeds is reported.
 def few_seeds_lines(seeds: Sequence[int]) -> list[str]:
     """summary.md's warning where a mean over seeds has a bootstrap CI from FEW_SEEDS or fewer."""
     return ["", f"With {FEW_SEEDS} seeds or fewer a percentile bootstrap CI is narrower than "

@@ -140,18 +140,10 @@ def optional_columns() -> tuple[str, ...]:
             *SHIFT_COLUMNS, EPISODES_COLUMN)
 
 
-def read_json_object(path: Path, fix: str) -> dict:
-    """A JSON file that holds an object; else the one-line error, ending with `fix`."""
-    try:
-        return files.read_json_object(path)
-    except ValueError as error:
-        raise AnalysisError(f"{error}; {fix}") from None
-
-
 def read_config(path: Path) -> dict:
     """The run's config.json, checked for the keys analyze.py needs."""
-    config = read_json_object(path, f"fix or remove that run (it needs keys "
-                                    f"{list(REQUIRED_CONFIG_KEYS)})")
+    config = files.read_json_object(path, f"fix or remove that run (it needs keys "
+                                          f"{list(REQUIRED_CONFIG_KEYS)})", AnalysisError)
     missing = [key for key in REQUIRED_CONFIG_KEYS if key not in config]
     if missing:
         raise AnalysisError(
@@ -685,7 +677,7 @@ def read_robust_folder(folder: Path) -> tuple[dict, pd.DataFrame]:
         raise AnalysisError(
             f"--robust {folder}: no {ROBUST_SETTINGS_FILE} there; pass a folder that "
             "`evaluate.py RUNS_DIR --out FOLDER` wrote over a campaign of runs")
-    settings = read_json_object(path, "evaluate again")
+    settings = files.read_json_object(path, "evaluate again", AnalysisError)
     path, again = folder / ROBUST_PER_SEED_FILE, f"`evaluate.py {folder}` writes it again"
     if not path.is_file():
         raise AnalysisError(f"{path} is missing: {again} from the runs' episodes.csv")
