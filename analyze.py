@@ -12,12 +12,13 @@ it stands in for missing sac_standard.py runs and is checked against present one
 paper's unpaired rliable statistics: IQM / median / mean / optimality gap, performance
 profiles, sample efficiency, probability of improvement.
 
-The data (load -> pair -> align -> paired differences -> normalise; the --robust folders) is
-sac_utils/scores.py's, which writes no report; a task or an evaluation action is one entry
-there. Here, top to bottom (docs/analyze.md maps each figure to its code): what to edit (COLORS,
-the labels); the shared tools (rliable's estimators, the paired difference's rows for both
-headlines, the paper's Figures 6-8, labels and colours); one section per report, in summary.md's
-order, each reading the data and the shared tools, never another section; the pipeline.
+Here: the command line and the report's sections. What they read, estimate, draw and write is
+analysis/'s: the data (load -> pair -> align -> paired differences -> normalise; the --robust
+folders; a task or an evaluation action is one entry there), the estimators, the figures and the
+report writer. Top to bottom (docs/analyze.md maps each figure and table to its code): what to
+edit (COLORS, the labels); the shared tools (the few-seeds warnings, the paired difference's rows
+for both headlines, labels and colours); one section per report, in summary.md's order, each
+reading the data and the shared tools, never another section; the pipeline.
 """
 
 from __future__ import annotations
@@ -32,45 +33,16 @@ from typing import Literal
 
 import matplotlib
 import numpy as np
-import scipy.stats
 import seaborn as sns
 import tyro
-from rliable import library as rly
 from rliable import metrics
 
-from sac_utils import dimension_study as dimensions
-from sac_utils import stats
-from sac_utils.cli import broken_rule
-from sac_utils.figures import (
-    PairedCell,
-    PairedRow,
-    over_tasks_cell,
-    plot_aggregate_metrics,
-    plot_over_training,
-    plot_paired,
-    plot_per_seed,
-    plot_performance_profiles,
-    plot_probability_of_improvement,
-    plot_reward_curves,
-    plot_sample_efficiency,
-    profile_thresholds,
-    task_markers,
-)
-from sac_utils.report import (
-    Report,
-    above_zero,
-    counted,
-    format_ci,
-    format_step,
-    markdown_table,
-    seed_cells,
-    share_above_zero,
-)
-from sac_utils.scores import (
+from analysis.data import (
     ACTIONS,
     BASELINE,
     CHOICE_SHARES,
     CORRECTED,
+    DIMENSION_SHIFT_COLUMNS,
     LAST_ROUNDS,
     OVER_TRAINING_SHIFT_COLUMNS,
     PAIRED_RETURN_COLUMN,
@@ -87,6 +59,7 @@ from sac_utils.scores import (
     align,
     blowups_recorded,
     build_aggregate,
+    build_study,
     cpu_name,
     eval_suffix,
     group_name,
@@ -110,16 +83,49 @@ from sac_utils.scores import (
     shift_curves,
     standard_from_paired,
 )
-from sac_utils.stats import (
-    CONFIDENCE,
+from analysis.estimators import (
+    AGGREGATE_METRICS,
     FEW_SEEDS,
+    VERDICT_SE,
+    aggregate_estimates,
+    difference_over_tasks,
+    interval_estimates,
+    iqm_per_step,
+    mean_curves,
+    performance_profiles,
     seed_mean_estimates,
     t_interval,
-    welch_interval,
 )
+from analysis.figures import (
+    PairedCell,
+    PairedRow,
+    over_tasks_cell,
+    plot_aggregate_metrics,
+    plot_dimension_study,
+    plot_over_training,
+    plot_paired,
+    plot_per_seed,
+    plot_performance_profiles,
+    plot_probability_of_improvement,
+    plot_reward_curves,
+    plot_sample_efficiency,
+    profile_thresholds,
+    task_markers,
+)
+from analysis.report import (
+    Report,
+    above_zero,
+    counted,
+    format_step,
+    interval_text,
+    markdown_table,
+    seed_cells,
+    share_above_zero,
+)
+from sac_utils.cli import broken_rule
 
 # ============================================================================== what to edit
-# A task's success bar and a new evaluation action: sac_utils/scores.py (SUCCESS_BARS, ACTIONS).
+# A task's success bar and a new evaluation action: analysis/data.py (SUCCESS_BARS, ACTIONS).
 # Each (algorithm, action)'s colour, an index in seaborn's colorblind palette, fixed so that
 # colours stay put between reports (an algorithm's actions get distant hues); any other gets a
 # free colour.
@@ -172,88 +178,13 @@ class Args:
 
 
 # ============================================================================== shared tools
-# ---------------------------------------------------------------- estimators (rliable's own)
-# rliable's API as the paper uses it, seeded so that a folder and --seed give the same numbers;
-# each report's docstring says which estimator it uses and why. Student's t-intervals sit beside
-# the bootstrap wherever a mean over few seeds is reported.
-def seed_bootstrap(seed: int) -> None:
-    """rliable's bootstraps draw from NumPy's legacy global generator (random_state is ignored)."""
-    np.random.seed(seed)  # noqa: NPY002
-
-
-def interval_estimates(
-    score_dict: dict, func: Callable[..., np.ndarray], reps: int, seed: int
-) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """rliable's stratified-bootstrap point and interval estimates, reproducible by `seed`."""
-    seed_bootstrap(seed)
-    return rly.get_interval_estimates(
-        score_dict, func, reps=reps, confidence_interval_size=CONFIDENCE
-    )
-
-
-def difference_over_tasks(per_task: Sequence[np.ndarray], reps: int, seed: int
-                          ) -> tuple[np.ndarray, tuple[float, float, float],
-                                     tuple[float, float, float]]:
-    """A paired difference over tasks, each task's per-seed values already divided by its
-    scale: the (seeds, tasks) matrix (the lowest seeds, where tasks have more), the mean over
-    tasks of the mean over seeds with rliable's stratified bootstrap CI (seeds resampled within
-    each task: the tasks are fixed, only the seeds are drawn) and Welch's t-interval beside it."""
-    seeds = min(values.size for values in per_task)
-    matrix = np.stack([values[:seeds] for values in per_task], axis=1)
-    point, interval = interval_estimates({"": matrix}, metrics.aggregate_mean, reps, seed)
-    boot = (float(point[""]), *map(float, interval[""].ravel()))
-    return matrix, boot, welch_interval(list(matrix.T))
-
-
-AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
-
-
-def iqm(scores: np.ndarray) -> np.float64:
-    """metrics.aggregate_iqm, scipy's 25% trimmed mean over all runs and tasks, as its own lines:
-    the same partition and mean, so the same bits (tests/test_analyze.py), without scipy's
-    per-call checks (~0.3 ms, most of a 20,000-replication bootstrap's time)."""
-    flat = scores.ravel()
-    if np.isnan(flat).any():  # scipy's default nan_policy, "propagate"
-        return np.float64(np.nan)
-    cut = int(0.25 * flat.size)
-    return np.mean(np.partition(flat, (cut, flat.size - cut - 1))[cut:flat.size - cut])
-
-
-def aggregate_metrics(scores: np.ndarray, gap: bool = True) -> np.ndarray:
-    """IQM, median, mean (and optimality gap) of a (runs x tasks) score matrix."""
-    values = [
-        iqm(scores),
-        metrics.aggregate_median(scores),
-        metrics.aggregate_mean(scores),
-    ]
-    return np.array(values + [metrics.aggregate_optimality_gap(scores)] * gap)
-
-
-def iqm_per_step(scores: np.ndarray) -> np.ndarray:
-    """metrics.aggregate_iqm at each step of a (runs x tasks x steps) score array.
-
-    aggregate_iqm is scipy's 25% trimmed mean over all runs and tasks; one call along the step
-    axis gives the same numbers as a call per step, 6x (21 steps) to 15x (51) faster.
-    """
-    return scipy.stats.trim_mean(scores.reshape(-1, scores.shape[-1]), 0.25, axis=0)
-
-
+# ------------------------------------------------------------------------- few seeds
+# Each report's docstring says which estimator (analysis/estimators.py) it uses and why.
+# Student's t-intervals sit beside the bootstrap wherever a mean over few seeds is reported.
 def few_seeds_lines(seeds: Sequence[int]) -> list[str]:
     """summary.md's warning where a mean over seeds has a bootstrap CI from FEW_SEEDS or fewer."""
     return ["", f"With {FEW_SEEDS} seeds or fewer a percentile bootstrap CI is narrower than "
             "the data allow: read the t-interval."] if seeds and min(seeds) <= FEW_SEEDS else []
-
-
-def band_line(scores: dict[Key, np.ndarray], band: str) -> str:
-    """A figure's line on what its `band` shows: rliable's stratified-bootstrap CIs, over how
-    many runs of how many tasks, and, from FEW_SEEDS runs or fewer, that they only resample the
-    few values seen."""
-    runs = sorted({values.shape[0] for values in scores.values()})
-    tasks = next(iter(scores.values())).shape[1]
-    line = (f"{band}: {CONFIDENCE:.0%} stratified-bootstrap CIs (rliable), "
-            f"{counted(' or '.join(map(str, runs)), 'run')} x {counted(tasks, 'task')}")
-    return line + (";\nfrom this few runs they are narrower than the data allow"
-                   if runs[0] <= FEW_SEEDS else "")
 
 
 def iqm_note(runs: Sequence[int], tasks: int) -> str:
@@ -305,49 +236,12 @@ def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str,
     report.row(section, "all", key, "share_above_zero", step, scores.size,
                share_above_zero(scores), math.nan, math.nan)
     return (over_tasks_cell(scores, boot, t_values, {t: shapes[t] for t in per_task}),
-            [len(per_task), seeds, format_ci(*boot, runs=seeds),
+            [len(per_task), seeds, interval_text(*boot, runs=seeds),
              f"[{t_values[1]:.3f}, {t_values[2]:.3f}]", above_zero(scores)])
 
 
 # ----------------------------------------------------- the paper's Figures 6-8, from any scores
 # The training log's final scores (7.-9.) and the robust evaluation's (3.) go through these.
-def figure_6(report: Report, scores: dict, names: Sequence[str], labels: Callable, colors: dict,
-             xlabel: str, note: str, name: str, args: Args) -> tuple[dict, dict]:
-    """Each group's `names` (AGGREGATE_METRICS, or its first three) of its (runs, tasks) scores
-    with rliable's stratified-bootstrap CIs (--reps), drawn as Figure 6."""
-    gap = len(names) == len(AGGREGATE_METRICS)
-    point, interval = interval_estimates(scores, functools.partial(aggregate_metrics, gap=gap),
-                                         args.reps, args.seed)
-    note = "\n".join(filter(None, [note, band_line(scores, "bars")]))
-    report.figure(plot_aggregate_metrics(point, interval, names, colors, xlabel, labels, note),
-                  name)
-    return point, interval
-
-
-def figure_7(report: Report, scores: dict, labels: Callable, colors: dict, xlabel: str,
-             title: str, name: str, args: Args) -> None:
-    """Performance profiles of each group's (runs, tasks) scores with rliable's CIs
-    (--curve-reps), drawn as Figure 7."""
-    taus = profile_thresholds(scores)
-    seed_bootstrap(args.seed)
-    profiles, cis = rly.create_performance_profile(scores, taus, reps=args.curve_reps)
-    title = f"{title}\n{band_line(scores, 'bands')}"
-    report.figure(plot_performance_profiles(taus, profiles, cis, colors, xlabel, labels, title),
-                  name)
-
-
-def figure_8(report: Report, frames: np.ndarray, scores: dict, labels: Callable, colors: dict,
-             ylabel: str, title: str, name: str, args: Args, by_fraction: bool = False
-             ) -> tuple[dict, dict]:
-    """The IQM of each group's (runs, tasks, frames) scores at every frame with rliable's CIs
-    (--curve-reps), drawn as Figure 8."""
-    point, interval = interval_estimates(scores, iqm_per_step, args.curve_reps, args.seed)
-    title = f"{title}\n{band_line(scores, 'bands')}"
-    report.figure(plot_sample_efficiency(frames, point, interval, colors, ylabel, labels, title,
-                                         by_fraction), name)
-    return point, interval
-
-
 # ------------------------------------------------------------------------- labels and colours
 @dataclasses.dataclass(frozen=True)
 class GroupLabels:
@@ -417,7 +311,7 @@ def aggregate_title(agg: Aggregate) -> str:
 # ============================================================================== the reports
 # One section per report, in the order summary.md prints them. Each report_*(report, analysis)
 # computes its estimates, draws its figure and writes its summary.csv rows and summary.md table;
-# it reads `analysis` (the data, sac_utils/scores.py's) and the shared tools, never another section.
+# it reads `analysis` (the data, analysis/data.py's) and the shared tools, never another section.
 
 # --------------------------------------- 1. the header, and where the standard numbers come from
 def found_table(runs: Runs, groups: list[Key]) -> str:
@@ -577,7 +471,7 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
     q_best) minus tanh(mu) of the same actors from the same start states (paired), per task and
     over tasks, with the share of seeds where that action is above zero; at the scored step and
     averaged over the last rounds. Estimator, per task: the mean over seeds of the per-seed
-    differences with the bootstrap CI (seed_mean_estimates: stats.bootstrap_mean), since the
+    differences with the bootstrap CI (seed_mean_estimates: estimators.bootstrap_mean), since the
     pairing makes each seed one value; beside it Student's t-interval, since with 5 seeds or fewer a
     percentile bootstrap is too narrow. Over tasks: paired_over_tasks."""
     args, runs, tasks, norms = analysis.args, analysis.runs, analysis.tasks, analysis.norms
@@ -776,7 +670,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     from evaluate.py's campaign, many noisy starts per seed and step. Per seed: the mean over its
     episodes of each action's return minus tanh(mu)'s from the same start; per task and step,
     the mean over seeds with Student's t-interval (t_interval) and, labelled as such, rliable's
-    bootstrap (seed_mean_estimates: stats.bootstrap_mean): with 5 seeds or
+    bootstrap (seed_mean_estimates: estimators.bootstrap_mean): with 5 seeds or
     fewer the percentile bootstrap resamples only the few values seen and is too narrow, so the
     t-interval is the one to read. Over tasks, at their shared last step, divided by each
     success bar: robust_over_tasks."""
@@ -793,7 +687,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
              f"bootstrap ({args.reps:,} replications). 'return': the mean over seeds of each "
              "seed's mean return; 'above zero': seeds whose difference is positive (a count of "
              "signs that decides nothing); 'ahead / level / "
-             f"behind': seeds more than {stats.VERDICT_SE:g} standard errors of their paired "
+             f"behind': seeds more than {VERDICT_SE:g} standard errors of their paired "
              "episodes above zero, within, or below."]
     seeds = [d.size for steps in by_task.values() for at in steps.values()
              for d in at.differences.values()]
@@ -866,26 +760,30 @@ def ends_table(by_task: dict[str, dict[int, RobustStep]]) -> list[str]:
 
 def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOverTasks,
                             labels: dict, colors: dict) -> list[str]:
-    """Figures `robust_aggregate_metrics` and `robust_performance_profiles` (figure_6,
-    figure_7): Figures 6 and 7 of the paper from the robust evaluation, one entry per action of
-    the same actors, the returns at the tasks' shared last step divided by each success bar.
+    """Figures `robust_aggregate_metrics` and `robust_performance_profiles`: Figures 6 and 7
+    of the paper from the robust evaluation, as sections 7 and 8 draw them, one entry per action
+    of the same actors, the returns at the tasks' shared last step divided by each success bar.
     Writes summary.csv's `robust_aggregate` rows; returns summary.md's lines."""
     args, name, step = analysis.args, SCORE_NAMES["success-bar"], over.step
     seeds, tasks = over.seeds, over.tasks
-    point, interval = figure_6(
-        report, over.scores, AGGREGATE_METRICS, labels.get, colors, name,
-        f"The robust evaluation at {format_step(step)}, over {counted(len(tasks), 'task')}",
-        "robust_aggregate_metrics", args)
+    point, interval = aggregate_estimates(over.scores, True, args.reps, args.seed)
+    report.figure(plot_aggregate_metrics(
+        point, interval, over.scores, AGGREGATE_METRICS, colors, name, labels.get,
+        f"The robust evaluation at {format_step(step)}, over {counted(len(tasks), 'task')}"),
+        "robust_aggregate_metrics")
     print(f"robust performance profiles ({args.curve_reps:,} reps) ...")
-    figure_7(report, over.scores, labels.get, colors, name, f"Robust evaluation at "
-             f"{format_step(step)}: {', '.join(tasks)}, {seeds} seeds per task",
-             "robust_performance_profiles", args)
+    taus = profile_thresholds(over.scores)
+    profiles = performance_profiles(over.scores, taus, args.curve_reps, args.seed)
+    report.figure(plot_performance_profiles(
+        taus, *profiles, over.scores, colors, name, labels.get, f"Robust evaluation at "
+        f"{format_step(step)}: {', '.join(tasks)}, {seeds} seeds per task"),
+        "robust_performance_profiles")
     rows = []
     for action in point:
         for i, metric in enumerate(AGGREGATE_METRICS):
             report.row("robust_aggregate", "all", action, metric, step, seeds,
                        point[action][i], *interval[action][:, i])
-        rows.append([action, *(format_ci(point[action][i], *interval[action][:, i])
+        rows.append([action, *(interval_text(point[action][i], *interval[action][:, i])
                                for i in range(len(AGGREGATE_METRICS)))])
     lines = [markdown_table(["action", *AGGREGATE_METRICS], rows)]
     if note := iqm_note([seeds], len(tasks)):
@@ -920,10 +818,12 @@ def robust_sample_efficiency(report: Report, analysis: Analysis,
     starts = ", ".join(
         f"{format_step(step)} {episodes_span(np.concatenate([row[i].episodes for row in at]))}"
         for i, step in enumerate(shared))
-    point, interval = figure_8(
-        report, np.array(shared, dtype=float), scores, labels.get, colors,
-        f"IQM {SCORE_NAMES['success-bar'].lower()}", f"Robust evaluation: {', '.join(tasks)}, "
-        f"{seeds} seeds per task\nstarts per seed: {starts}", "robust_sample_efficiency", args)
+    point, interval = interval_estimates(scores, iqm_per_step, args.curve_reps, args.seed)
+    report.figure(plot_sample_efficiency(
+        np.array(shared, dtype=float), point, interval, scores, colors,
+        f"IQM {SCORE_NAMES['success-bar'].lower()}", labels.get, f"Robust evaluation: "
+        f"{', '.join(tasks)}, {seeds} seeds per task\nstarts per seed: {starts}"),
+        "robust_sample_efficiency")
     for action in actions:
         for i, step in enumerate(shared):
             report.row("robust_sample_efficiency", "all", action, "IQM", step, seeds,
@@ -952,11 +852,8 @@ def report_over_training(report: Report, analysis: Analysis) -> None:
     if not differences:
         return
     print(f"paired differences over training ({args.curve_reps:,} reps) ...")
-    estimates = {}
-    for task, by_group in differences.items():
-        point, interval = interval_estimates({g: d[:, None, :] for g, d in by_group.items()},
-                                             metrics.aggregate_mean, args.curve_reps, args.seed)
-        estimates[task] = {g: (point[g], interval[g]) for g in by_group}
+    estimates = {task: mean_curves(by_group, args.curve_reps, args.seed)
+                 for task, by_group in differences.items()}
     shifts = shift_curves(runs, tasks)
     names = {g: analysis.labels.action_first(g) for by_group in differences.values()
              for g in by_group}
@@ -1002,7 +899,7 @@ def report_choice_shares(report: Report, analysis: Analysis) -> None:
     """q_best's choices (no figure): how often the critic picked the mode, tanh(mu) and the
     mean, at each task's scored step, for each evaluation action that logs its choice_shares.
     Estimator: the mean over seeds with rliable's bootstrap CI (seed_mean_estimates:
-    stats.bootstrap_mean), a share per seed being one value per seed."""
+    estimators.bootstrap_mean), a share per seed being one value per seed."""
     for action in CHOICE_SHARES:
         choice_shares_of(report, analysis, action)
 
@@ -1035,7 +932,7 @@ def choice_shares_of(report: Report, analysis: Analysis, action: str) -> None:
         row = table.setdefault((task, group), [task, format_step(step),
                                                analysis.labels.algorithm(group[0]),
                                                values.size, *["-"] * len(candidates)])
-        row[4 + candidates.index(name)] = format_ci(*estimate)
+        row[4 + candidates.index(name)] = interval_text(*estimate)
     report.section(
         f"{action}: which action the critic picked",
         f"Share of {action}'s evaluation steps at which the critic preferred each "
@@ -1045,33 +942,17 @@ def choice_shares_of(report: Report, analysis: Analysis, action: str) -> None:
 
 
 # ------------------------------------------------- 6. reward curves and final returns (Fig. 5)
-def reward_curve_estimates(tasks: dict[str, Task], reps: int, seed: int) -> dict:
-    """task -> group -> (mean, (low, high)) over seeds at every shared step: with FEW_SEEDS
-    seeds or fewer Student's t-interval (a percentile bootstrap of five values is too narrow),
-    else rliable's get_interval_estimates of metrics.aggregate_mean, every step at once."""
-    estimates = {}
-    for task, data in tasks.items():
-        estimates[task] = {g: (r.mean(0), np.array([t_interval(r[:, i])[1:]
-                                                    for i in range(r.shape[1])]).T)
-                           for g, r in data.returns.items() if r.shape[0] <= FEW_SEEDS}
-        scores = {g: r[:, None, :] for g, r in data.returns.items()  # (seeds, 1 task, steps)
-                  if g not in estimates[task]}
-        if scores:
-            point, interval = interval_estimates(scores, metrics.aggregate_mean, reps, seed)
-            estimates[task] |= {g: (point[g], interval[g]) for g in scores}
-    return estimates
-
-
 def report_reward_curves(report: Report, analysis: Analysis) -> None:
     """Figure 5 (`reward_curves`) and the per-task final returns. Estimators: the curves, the
-    mean over seeds at every step with a bootstrap CI (reward_curve_estimates, --curve-reps);
+    mean over seeds at every step with a bootstrap CI (mean_curves, --curve-reps);
     the final returns, the mean over seeds at the scored step with rliable's bootstrap CI
     (seed_mean_estimates, --reps), raw returns, so that a task's numbers read in its own units,
     and normalised beside them."""
     args, tasks, norms = analysis.args, analysis.tasks, analysis.norms
     groups, colors, labels = analysis.groups, analysis.colors, analysis.labels
     print(f"per-task curves ({args.curve_reps:,} reps) and final returns ({args.reps:,}) ...")
-    curves = reward_curve_estimates(tasks, args.curve_reps, args.seed)
+    curves = {t: mean_curves(data.returns, args.curve_reps, args.seed, FEW_SEEDS)
+              for t, data in tasks.items()}
     styles = {(t, g): ":" if one_episode_per_seed(analysis.runs[t].get(g, []), data.steps)
               else "-" if is_own(g) else "--" for t, data in tasks.items() for g in data.returns}
     seeds = sorted({r.shape[0] for data in tasks.values() for r in data.returns.values()})
@@ -1094,7 +975,8 @@ def report_reward_curves(report: Report, analysis: Analysis) -> None:
             report.row("task_final", task, group, "return", step, runs, point, low, high)
             report.row("task_final", task, group, "score", step, runs, *scores)
             table.append([task, format_step(step), labels(group), runs,
-                          format_ci(point, low, high, 1, runs), format_ci(*scores, runs=runs)])
+                          interval_text(point, low, high, 1, runs),
+                          interval_text(*scores, runs=runs)])
     report.section("Final evaluation return per task (mean over seeds, 95% CI)",
                    markdown_table(["task", "step", "group", "seeds", "return", "score"], table))
 
@@ -1114,14 +996,16 @@ def report_aggregate_metrics(report: Report, analysis: Analysis) -> None:
     names = AGGREGATE_METRICS if args.normalize != "none" else AGGREGATE_METRICS[:3]
     print(f"aggregate metrics over {len(agg.tasks)} task(s) ({args.reps:,} reps) ...")
     note = iqm_note(sorted({scores.shape[0] for scores in agg.final.values()}), len(agg.tasks))
-    point, interval = figure_6(report, agg.final, names, analysis.labels, analysis.colors,
-                               score_name, note, "aggregate_metrics", args)
+    point, interval = aggregate_estimates(agg.final, len(names) == len(AGGREGATE_METRICS),
+                                          args.reps, args.seed)
+    report.figure(plot_aggregate_metrics(point, interval, agg.final, names, analysis.colors,
+                                         score_name, analysis.labels, note), "aggregate_metrics")
     table = []
     for g in agg.groups:
         runs = agg.final[g].shape[0]
         for i, name in enumerate(names):
             report.row("aggregate", "all", g, name, "", runs, point[g][i], *interval[g][:, i])
-        table.append([analysis.labels(g), runs, *[format_ci(
+        table.append([analysis.labels(g), runs, *[interval_text(
             point[g][i], *interval[g][:, i], runs=runs) for i in range(len(names))]])
     report.section(f"Aggregate metrics over {len(agg.tasks)} task(s)",
                    f"{score_name}s at each task's scored step; tasks: {', '.join(agg.tasks)}."
@@ -1139,8 +1023,11 @@ def report_performance_profiles(report: Report, analysis: Analysis) -> None:
     if agg is None:
         return
     print(f"performance profiles ({args.curve_reps:,} reps) ...")
-    figure_7(report, agg.final, analysis.labels, analysis.colors, SCORE_NAMES[args.normalize],
-             aggregate_title(agg), "performance_profiles", args)
+    taus = profile_thresholds(agg.final)
+    profiles = performance_profiles(agg.final, taus, args.curve_reps, args.seed)
+    report.figure(plot_performance_profiles(taus, *profiles, agg.final, analysis.colors,
+                                            SCORE_NAMES[args.normalize], analysis.labels,
+                                            aggregate_title(agg)), "performance_profiles")
 
 
 # ------------------------------------------------------------ 9. sample efficiency (Fig. 8)
@@ -1160,9 +1047,12 @@ def report_sample_efficiency(report: Report, analysis: Analysis) -> None:
             f"({where}), so its axis would hold a single step")
     elif agg.frames.size:
         print(f"sample-efficiency curves ({args.curve_reps:,} reps) ...")
-        figure_8(report, agg.frames, agg.curves, analysis.labels, analysis.colors,
-                 f"IQM {SCORE_NAMES[args.normalize].lower()}", aggregate_title(agg),
-                 "sample_efficiency", args, agg.by_fraction)
+        point, interval = interval_estimates(agg.curves, iqm_per_step, args.curve_reps,
+                                             args.seed)
+        report.figure(plot_sample_efficiency(
+            agg.frames, point, interval, agg.curves, analysis.colors,
+            f"IQM {SCORE_NAMES[args.normalize].lower()}", analysis.labels, aggregate_title(agg),
+            agg.by_fraction), "sample_efficiency")
 
 
 # -------------------------------------------------------- 10. probability of improvement
@@ -1197,7 +1087,7 @@ def report_probability_of_improvement(report: Report, analysis: Analysis) -> Non
                   "probability_of_improvement")
     report.section("Probability of improvement",
                    f"P({labels(x)} > {labels(y)}) = "
-                   f"{format_ci(point[pair], low, high, runs=fewest)}: the "
+                   f"{interval_text(point[pair], low, high, runs=fewest)}: the "
                    f"chance that a run of {labels(x)} scores higher than a run of {labels(y)} on "
                    "a task drawn at random (Mann-Whitney per task, averaged over tasks). It "
                    "compares every run of one with every run of the other and so ignores the "
@@ -1206,14 +1096,76 @@ def report_probability_of_improvement(report: Report, analysis: Analysis) -> Non
 
 
 # ---------------------------------------------------------------------- 11. the dimension study
-# Beyond the paper; sac_utils/dimension_study.py builds, estimates, tabulates and draws it.
 def report_dimension_study(report: Report, analysis: Analysis) -> None:
     """Beyond the paper (figure `dimension_study`): what each evaluation action is worth as the
-    action dimension grows, one task per dimension (sac_utils/dimension_study.py)."""
-    study, notes = dimensions.build_study(analysis.runs, analysis.tasks, analysis.derived)
+    action dimension grows, one task per dimension (build_study: a `Dimension` per task).
+    Estimator: the mean over seeds with rliable's bootstrap CI (seed_mean_estimates) of each
+    task's per-seed paired difference, normalised by the range of its tanh(mu) returns so that
+    tasks of different reward scales share an axis, and of the measured shift; beside it
+    Student's t-interval of the raw difference (few seeds). Tasks are not pooled: each point is
+    a different task."""
+    study, notes = build_study(analysis.runs, analysis.tasks, analysis.derived)
     report.notes.extend(notes)
-    dimensions.report_study(report, study, analysis.labels, list(ACTIONS), analysis.args.reps,
-                            analysis.args.seed)
+    args, labels = analysis.args, analysis.labels
+    dims = sorted({d.action_dim for d in study.values()})
+    if len(dims) < 2:
+        report.notes.append(
+            "dimension study skipped: it needs paired evaluations against tanh(mu) (corrected "
+            "runs, or runs made with --eval-selectors) on tasks of at least two different "
+            f"action dimensions; found {'only ' + str(dims) if dims else 'none'}")
+        return
+    print(f"dimension study over {len(study)} tasks ({args.reps:,} reps) ...")
+    study = dict(sorted(study.items(), key=lambda item: (item[1].action_dim, item[0])))
+    samples = {((t, g), f): by_fraction[f] / d.scale for t, d in study.items()
+               for g, by_fraction in d.differences.items() for f in d.steps}
+    samples |= {(t, column): v for t, d in study.items() for column, v in d.shift.items()}
+    estimates = seed_mean_estimates(samples, args.reps, args.seed)
+    table, shift_table = [], []
+    for task, d in study.items():
+        for group in d.differences:
+            for f, step in d.steps.items():
+                diffs = d.differences[group][f]
+                runs_n = diffs.size
+                point, low, high = estimates[(task, group), f]
+                report.row("dimension", task, group, f"normalised_difference@{f:g}", step,
+                           runs_n, point, low, high)
+                report.row("dimension", task, group, f"raw_difference@{f:g}", step, runs_n,
+                           *(v * d.scale for v in (point, low, high)))
+                t_values = t_interval(diffs)
+                report.row("dimension", task, group, f"normalised_difference_t@{f:g}", step,
+                           runs_n, *(v / d.scale for v in t_values))
+                report.row("dimension", task, group, f"raw_difference_t@{f:g}", step, runs_n,
+                           *t_values)
+                raw, t_cell = seed_cells(diffs, [v * d.scale for v in (point, low, high)], 1)
+                table.append([task, d.action_dim, labels.algorithm(group[0]), group[1],
+                              runs_n, f"{f:g} ({format_step(step)})", raw, t_cell,
+                              seed_cells(diffs / d.scale, (point, low, high))[0],
+                              above_zero(diffs)])
+        for column, values in d.shift.items():
+            report.row("dimension_shift", task, "corrected", column, d.steps[1.0], values.size,
+                       *estimates[task, column])
+        shift_table.append([task, d.action_dim, *(interval_text(*estimates[task, c])
+                                                  if c in d.shift else "-"
+                                                  for c in DIMENSION_SHIFT_COLUMNS)])
+    colors = sns.color_palette("viridis", n_colors=len(study))
+    report.figure(plot_dimension_study(study, estimates, colors, labels, list(ACTIONS)),
+                  "dimension_study")
+    report.section(
+        "Beyond the paper: the paired difference against the action dimension",
+        "Each evaluation action (the mode, and where logged the mean and q_best) minus tanh(mu) "
+        "of the same actors, per seed, at fractions of each task's shared steps; normalised by "
+        "the range of the task's tanh(mu) returns in this folder (all seeds and steps), so that "
+        "tasks compare; mean over seeds with a 95% bootstrap CI, and the raw difference's "
+        "t-interval. Raw numbers are in summary.csv (section `dimension`). Each dimension is a "
+        "different task, with its own body and reward: the points compare tasks, they are not "
+        "one task swept over its action dimension.", "",
+        markdown_table(["task", "action dims", "algorithm", "action", "seeds", "fraction (step)",
+                        "raw difference (bootstrap CI)", "t-interval", "normalised difference",
+                        "above zero"], table), "",
+        "Measured shift at the final step (eval.csv, over the states the mode policy visited; "
+        "mean over seeds with a 95% bootstrap CI), beside the theory curve of mode_search.py "
+        "(figure, last row):", "",
+        markdown_table(["task", "action dims", *DIMENSION_SHIFT_COLUMNS], shift_table))
 
 
 # ============================================================================== the pipeline

@@ -37,7 +37,7 @@ import torch.nn as nn
 import tyro
 
 import sac_corrected as sac
-from sac_utils import stats
+from analysis import estimators
 from sac_utils.cli import broken_rule, check_reset_noise, fail, json_object_or_fail
 from sac_utils.eval_rounds import (
     ACTIONS,
@@ -227,7 +227,7 @@ def progress_bar(label: str, total: int) -> Callable[[int], None]:
 
 def mean_with_ci(values: np.ndarray, reps: int, seed: int) -> tuple[float, float, float]:
     """The percentile bootstrap; NumPy's legacy generator takes seeds below 2**32."""
-    point, low, high = stats.bootstrap_mean(values, reps, np.random.RandomState(seed % 2**32))
+    point, low, high = estimators.bootstrap_mean(values, reps, np.random.RandomState(seed % 2**32))
     return float(point), float(low), float(high)
 
 
@@ -264,7 +264,8 @@ def summarise(results: dict, shift: dict, args: Args, info: dict, env_id: str,
     if "tanh_mu" in results:  # episode by episode: from the same start state
         paired = summary["paired_difference_minus_tanh_mu"] = {}
         for s in (s for s in results if s != "tanh_mu"):
-            diffs = stats.paired_difference(results[s]["returns"], results["tanh_mu"]["returns"])
+            diffs = estimators.paired_difference(results[s]["returns"],
+                                                 results["tanh_mu"]["returns"])
             mean, low, high = mean_with_ci(diffs, args.reps, args.seed)
             paired[s] = {"mean": mean, "ci_low": low, "ci_high": high,
                          "share_better": float(np.mean(diffs > 0)),
@@ -610,20 +611,21 @@ def per_seed_rows(settings: dict, episodes: dict[tuple[str, int, str], list[list
         row = {"env_id": settings["runs"][run]["env_id"], "run": run,
                "seed": settings["runs"][run]["seed"], "step": step, "selector": action,
                "episodes": len(values), "return_mean": values.mean(),
-               "return_se": stats.standard_error(values)}
+               "return_se": estimators.standard_error(values)}
         baseline = returns.get((run, step, "tanh_mu"))
         if action != "tanh_mu" and baseline is not None:
-            diffs = stats.paired_difference(values, baseline)
+            diffs = estimators.paired_difference(values, baseline)
             row |= {"tanh_mu_return_mean": float(np.mean(baseline)),
-                    "difference_mean": diffs.mean(), "difference_se": stats.standard_error(diffs),
+                    "difference_mean": diffs.mean(),
+                    "difference_se": estimators.standard_error(diffs),
                     "share_better": float(np.mean(diffs > 0))}
         key, pair = (run, step, action), ends.get((run, step, "tanh_mu"))
         if action != "tanh_mu" and FELL in reasons and ends[key] is not None and pair is not None:
             # "The mode's episodes end with the robot down more often", tested as the returns are:
             # per start, 1 where the action's episode fell minus 1 where tanh(mu)'s did.
-            fell = stats.paired_difference(np.array(ends[key]) == FELL, np.array(pair) == FELL)
+            fell = estimators.paired_difference(np.array(ends[key]) == FELL, np.array(pair) == FELL)
             row |= {"fell_difference_mean": fell.mean(),
-                    "fell_difference_se": stats.standard_error(fell)}
+                    "fell_difference_se": estimators.standard_error(fell)}
         if any_unstable:
             row["unstable_ends"] = None if flags[key] is None else sum(map(int, flags[key]))
         counts = None if ends[key] is None else collections.Counter(ends[key])
@@ -660,7 +662,7 @@ def _fell(row: dict) -> str:
     if row.get("fell_difference_mean") is None:
         return ""
     mean, se = row["fell_difference_mean"], row["fell_difference_se"]
-    return f"{mean:+.3f} +- {se:.3f} ({stats.fall_verdict(mean, se)})"
+    return f"{mean:+.3f} +- {se:.3f} ({estimators.fall_verdict(mean, se)})"
 
 
 def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
@@ -678,7 +680,7 @@ def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
     falls = any("fell_difference_mean" in r for r in per_seed)
     lines += ["## Per seed", "",
               "Paired difference against tanh(mu) with its standard error over the episodes; "
-              f"verdict: ahead / behind where more than {stats.VERDICT_SE:g} standard errors "
+              f"verdict: ahead / behind where more than {estimators.VERDICT_SE:g} standard errors "
               f"from zero, else level; precision: that standard error as a share of tanh(mu)'s "
               f"mean return (asked: below {PRECISION:.0%})"
               + ("; unstable ends: the episodes a physics blow-up ended, the action's / tanh(mu)'s "
@@ -703,7 +705,7 @@ def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
         lines.append(f"| {r['env_id']} | {r['seed']} | {r['step']} | {r['selector']} | "
                      f"{r['return_mean']:.1f} | {r['tanh_mu_return_mean']:.1f} | "
                      f"{'n/a' if math.isnan(d) else f'{d:+.1f}'} | {r['difference_se']:.1f} | "
-                     f"{stats.verdict(r['difference_mean'], r['difference_se'])} | "
+                     f"{estimators.verdict(r['difference_mean'], r['difference_se'])} | "
                      f"{share:.1%} | {r['share_better']:.0%} |"
                      + (f" {_count(ends, r, r['selector'])} / {_count(ends, r, 'tanh_mu')} |"
                         if ends else "") + (f" {_fell(r)} |" if falls else ""))

@@ -33,11 +33,11 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import humanoid_envs  # noqa: E402,F401  (registers the envs)
+from analysis.estimators import standard_error  # noqa: E402
 from humanoid_envs.base import H1HandEnv  # noqa: E402
 from humanoid_envs.robot import NV_ROBOT  # noqa: E402
 from sac_utils.eval_rounds import episode_end  # noqa: E402
 from sac_utils.policies import load_policy  # noqa: E402
-from sac_utils.stats import standard_error  # noqa: E402
 
 # qvel of the two hands: after the free base's 6 dofs and the 21 of legs, torso and arms.
 HAND_DOFS = slice(6 + 21, NV_ROBOT)

@@ -35,6 +35,7 @@ DOCS = Path(__file__).resolve().parent
 ROOT = DOCS.parent
 sys.path.insert(0, str(ROOT))  # the scripts' modules import from the repository root
 
+from analysis.report import save_palette_png as palette_png  # noqa: E402
 from mode_search import (  # noqa: E402
     SPREADS,
     mean_action,
@@ -42,7 +43,6 @@ from mode_search import (  # noqa: E402
     summed_shift_by_dimension,
     tanh_normal_log_prob,
 )
-from sac_utils.report import save_palette_png as palette_png  # noqa: E402
 
 # Pendulum-v1 learns in a few thousand steps on a CPU; short enough to keep the docs cheap.
 TINY_RUN = [

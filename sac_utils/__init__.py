@@ -4,10 +4,6 @@ command line: each flag's range, --resume's rules, --env-id, the one-line error)
 exact resume; the restart from a snapshot), eval_rounds (evaluation rounds as jobs, beside
 training or in evaluate.py), speedups (torch.compile at start-up, CUDA graphs, the update's
 compiled pieces), files (written whole or not at all), sweep_run (one run of a sweep.py grid),
-stats (the statistics analyze.py and evaluate.py share), scores (analyze.py's data: the runs'
-eval.csv and evaluate.py's per_seed.csv as scores by task, group, seed and step), report (what
-analyze.py's reports are made of), figures (every figure analyze.py draws), dimension_study
-(beyond the paper: the paired difference against the action dimension), policies (what
-evaluate.py loads: our weights or an SB3 SAC, as our Actor and TwinQ).
-docs/scripts.md describes them.
+policies (what evaluate.py loads: our weights or an SB3 SAC, as our Actor and TwinQ).
+docs/scripts.md describes them; the analysis is analysis/'s (docs/analyze.md).
 """

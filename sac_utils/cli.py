@@ -47,9 +47,9 @@ def check_finite(x: np.ndarray, what: str) -> None:
 def json_object_or_fail(path: Path, fix: str) -> dict:
     """A JSON file that holds an object, or one line naming what is wrong with it and `fix`."""
     try:
-        return read_json_object(path)
+        return read_json_object(path, fix)
     except ValueError as error:
-        fail(f"{error}; {fix}")
+        fail(str(error))
 
 
 def read_config_json(run_dir: Path, give_instead: str, restore: str) -> dict:

@@ -31,14 +31,16 @@ def write_json(path: Path, data: dict) -> None:
     write_text_atomically(path, json.dumps(data, indent=2) + "\n")
 
 
-def read_json_object(path: Path) -> dict:
-    """A JSON file that holds an object; else ValueError naming what is wrong with it."""
+def read_json_object(path: Path, fix: str = "", error: type[Exception] = ValueError) -> dict:
+    """A JSON file that holds an object; else `error` naming what is wrong with it, then `fix`
+    (analyze.py's AnalysisError, read by the user as one line)."""
+    then = f"; {fix}" if fix else ""
     try:
         value = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise ValueError(f"{path} is not valid JSON ({error})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as problem:
+        raise error(f"{path} is not valid JSON ({problem}){then}") from None
     if not isinstance(value, dict):
-        raise ValueError(f"{path} does not hold a JSON object")
+        raise error(f"{path} does not hold a JSON object{then}")
     return value
 
 

@@ -13,7 +13,7 @@ import pytest
 import scipy.stats
 
 import analyze
-from sac_utils import figures, scores, stats
+from analysis import data, estimators, figures
 
 EVAL_COLUMNS = ["global_step", "wall_time", "eval_round", "return_mean", "return_std",
                 "return_min", "return_max", "length_mean", "success_rate"]
@@ -66,7 +66,7 @@ def write_paper_like_folder(root: Path, seeds: int = 5, evaluations: int = 100,
     rng = np.random.default_rng(seed)
     steps = interval * np.arange(1, evaluations + 1)
     for t, task in enumerate(TASKS):
-        bar = scores.SUCCESS_BARS[task]
+        bar = data.SUCCESS_BARS[task]
         level = 0.3 + 0.2 * t
         for s in range(seeds):
             luck = rng.normal(0, 0.08)
@@ -105,7 +105,7 @@ def write_offset_folder(root: Path, offset: float, paired_gap: float = 0.05, see
     steps = 10_000 * np.arange(1, evaluations + 1)
     standard_returns = {}
     for task in TASKS:
-        bar = scores.SUCCESS_BARS[task]
+        bar = data.SUCCESS_BARS[task]
         standard_returns[task] = []
         for seed in range(seeds):
             standard = bar * (0.4 + rng.uniform(-0.05, 0.05, steps.size))
@@ -135,7 +135,7 @@ def test_offset_gives_certain_improvement_and_iqm_gap(tmp_path):
     corrected = estimate(summary, "aggregate", "all", "corrected", "Mean")[0]
     assert np.isclose(tanh_mu, corrected - 0.05)
     for task in TASKS:
-        bar = scores.SUCCESS_BARS[task]
+        bar = data.SUCCESS_BARS[task]
         assert np.allclose(estimate(summary, "paired_difference", task, "corrected", "return"),
                            0.05 * bar)
         assert np.allclose(estimate(summary, "paired_difference", task, "corrected", "score"), 0.05)
@@ -164,7 +164,7 @@ def test_identical_algorithms_give_even_odds(tmp_path):
     p, low, high = estimate(summary, "probability_of_improvement", "all",
                             "corrected > standard", "P(X > Y)")
     assert p == 0.5 and low < 0.5 < high
-    for metric in analyze.AGGREGATE_METRICS:
+    for metric in estimators.AGGREGATE_METRICS:
         assert estimate(summary, "aggregate", "all", "standard", metric)[0] == \
             estimate(summary, "aggregate", "all", "corrected", metric)[0]
 
@@ -189,7 +189,7 @@ def test_iqm_per_step_is_rliables_iqm_at_every_step():
 
     scores = np.random.default_rng(3).normal(size=(5, 4, 7))
     expected = [metrics.aggregate_iqm(scores[..., i]) for i in range(7)]
-    assert np.allclose(analyze.iqm_per_step(scores), expected)
+    assert np.allclose(estimators.iqm_per_step(scores), expected)
 
 
 def test_iqm_is_rliables_iqm_to_the_bit():
@@ -200,18 +200,18 @@ def test_iqm_is_rliables_iqm_to_the_bit():
         for k in range(50):
             scores = rng.normal(size=shape) * 10.0 ** rng.integers(-3, 4)
             scores = np.round(scores, 1) if k % 2 else scores  # ties
-            assert analyze.iqm(scores) == metrics.aggregate_iqm(scores), (shape, k)
+            assert estimators.iqm(scores) == metrics.aggregate_iqm(scores), (shape, k)
     scores[0, 0] = np.nan
-    assert np.isnan(analyze.iqm(scores)) and np.isnan(metrics.aggregate_iqm(scores))
+    assert np.isnan(estimators.iqm(scores)) and np.isnan(metrics.aggregate_iqm(scores))
 
 
 def test_a_figures_band_line_says_how_many_runs_and_warns_when_few():
-    few = analyze.band_line({"a": np.zeros((2, 1)), "b": np.zeros((3, 1))}, "bars")
+    few = figures.band_line({"a": np.zeros((2, 1)), "b": np.zeros((3, 1))}, "bars")
     assert few.startswith("bars: 95% stratified-bootstrap CIs (rliable), 2 or 3 runs x 1 task")
     assert "narrower than the data allow" in few
-    many = analyze.band_line({"a": np.zeros((stats.FEW_SEEDS + 1, 4))}, "bands")
-    assert many == (f"bands: 95% stratified-bootstrap CIs (rliable), {stats.FEW_SEEDS + 1} runs"
-                    " x 4 tasks")
+    many = figures.band_line({"a": np.zeros((estimators.FEW_SEEDS + 1, 4))}, "bands")
+    assert many == ("bands: 95% stratified-bootstrap CIs (rliable), "
+                    f"{estimators.FEW_SEEDS + 1} runs x 4 tasks")
 
 
 @pytest.mark.slow
@@ -274,25 +274,25 @@ def test_incomplete_last_line_is_dropped(tmp_path):
     assert summary[("task_final", "h1hand-cube-v0", "standard", "return")]["step"] == "50000"
     text = (tmp_path / "out" / "summary.md").read_text()
     assert "incomplete last line" in text and str(eval_csv) in text
-    columns, partial = scores.read_eval_csv(eval_csv)
+    columns, partial = data.read_eval_csv(eval_csv)
     assert partial and columns["global_step"][-1] == 50_000
     assert columns["return_mean"][-1] == last_value
 
 
 def test_a_restart_from_a_snapshot_is_noted(tmp_path):
     write_offset_folder(tmp_path / "runs", offset=0.1, seeds=2, evaluations=3)
-    _, notes = scores.load_runs([tmp_path / "runs"])
+    _, notes = data.load_runs([tmp_path / "runs"])
     assert not any("restarted" in note for note in notes)
     config_path = next((tmp_path / "runs").glob("*__seed1*/config.json"))
     config = json.loads(config_path.read_text())
     config["restarts"] = [{"step": 20_000, "snapshot": "snapshots/step20000.pt", "refill": 500}]
     config_path.write_text(json.dumps(config))
-    runs, notes = scores.load_runs([tmp_path / "runs"])
+    runs, notes = data.load_runs([tmp_path / "runs"])
     restarted = [note for note in notes if "restarted" in note]
     assert restarted == [f"{config_path.parent}: restarted from snapshots/step20000.pt at step "
                          "20000 (its checkpoint lost; the replay buffer refilled for 500 steps): "
                          "from there a new sample, not the lost run's future"]
-    marks = scores.restart_marks(runs)
+    marks = data.restart_marks(runs)
     assert marks == {task: [(1, 20_000)] if task in config_path.parent.name else []
                      for task in runs}
     # The reward curves mark each restart where it happened, with its seed, in one legend entry;
@@ -354,7 +354,7 @@ def test_corrected_runs_alone_are_both_algorithms(tmp_path):
                     "P(X > Y)")[0] > 0.5
     # Over the two tasks: the mean normalised difference (10 / success bar per task), above zero
     # on 6 of 6.
-    bars = [scores.SUCCESS_BARS[t] for t in TASKS[:2]]
+    bars = [data.SUCCESS_BARS[t] for t in TASKS[:2]]
     mean = estimate(summary, "paired_difference", "all", "corrected", "mean_score")
     assert np.isclose(mean[0], np.mean([10 / b for b in bars]))
     assert estimate(summary, "paired_difference", "all", "corrected", "share_above_zero")[0] == 1.0
@@ -625,11 +625,9 @@ def test_dimension_study_recovers_known_offsets_per_dimension(tmp_path):
 
 
 def test_dimension_positions_spread_tasks_that_share_a_dimension():
-    from sac_utils.dimension_study import Dimension, dimension_positions
-
-    study = {t: Dimension(d, 1.0, {}, {}, {}) for t, d in
+    study = {t: data.Dimension(d, 1.0, {}, {}, {}) for t, d in
              (("a", 3), ("b", 61), ("c", 61), ("d", 61))}
-    xs = dimension_positions(study)
+    xs = figures.dimension_positions(study)
     assert xs["a"] == 3 and np.isclose(xs["c"], 61) and xs["b"] < 61 < xs["d"]
     assert np.isclose(xs["b"] * xs["d"], 61**2)  # symmetric on the log axis
 
@@ -690,11 +688,11 @@ def test_tasks_with_no_step_in_common_and_other_budgets_share_a_fraction_axis(tm
             and f"{TASKS[1]} 250k, {TASKS[0]} 300k" in text)
     # By hand: frames from max(30k/300k, 25k/250k) = 0.1 to 1; at 0.5 powerlift's 150k and
     # cube's 125k; at 0.6 cube's last evaluation at or before 150k, which it skipped: 125k.
-    loaded, _ = scores.load_runs([runs])
-    scores.standard_from_paired(loaded)
-    tasks, _ = scores.align(loaded, None)
-    norms = scores.normalizers(tasks, "success-bar")
-    aggregate, _ = scores.build_aggregate(tasks, norms, scores.ordered_groups(loaded), 19)
+    loaded, _ = data.load_runs([runs])
+    data.standard_from_paired(loaded)
+    tasks, _ = data.align(loaded, None)
+    norms = data.normalizers(tasks, "success-bar")
+    aggregate, _ = data.build_aggregate(tasks, norms, data.ordered_groups(loaded), 19)
     assert aggregate.by_fraction and np.allclose(aggregate.frames, np.linspace(0.1, 1, 19))
     assert aggregate.tasks == [TASKS[1], TASKS[0]]
     seeds = np.arange(3)
@@ -867,9 +865,9 @@ def test_last_rounds_average_with_t_interval_and_seeds_above_zero(tmp_path):
     summary = read_summary(tmp_path / "out")
     last = np.array(offsets) - 100.0
     key = ("paired_difference", TASKS[2], "corrected")
-    assert np.allclose(estimate(summary, *key, "return_t"), analyze.t_interval(last))
+    assert np.allclose(estimate(summary, *key, "return_t"), estimators.t_interval(last))
     assert np.allclose(estimate(summary, *key, "score_t"),
-                       np.array(analyze.t_interval(last)) / 2000)
+                       np.array(estimators.t_interval(last)) / 2000)
     for k in (20, 50):
         key = ("paired_last_rounds", TASKS[2], "corrected")
         point, low, high = estimate(summary, *key, f"return_last{k}")
@@ -882,7 +880,7 @@ def test_last_rounds_average_with_t_interval_and_seeds_above_zero(tmp_path):
     text = (tmp_path / "out" / "summary.md").read_text()
     assert "With 5 seeds or fewer a percentile bootstrap CI is narrower" in text
     assert "each seed's evaluation at 600k is one episode" in text
-    t_low, t_high = analyze.t_interval(np.array(offsets))[1:]
+    t_low, t_high = estimators.t_interval(np.array(offsets))[1:]
     assert ("| last 20 (410k-600k), one episode each | 5.0 [" in text
             and f"| [{t_low:.1f}, {t_high:.1f}] | 3 of 5 |" in text)
     assert "| last 50 (110k-600k), one episode each | 5.0 [" in text
@@ -959,8 +957,8 @@ def test_a_new_task_and_a_new_evaluation_action_are_one_entry_each(tmp_path, mon
         (tmp_path / "before" / "summary.md").read_text()
     assert not any("median" in key[2] for key in read_summary(tmp_path / "before"))
 
-    monkeypatch.setitem(scores.SUCCESS_BARS, TOY_TASK, TOY_BAR)
-    monkeypatch.setitem(scores.ACTIONS, "median", "median")
+    monkeypatch.setitem(data.SUCCESS_BARS, TOY_TASK, TOY_BAR)
+    monkeypatch.setitem(data.ACTIONS, "median", "median")
     out = tmp_path / "out"
     assert run_analysis(tmp_path / "runs", out) == 0
     summary = read_summary(out)
@@ -1013,7 +1011,7 @@ def test_an_analysis_changes_no_module_state(tmp_path):
 
 def test_no_report_section_calls_another():
     """analyze.py's layout (docs/analyze.md): within it, a report's section (a `# --- N. title`
-    banner under `# === the reports`) uses the data (sac_utils/scores.py) and the shared tools,
+    banner under `# === the reports`) uses the data (analysis/data.py) and the shared tools,
     never another report's section; the shared tools use no report's, and the data imports
     nothing that draws or reports."""
     import ast
@@ -1044,14 +1042,14 @@ def test_no_report_section_calls_another():
                 defined[name] = (part(node.lineno), node)
     sections = {where for where, _ in defined.values() if where.startswith("report ")}
     assert len(sections) >= 9 and "shared tools" in {w for w, _ in defined.values()}
-    data = ast.parse(Path(scores.__file__).read_text())
-    imported = {alias.name for node in ast.walk(data) if isinstance(node, ast.Import)
+    tree = ast.parse(Path(data.__file__).read_text())
+    imported = {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import)
                 for alias in node.names}
-    imported |= {f"{node.module}.{alias.name}" for node in ast.walk(data)
+    imported |= {f"{node.module}.{alias.name}" for node in ast.walk(tree)
                  if isinstance(node, ast.ImportFrom) for alias in node.names}
     assert not {name for name in imported
                 if name.split(".")[0] in ("analyze", "matplotlib", "seaborn", "rliable")
-                or name.startswith(("sac_utils.figures", "sac_utils.report.Report"))}, imported
+                or name.startswith(("analysis.figures", "analysis.report.Report"))}, imported
     crossings = []
     for name, (where, node) in defined.items():
         for used in {n.id for n in ast.walk(node) if isinstance(n, ast.Name)} & set(defined):
@@ -1149,7 +1147,7 @@ def test_robust_evaluation_matches_a_hand_computation(tmp_path):
                 assert np.isclose(row_at(rows, "robust_difference", task, action, "return",
                                          step)[0], mean)
                 if step == last:
-                    normalised[action].append(mean / scores.SUCCESS_BARS[task])
+                    normalised[action].append(mean / data.SUCCESS_BARS[task])
             assert np.isclose(row_at(rows, "robust_return", task, "tanh_mu", "return", step)[0],
                               np.mean([e["tanh_mu"].mean() for e in episodes]))
     for action, values in normalised.items():
@@ -1160,14 +1158,14 @@ def test_robust_evaluation_matches_a_hand_computation(tmp_path):
     assert {r["metric"] for r in rows if r["section"] == "robust_aggregate"} == \
         {"IQM", "Median", "Mean", "Optimality Gap"}
     for action in ("mode", "tanh_mu", "mean"):  # (seeds x tasks) mean returns / success bar
-        matrix = np.array([[written[task, seed, last][action].mean() / scores.SUCCESS_BARS[task]
+        matrix = np.array([[written[task, seed, last][action].mean() / data.SUCCESS_BARS[task]
                             for task in ROBUST_TASKS] for seed in range(3)])
         assert np.isclose(row_at(rows, "robust_aggregate", "all", action, "Mean", last)[0],
                           matrix.mean())
         assert np.isclose(row_at(rows, "robust_aggregate", "all", action, "Optimality Gap",
                                  last)[0], np.maximum(1 - matrix, 0).mean())
     for step in ROBUST_STEPS:  # rliable's IQM: the 25% trimmed mean of all (seed, task) scores
-        matrix = [written[task, seed, step]["mode"].mean() / scores.SUCCESS_BARS[task]
+        matrix = [written[task, seed, step]["mode"].mean() / data.SUCCESS_BARS[task]
                   for task in ROBUST_TASKS for seed in range(3)]
         assert np.isclose(row_at(rows, "robust_sample_efficiency", "all", "mode", "IQM", step)[0],
                           scipy.stats.trim_mean(matrix, 0.25))
@@ -1181,7 +1179,7 @@ def test_robust_evaluation_matches_a_hand_computation(tmp_path):
 
 def test_per_seed_figure_fills_the_seeds_the_three_se_rule_decides():
     """robust_per_seed: one marker per (step, action, seed) at its value, +-3 SE whiskers,
-    filled exactly where stats.verdict is ahead or behind, and an axis that holds every
+    filled exactly where estimators.verdict is ahead or behind, and an axis that holds every
     whisker (the mean's t-interval, which hides them in robust_evaluation, plays no part)."""
     import matplotlib.colors
 
@@ -1203,7 +1201,7 @@ def test_per_seed_figure_fills_the_seeds_the_three_se_rule_decides():
     expected = {}
     for key, vs in values.items():
         for seed, v, e in zip([2, 3], vs, errors[key], strict=True):
-            decided = figures.stats.verdict(v, e) in ("ahead", "behind")
+            decided = estimators.verdict(v, e) in ("ahead", "behind")
             expected[round(v, 6)] = (decided, "o" if seed == 2 else "s")
     assert drawn == expected
     low, high = ax.get_ylim()
@@ -1229,7 +1227,7 @@ def test_robust_folders_read_alike_with_and_without_physics_unstable(tmp_path):
             f"{row},{('', '0', '1')[k % 3]},{('', 'fell', 'blow_up')[k % 3]}"
             for k, row in enumerate(rows))]) + "\n")
     write_per_seed(new)
-    old, fresh = (scores.load_robust([tmp_path / name]).rows for name in ("old", "new"))
+    old, fresh = (data.load_robust([tmp_path / name]).rows for name in ("old", "new"))
     assert len(old) == len(fresh) == sum(map(len, written.values()))
     for (task, seed, step), selectors in written.items():
         for selector, values in selectors.items():
@@ -1308,10 +1306,10 @@ def test_robust_ticks_name_the_cpu_only_where_a_task_changed_machine(tmp_path):
         settings = json.loads((folders[-1] / "evaluation.json").read_text())
         (folders[-1] / "evaluation.json").write_text(json.dumps(
             {**settings, "machine": {"cpu": cpu, "cores": 2}}))
-    by_task = scores.robust_paired_differences(scores.load_robust(folders))
+    by_task = data.robust_paired_differences(data.load_robust(folders))
     assert analyze.robust_ticks(by_task[ROBUST_TASKS[0]]) == [
         "500k\n4 starts\nx 2 seeds\nAMD EPYC", "1M\n4 starts\nx 2 seeds\nIntel Xeon"]
-    one_kind = scores.robust_paired_differences(scores.load_robust(folders[:1]))
+    one_kind = data.robust_paired_differences(data.load_robust(folders[:1]))
     assert analyze.robust_ticks(one_kind[ROBUST_TASKS[0]]) == ["500k\n4 starts\nx 2 seeds"]
     out = tmp_path / "out"
     assert run_analysis(write_small_runs(tmp_path / "runs"), out, "--robust",
@@ -1382,8 +1380,8 @@ def test_bad_robust_folders_give_one_clear_line(tmp_path, capsys):
 
 def test_robust_tells_seeds_ahead_level_behind_and_how_episodes_ended(tmp_path):
     """Per task, step and action, the seeds more than three standard errors of their paired
-    episodes above zero, within, or below (stats.verdict); and, where evaluate.py's `end` column
-    records it, how each action's episodes ended over the seeds."""
+    episodes above zero, within, or below (estimators.verdict); and, where evaluate.py's `end`
+    column records it, how each action's episodes ended over the seeds."""
     from evaluate import EPISODES_HEADER
 
     runs = write_small_runs(tmp_path / "runs")

@@ -1,4 +1,4 @@
-"""sac_utils.stats: the intervals are Student's and Welch's, the bootstrap is rliable's with an
+"""analysis.estimators: the intervals are Student's and Welch's, the bootstrap is rliable's with an
 explicit generator, and the verdict counts three standard errors."""
 
 import math
@@ -7,26 +7,26 @@ import numpy as np
 import scipy.stats
 from rliable import library as rly
 
-from sac_utils import stats
+from analysis import estimators, report
 
 
 def test_t_interval_is_students_and_welchs():
     values = np.array([-414.3, -169.0, -0.8, 125.9, -559.3])
-    mean, low, high = stats.t_interval(values)
+    mean, low, high = estimators.t_interval(values)
     expected = scipy.stats.t.interval(0.95, values.size - 1, loc=values.mean(),
                                       scale=scipy.stats.sem(values))
     assert np.isclose(mean, values.mean()) and np.allclose((low, high), expected)
     assert np.allclose((low, high), (-555.7, 148.7), atol=0.05)  # bookshelf_simple at 1M
-    assert np.isnan(stats.t_interval(np.array([3.0]))[1:]).all()
-    assert stats.t_interval(np.full(4, 2.0)) == (2.0, 2.0, 2.0)
+    assert np.isnan(estimators.t_interval(np.array([3.0]))[1:]).all()
+    assert estimators.t_interval(np.full(4, 2.0)) == (2.0, 2.0, 2.0)
     # Over tasks: one task is Student's interval; two are Welch's, Satterthwaite's df.
-    assert np.allclose(stats.welch_interval([values]), (mean, low, high))
+    assert np.allclose(estimators.welch_interval([values]), (mean, low, high))
     other = np.array([0.1, 0.4, 0.2])
     v1, v2 = values.var(ddof=1) / 5, other.var(ddof=1) / 3
     df = (v1 + v2) ** 2 / (v1**2 / 4 + v2**2 / 2)
     half = scipy.stats.t.ppf(0.975, df) * np.sqrt(v1 + v2) / 2
     centre = (values.mean() + other.mean()) / 2
-    assert np.allclose(stats.welch_interval([values, other]),
+    assert np.allclose(estimators.welch_interval([values, other]),
                        (centre, centre - half, centre + half))
 
 
@@ -39,28 +39,28 @@ def test_the_bootstrap_draws_what_rliable_draws_after_seeding_the_global_generat
         np.random.seed(3)  # noqa: NPY002
         point, interval = rly.get_interval_estimates(
             {"x": matrix}, lambda s: s.mean(axis=0), reps=500, confidence_interval_size=0.95)
-        mean, low, high = stats.bootstrap_mean(values, 500, np.random.RandomState(3))
+        mean, low, high = estimators.bootstrap_mean(values, 500, np.random.RandomState(3))
         assert np.array_equal(np.ravel(mean), point["x"])
         assert np.array_equal(np.ravel(low), interval["x"][0])
         assert np.array_equal(np.ravel(high), interval["x"][1])
     # the generator is the caller's: another seed, another interval
     values = rng.normal(size=20)
-    assert stats.bootstrap_mean(values, 200, np.random.RandomState(0)) != \
-        stats.bootstrap_mean(values, 200, np.random.RandomState(1))
+    assert estimators.bootstrap_mean(values, 200, np.random.RandomState(0)) != \
+        estimators.bootstrap_mean(values, 200, np.random.RandomState(1))
 
 
 def test_paired_difference_verdict_and_one_run_without_interval():
-    assert np.array_equal(stats.paired_difference([3.0, 1.0], [1.0, 1.5]), [2.0, -0.5])
+    assert np.array_equal(estimators.paired_difference([3.0, 1.0], [1.0, 1.5]), [2.0, -0.5])
     try:
-        stats.paired_difference([1.0, 2.0], [1.0])
+        estimators.paired_difference([1.0, 2.0], [1.0])
     except ValueError as error:
         assert "unpaired" in str(error)
     else:
         raise AssertionError("unpaired returns were accepted")
-    assert stats.standard_error(np.array([1.0, 3.0])) == 1.0
-    assert math.isnan(stats.standard_error(np.array([1.0])))
-    assert stats.verdict(3.1, 1.0) == "ahead" and stats.verdict(-3.1, 1.0) == "behind"
-    assert stats.verdict(3.0, 1.0) == "level" and stats.verdict(1.0, math.nan) == "n/a"
-    assert stats.interval_text(0.02, 0.02, 0.02, runs=1) == "0.020 (n/a)"
-    assert stats.interval_text(0.5, 0.25, 0.75) == "0.500 [0.250, 0.750]"
-    assert stats.interval_text(0.5, math.nan, math.nan) == "0.500 (n/a)"
+    assert estimators.standard_error(np.array([1.0, 3.0])) == 1.0
+    assert math.isnan(estimators.standard_error(np.array([1.0])))
+    assert estimators.verdict(3.1, 1.0) == "ahead" and estimators.verdict(-3.1, 1.0) == "behind"
+    assert estimators.verdict(3.0, 1.0) == "level" and estimators.verdict(1.0, math.nan) == "n/a"
+    assert report.interval_text(0.02, 0.02, 0.02, runs=1) == "0.020 (n/a)"
+    assert report.interval_text(0.5, 0.25, 0.75) == "0.500 [0.250, 0.750]"
+    assert report.interval_text(0.5, math.nan, math.nan) == "0.500 (n/a)"

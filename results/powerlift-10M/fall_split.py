@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from sac_utils.stats import BASELINE, paired_difference, standard_error  # noqa: E402
+from analysis.estimators import BASELINE, paired_difference, standard_error  # noqa: E402
 
 
 def cell(values: list[float]) -> str:

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from sac_utils.stats import BASELINE, VERDICT_SE, fall_verdict, verdict  # noqa: E402
+from analysis.estimators import BASELINE, VERDICT_SE, fall_verdict, verdict  # noqa: E402
 
 ACTIONS = ("mode", "mean", "q_best")
 

@@ -29,8 +29,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from sac_utils import files, stats
-from sac_utils.report import format_step
+from analysis import estimators
+from analysis.report import format_step
+from sac_utils import files
 
 
 class AnalysisError(Exception):
@@ -58,7 +59,7 @@ OWN_ACTIONS = {CORRECTED: "mode", STANDARD: "tanh_mu"}
 # is one entry here; every report follows.
 ACTIONS = {"tanh_mu": "tanh(mu)", "mode": "mode", "mean": "mean", "q_best": "q_best"}
 # The baseline every other action is compared with: sac_corrected.py always logs it.
-BASELINE = stats.BASELINE
+BASELINE = estimators.BASELINE
 # Optional: how often an action's critic picked each candidate (shares summing to 1).
 CHOICE_SHARES = {"q_best": ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_share_mean")}
 # A group of evaluations: the runs of an algorithm, evaluated with an action.
@@ -139,18 +140,10 @@ def optional_columns() -> tuple[str, ...]:
             *SHIFT_COLUMNS, EPISODES_COLUMN)
 
 
-def read_json_object(path: Path, fix: str) -> dict:
-    """A JSON file that holds an object; else the one-line error, ending with `fix`."""
-    try:
-        return files.read_json_object(path)
-    except ValueError as error:
-        raise AnalysisError(f"{error}; {fix}") from None
-
-
 def read_config(path: Path) -> dict:
     """The run's config.json, checked for the keys analyze.py needs."""
-    config = read_json_object(path, f"fix or remove that run (it needs keys "
-                                    f"{list(REQUIRED_CONFIG_KEYS)})")
+    config = files.read_json_object(path, f"fix or remove that run (it needs keys "
+                                          f"{list(REQUIRED_CONFIG_KEYS)})", AnalysisError)
     missing = [key for key in REQUIRED_CONFIG_KEYS if key not in config]
     if missing:
         raise AnalysisError(
@@ -511,7 +504,7 @@ def paired_differences(tasks: dict[str, Task], derived: Sequence[str] = ()
     for task, data in tasks.items():
         for group, baseline in paired_groups(data, task in derived):
             own, paired = paired_values(data, group, baseline, np.array([data.scored_step]))
-            differences.setdefault(task, {})[group] = stats.paired_difference(own[:, 0],
+            differences.setdefault(task, {})[group] = estimators.paired_difference(own[:, 0],
                                                                               paired[:, 0])
     return differences
 
@@ -524,7 +517,7 @@ def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
     for task, data in tasks.items():
         for group, baseline in paired_groups(data, task in derived):
             own, paired = paired_values(data, group, baseline, data.steps)
-            curves.setdefault(task, {})[group] = stats.paired_difference(own, paired)
+            curves.setdefault(task, {})[group] = estimators.paired_difference(own, paired)
     return curves
 
 
@@ -584,6 +577,75 @@ def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.n
     return shifts
 
 
+# ---------------------------------------------------------------------- the dimension study
+# Beyond the paper: per task, its action dimension, each evaluation action's paired difference
+# at fractions of training and the shift measured at the final step.
+# Measured at the states the mode policy visited (sac_corrected.py's eval.csv).
+DIMENSION_SHIFT_COLUMNS = ("mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
+# Paired differences at these fractions of each task's shared steps.
+TRAINING_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
+
+
+@dataclasses.dataclass
+class Dimension:
+    """One task of the dimension study: its action dimension, the per-seed paired difference of
+    each evaluation action (minus tanh(mu)) at fractions of training, and the shift measured at
+    its final step."""
+
+    action_dim: int
+    scale: float  # the range of the task's tanh(mu) returns in the folder
+    steps: dict[float, int]  # training fraction -> step
+    # group -> fraction -> per-seed raw difference, groups in the report's order
+    differences: dict[tuple[str, str], dict[float, np.ndarray]]
+    shift: dict[str, np.ndarray]  # DIMENSION_SHIFT_COLUMN -> per-seed value at the final step
+
+def training_fraction_steps(steps: np.ndarray, scored_step: int) -> dict[float, int]:
+    """The shared step at each of TRAINING_FRACTIONS: the last one at or before that share of
+    the scored step (the first shared step if none is), the scored step at 1.0."""
+    picks = {f: int(steps[max(0, np.searchsorted(steps, f * scored_step, side="right") - 1)])
+             for f in TRAINING_FRACTIONS}
+    return {**picks, 1.0: scored_step}
+
+def shift_at(curves: list[Curve], step: int) -> dict[str, np.ndarray]:
+    """Each DIMENSION_SHIFT_COLUMN at `step`, one value per run that logged it (empty cells
+    left out)."""
+    shift = {}
+    for column in DIMENSION_SHIFT_COLUMNS:
+        values = np.array([c.shift[column][c.steps == step][0]
+                           for c in curves if column in c.shift])
+        if np.isfinite(values).any():
+            shift[column] = values[np.isfinite(values)]
+    return shift
+
+def build_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
+                ) -> tuple[dict[str, Dimension], list[str]]:
+    """Each evaluation action's paired difference and the measured shift per task, keyed by
+    action dimension, and notes on the tasks left out."""
+    study, notes = {}, []
+    for task, data in tasks.items():
+        pairs = paired_groups(data, task in derived)
+        if not pairs:
+            continue
+        algorithms = {group[0] for group, _ in pairs}
+        dims = {c.action_dim for a in algorithms for c in runs[task].get((a, own_action(a)), [])}
+        if None in dims or len(dims) != 1:
+            notes.append(f"{task}: its runs' config.json give no single action_dim "
+                         f"({sorted(dims, key=str)}); left out of the dimension study")
+            continue
+        baselines = np.concatenate([data.returns[b].ravel() for b in {b for _, b in pairs}])
+        scale = float(baselines.max() - baselines.min()) or 1.0
+        steps = training_fraction_steps(data.steps, data.scored_step)
+        differences = {}
+        for group, baseline in pairs:
+            own, paired = paired_values(data, group, baseline, np.array(list(steps.values())))
+            differences[group] = dict(zip(steps, estimators.paired_difference(own, paired).T,
+                                          strict=True))
+        shift = {}
+        for key in sorted(((a, own_action(a)) for a in algorithms), key=group_rank):
+            shift = shift or shift_at(runs[task][key], data.scored_step)
+        study[task] = Dimension(dims.pop(), scale, steps, differences, shift)
+    return study, notes
+
 # ------------------------------------------------------------- robust evaluation (evaluate.py)
 # evaluate.py's campaign folders (--robust): every policy (a run's final weights or a snapshot)
 # played each action from the same many noisy starts, and its per_seed.csv holds, per policy and
@@ -615,7 +677,7 @@ def read_robust_folder(folder: Path) -> tuple[dict, pd.DataFrame]:
         raise AnalysisError(
             f"--robust {folder}: no {ROBUST_SETTINGS_FILE} there; pass a folder that "
             "`evaluate.py RUNS_DIR --out FOLDER` wrote over a campaign of runs")
-    settings = read_json_object(path, "evaluate again")
+    settings = files.read_json_object(path, "evaluate again", AnalysisError)
     path, again = folder / ROBUST_PER_SEED_FILE, f"`evaluate.py {folder}` writes it again"
     if not path.is_file():
         raise AnalysisError(f"{path} is missing: {again} from the runs' episodes.csv")
@@ -680,7 +742,7 @@ class RobustStep:
     returns: dict[str, np.ndarray]  # mean return over each seed's episodes
     differences: dict[str, np.ndarray]  # all but tanh_mu: mean of (it - tanh_mu) per episode
     errors: dict[str, np.ndarray]  # the standard errors of those paired episodes
-    verdicts: dict[str, list[str]]  # stats.verdict per seed
+    verdicts: dict[str, list[str]]  # estimators.verdict per seed
     episodes: np.ndarray  # episodes per seed (of tanh_mu, which every seed played)
     seeds: np.ndarray  # the seeds, in the order of every array above
     played: dict[str, int]  # each action's episodes over its seeds
@@ -711,7 +773,7 @@ def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]
             if action != BASELINE:
                 at.differences[action] = seeds.difference_mean.to_numpy()
                 at.errors[action] = seeds.difference_se.to_numpy()
-                at.verdicts[action] = [stats.verdict(m, se) for m, se in
+                at.verdicts[action] = [estimators.verdict(m, se) for m, se in
                                        zip(at.differences[action], at.errors[action],
                                            strict=True)]
         by_task.setdefault(task, {})[int(step)] = at

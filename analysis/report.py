@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io
+import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -13,9 +14,16 @@ import matplotlib.pyplot as plt
 import numpy as np
 from PIL import Image
 
-from sac_utils import stats
+from analysis import estimators
 
-format_ci = stats.interval_text
+
+def interval_text(point: float, low: float, high: float, digits: int = 3, runs: int = 2
+                  ) -> str:
+    """"0.123 [0.100, 0.150]"; "0.123 (n/a)" where there is no interval: NaN bounds, or an
+    estimate from one run, whose bootstrap resamples that run alone."""
+    if runs < 2 or math.isnan(low) or math.isnan(high):
+        return f"{point:.{digits}f} (n/a)"
+    return f"{point:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
 
 
 def counted(n: int | str, noun: str) -> str:
@@ -42,17 +50,17 @@ def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
     point = estimate[0]
     if values.size == 1:
         return f"{point:.{digits}f} (one seed)", "-"
-    _, low, high = stats.t_interval(values)
+    _, low, high = estimators.t_interval(values)
     t_cell = f"[{low:.{digits}f}, {high:.{digits}f}]"
     if values.size == 2:
         a, b = sorted(float(v) for v in values)
         return f"{point:.{digits}f} (two seeds: {a:.{digits}f} to {b:.{digits}f})", t_cell
-    return format_ci(*estimate, digits=digits), t_cell
+    return interval_text(*estimate, digits=digits), t_cell
 
 
 def positives(values: np.ndarray) -> int:
     """How many of the values are above zero: a count of signs that decides nothing (the
-    verdicts are stats.verdict's and the t-interval's)."""
+    verdicts are estimators.verdict's and the t-interval's)."""
     return int((values > 0).sum())
 
 

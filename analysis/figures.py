@@ -1,7 +1,7 @@
-"""The figures analyze.py draws: the paper's Figures 5-8 as rliable draws them, the headline
-paired-difference figure (`plot_paired`, the training log's and the robust evaluation's alike)
-and the over-training figure. Plain functions from arrays, labels and colours to a figure; the
-numbers come from analyze.py's report sections, which also save the figures."""
+"""Every figure analyze.py draws: the paper's Figures 5-8 as rliable draws them, the headline
+paired-difference figure (`plot_paired`, the training log's and the robust evaluation's alike),
+the over-training figure and the dimension study's. Plain functions from arrays, labels and
+colours to a figure; the numbers come from analyze.py's report sections, which save them."""
 
 from __future__ import annotations
 
@@ -9,13 +9,15 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 
+import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Patch
 from rliable import plot_utils
 
-from sac_utils import stats
-from sac_utils.report import counted
+from analysis import estimators
+from analysis.data import Dimension
+from analysis.report import counted
 
 
 def steps_axis(max_step: float) -> tuple[float, str]:
@@ -29,11 +31,24 @@ def steps_axis(max_step: float) -> tuple[float, str]:
 
 # ------------------------------------------------------- the paper's figures (rliable's plots)
 # Figures 6-8, drawn from the paper's protocol (7.-9.) and from the robust evaluation (3.).
-def plot_aggregate_metrics(point: dict, interval: dict, names: Sequence[str], colors: dict,
-                           xlabel: str, labels: Callable[[str], str], note: str = ""
-                           ) -> plt.Figure:
-    """Figure 6: aggregate metrics with their stratified-bootstrap CIs (rliable's own plot), and
-    `note` under it."""
+def band_line(scores: dict[object, np.ndarray], band: str) -> str:
+    """A figure's line on what its `band` shows: rliable's stratified-bootstrap CIs, over how
+    many runs of how many tasks, and, from FEW_SEEDS runs or fewer, that they only resample the
+    few values seen."""
+    runs = sorted({values.shape[0] for values in scores.values()})
+    tasks = next(iter(scores.values())).shape[1]
+    line = (f"{band}: {estimators.CONFIDENCE:.0%} stratified-bootstrap CIs (rliable), "
+            f"{counted(' or '.join(map(str, runs)), 'run')} x {counted(tasks, 'task')}")
+    return line + (";\nfrom this few runs they are narrower than the data allow"
+                   if runs[0] <= estimators.FEW_SEEDS else "")
+
+
+def plot_aggregate_metrics(point: dict, interval: dict, scores: dict, names: Sequence[str],
+                           colors: dict, xlabel: str, labels: Callable[[str], str],
+                           note: str = "") -> plt.Figure:
+    """Figure 6: aggregate metrics of `scores` with their stratified-bootstrap CIs (rliable's
+    own plot), and `note` and what the bars are under it."""
+    note = "\n".join(filter(None, [note, band_line(scores, "bars")]))
     # rliable's defaults (4 ticks at xx-large on 3.4-inch panels, its x label a fixed share of
     # the height below) make tick labels collide with each other and, with two groups, with the
     # label: wider panels, smaller ticks, a figure at least 2.2 inches high, the label placed
@@ -69,12 +84,12 @@ def profile_thresholds(final: dict[str, np.ndarray]) -> np.ndarray:
     return np.linspace(low, high + (0.05 * (high - low) or 0.05), 101)
 
 
-def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, colors: dict,
-                              xlabel: str, labels: Callable[[str], str], title: str
+def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, scores: dict,
+                              colors: dict, xlabel: str, labels: Callable[[str], str], title: str
                               ) -> plt.Figure:
-    """Figure 7: performance profiles (share of runs scoring above tau) with CIs."""
+    """Figure 7: performance profiles (share of runs scoring above tau) of `scores` with CIs."""
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    ax.set_title(title, fontsize="medium")
+    ax.set_title(f"{title}\n{band_line(scores, 'bands')}", fontsize="medium")
     plot_utils.plot_performance_profiles(
         {labels(g): v for g, v in profiles.items()},
         taus,
@@ -90,13 +105,13 @@ def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, color
     return fig
 
 
-def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, colors: dict,
-                           ylabel: str, labels: Callable[[str], str], title: str,
+def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, scores: dict,
+                           colors: dict, ylabel: str, labels: Callable[[str], str], title: str,
                            by_fraction: bool = False) -> plt.Figure:
-    """Figure 8: aggregate IQM against environment steps (or fractions of each task's budget)
-    with CIs."""
+    """Figure 8: aggregate IQM of `scores` against environment steps (or fractions of each
+    task's budget) with CIs."""
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    ax.set_title(title, fontsize="medium")
+    ax.set_title(f"{title}\n{band_line(scores, 'bands')}", fontsize="medium")
     unit, xlabel = steps_axis(frames[-1])
     if by_fraction:
         unit, xlabel = 1.0, "Fraction of each task's budget (total_timesteps)"
@@ -167,7 +182,7 @@ def draw_seed_summary(ax, x: float, width: float, cell: PairedCell, color: tuple
                         ha="center", va="bottom" if below else "top", fontsize=6,
                         bbox={"fc": "white", "ec": "none", "pad": 0.3, "alpha": 0.8})
         elif inside and errors is not None and np.isfinite(errors[i]):
-            ax.errorbar(xi, value, yerr=stats.VERDICT_SE * errors[i], color=color, lw=0.7,
+            ax.errorbar(xi, value, yerr=estimators.VERDICT_SE * errors[i], color=color, lw=0.7,
                         alpha=0.7, zorder=3)
     ax.bar(x + 0.6 * width, boot[2] - boot[1], bottom=boot[1], width=0.4 * width, color=color,
            alpha=0.4)
@@ -244,7 +259,7 @@ def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str)
     fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3),
                fontsize="small", title="evaluation action", title_fontsize="small")
     episodes = any(c.errors is not None for row in rows for c in row.cells.values())
-    dots = f"dots: seeds, +-{stats.VERDICT_SE:g} SE of their paired episodes" if episodes \
+    dots = f"dots: seeds, +-{estimators.VERDICT_SE:g} SE of their paired episodes" if episodes \
         else "dots: seeds"
     fig.suptitle(f"Each action minus tanh(mu): same actor, same start states\n{how}\n{dots} "
                  "(triangles: beyond the axis)\ntick and whisker: mean over seeds and its 95% "
@@ -257,7 +272,7 @@ def plot_per_seed(rows: Sequence[PairedRow], colors: dict, labels: dict, how: st
     """The robust evaluation's verdicts, seed by seed: plot_paired's task panels with only the
     seeds, each with +-VERDICT_SE standard errors of its paired episodes, on an axis scaled to
     them (with few seeds the mean's t-interval is many times wider and hides them). A marker
-    per seed, filled where stats.verdict says ahead or behind, hollow where level."""
+    per seed, filled where estimators.verdict says ahead or behind, hollow where level."""
     series, slot, offsets = series_slots(rows)
     every = sorted({int(seed) for row in rows for c in row.cells.values() for seed in c.seeds})
     shapes = dict(zip(every, "osD^vP*Xph", strict=False))
@@ -269,8 +284,9 @@ def plot_per_seed(rows: Sequence[PairedRow], colors: dict, labels: dict, how: st
         for (i, s), cell in row.cells.items():
             for seed, value, error in zip(cell.seeds, cell.values, cell.errors, strict=True):
                 x = i + offsets[s] + spread[seeds.index(int(seed))]
-                decided = stats.verdict(value, error) in ("ahead", "behind")
-                ax.errorbar(x, value, yerr=None if np.isnan(error) else stats.VERDICT_SE * error,
+                decided = estimators.verdict(value, error) in ("ahead", "behind")
+                whisker = None if np.isnan(error) else estimators.VERDICT_SE * error
+                ax.errorbar(x, value, yerr=whisker,
                             color=colors[s], lw=0.8, zorder=3, ls="", marker=shapes[int(seed)],
                             ms=4.5, mfc=colors[s] if decided else "white", mec=colors[s])
         frame_panel(ax, row)
@@ -280,7 +296,7 @@ def plot_per_seed(rows: Sequence[PairedRow], colors: dict, labels: dict, how: st
     fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 4),
                fontsize="small", title="evaluation action; seed", title_fontsize="small")
     fig.suptitle(f"Each seed's action minus tanh(mu): same actor, same start states\n{how}\n"
-                 f"whisker: +-{stats.VERDICT_SE:g} SE of the seed's paired episodes; filled: "
+                 f"whisker: +-{estimators.VERDICT_SE:g} SE of the seed's paired episodes; filled: "
                  "beyond it (ahead or behind), hollow: level", fontsize="medium")
     return fig
 
@@ -347,7 +363,7 @@ def plot_over_training(steps: dict[str, np.ndarray], differences: dict, estimate
         how = (f"thin: each round's mean over seeds; thick: mean of the last {ROLLING_ROUNDS} "
                "rounds" if rolling else "mean over seeds, 95% bootstrap CI; thin: each seed"
                + ("\n(from this few seeds the CI is narrower than the data allow)"
-                  if seeds and min(seeds) <= stats.FEW_SEEDS else ""))
+                  if seeds and min(seeds) <= estimators.FEW_SEEDS else ""))
         ax.set_title(f"{task}, n = {counted(n, 'seed')}\n{how}", fontsize="medium")
         ax.set_ylabel("Return minus tanh(mu)'s")
         ax.legend(fontsize="small", frameon=False, loc="upper center", ncols=3,
@@ -451,3 +467,113 @@ def plot_probability_of_improvement(probability: float, ci: np.ndarray, x: objec
             fontsize="medium", color="0.3")
     return fig
 
+
+
+# ------------------------------------------------------------------ the dimension study
+
+def dimension_positions(study: dict[str, Dimension]) -> dict[str, float]:
+    """Each task's x on the log dimension axis: its action dimension, tasks that share one
+    spread a little around it so that their CIs do not hide each other."""
+    positions = {}
+    for dim in {d.action_dim for d in study.values()}:
+        same = [t for t, d in study.items() if d.action_dim == dim]
+        for k, task in enumerate(same):
+            positions[task] = dim * 1.07 ** (k - (len(same) - 1) / 2)
+    return positions
+
+
+def _errorbar(ax, x: float, estimate: tuple[float, float, float], **style) -> None:
+    point, low, high = estimate
+    ax.errorbar(x, point, yerr=[[point - low], [high - point]], capsize=3, **style)
+
+
+def study_actions(study: dict[str, Dimension], order: Sequence[str]) -> list[str]:
+    """The evaluation actions compared with tanh(mu) in the study, in `order` (mode, mean,
+    q_best), then any other."""
+    found = {g[1] for d in study.values() for g in d.differences}
+    known = [a for a in order if a in found]
+    return known + sorted(found - set(known))
+
+
+def plot_dimension_study(study: dict[str, Dimension], estimates: dict, colors: list,
+                         labels, order: Sequence[str]) -> plt.Figure:
+    """Per evaluation action, a row: its paired difference against the action dimension and
+    against training; last row: the measured shift beside mode_search's theory curve, and
+    sigma / bimodal share against the dimension."""
+    from mode_search import SPREADS, summed_shift_by_dimension  # torch: only for this figure
+
+    actions = study_actions(study, order)
+    fig, axes = plt.subplots(len(actions) + 1, 2, figsize=(13, 4.75 * (len(actions) + 1)),
+                             squeeze=False)
+    (ax_shift, ax_sigma) = axes[-1]
+    ax_bimodal = ax_sigma.twinx()
+    xs = dimension_positions(study)
+    markers = {"corrected": "o", "standard": "s"}
+    for (ax_dim, ax_progress), action in zip(axes[:-1], actions, strict=True):
+        groups = {g for d in study.values() for g in d.differences if g[1] == action}
+        several = len({g[0] for g in groups}) > 1
+        for (task, d), color in zip(study.items(), colors, strict=False):
+            for group in d.differences:
+                if group[1] != action:
+                    continue
+                name = f"{task} ({d.action_dim})" + (f", {labels.algorithm(group[0])}"
+                                                     if several else "")
+                _plot_difference(ax_dim, ax_progress, xs[task], d, estimates, (task, group),
+                                 color=color, marker=markers.get(group[0], "D"),
+                                 label=name)
+        ylabel = f"{action} - tanh(mu), normalised"
+        ax_dim.set(xscale="log", xlabel="action dimensions", ylabel=ylabel,
+                   title=f"{action}: paired difference, final step (95% CI); hollow: 25/50/75%")
+        ax_progress.set(xlabel="fraction of training", ylabel=ylabel,
+                        title=f"{action}: ... as training goes on")
+        for ax in (ax_dim, ax_progress):
+            ax.axhline(0, color="0.4", ls=":", lw=1)
+        ax_dim.legend(fontsize=7)
+    for (task, d), color in zip(study.items(), colors, strict=False):
+        if "mode_shift_abs_sum" in d.shift:
+            _errorbar(ax_shift, xs[task], estimates[task, "mode_shift_abs_sum"], fmt="o",
+                      color=color, zorder=3)
+        if "sigma_mean" in d.shift:
+            _errorbar(ax_sigma, xs[task], estimates[task, "sigma_mean"], fmt="o", color=color)
+        if "bimodal_fraction" in d.shift:
+            _errorbar(ax_bimodal, xs[task], estimates[task, "bimodal_fraction"], fmt="s",
+                      mfc="none", color=color)
+    top = max(d.action_dim for d in study.values())
+    n = np.arange(1, top + 1)
+    for i, ((name, spread), color) in enumerate(zip(SPREADS.items(), ("0.3", "0.6"),
+                                                    strict=True)):
+        mean, low, high = (t.numpy() for t in summed_shift_by_dimension(top, spread, seed=i))
+        ax_shift.plot(n, mean, color=color, lw=1, label=f"theory, {name}")
+        ax_shift.fill_between(n, low, high, color=color, alpha=0.15)
+    ax_shift.set(xscale="log", yscale="log", xlabel="action dimensions",
+                 ylabel="sum |mode - tanh(mu)| at visited states",
+                 title="Measured shift at the final step (95% CI) and theory (mode_search)")
+    ax_sigma.set(xscale="log", xlabel="action dimensions", ylabel="sigma_mean (dots)",
+                 title="Policy sigma and share of bimodal dimensions at the final step")
+    ax_bimodal.set(ylabel="bimodal_fraction (squares)", ylim=(-0.02, 1.02))
+    dims = sorted({d.action_dim for d in study.values()})
+    for ax in (*axes[:-1, 0], ax_shift, ax_sigma):  # label the dimensions themselves, not decades
+        ax.set_xticks(dims, [str(d) for d in dims])
+        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+    for ax in axes.flat:
+        ax.grid(alpha=0.25)
+    ax_shift.legend(fontsize=7, loc="upper left")
+    fig.suptitle("Each point is a different task (its own body, reward and action dimension), "
+                 "not one task swept over the dimension", fontsize="large")
+    fig.tight_layout()
+    return fig
+
+
+def _plot_difference(ax_dim, ax_progress, x: float, d: Dimension, estimates: dict,
+                     key: tuple[str, str], color, marker: str, label: str) -> None:
+    """One (task, evaluation action): final step with CI and earlier fractions hollow against
+    the dimension; the mean with its CI band against the fraction of training."""
+    fractions = sorted(d.steps)
+    _errorbar(ax_dim, x, estimates[key, 1.0], fmt=marker, color=color, ms=7, label=label)
+    for f in fractions[:-1]:  # earlier in training: hollow, fainter the earlier
+        ax_dim.plot(x, estimates[key, f][0], marker, mfc="none", color=color,
+                    alpha=0.25 + 0.6 * f, ms=4 + 3 * f)
+    ax_progress.plot(fractions, [estimates[key, f][0] for f in fractions], f"{marker}-",
+                     color=color, label=label)
+    ax_progress.fill_between(fractions, [estimates[key, f][1] for f in fractions],
+                             [estimates[key, f][2] for f in fractions], color=color, alpha=0.15)

@@ -1,19 +1,24 @@
-"""The statistics analyze.py and evaluate.py share: plain functions over arrays.
+"""Every estimate analyze.py and evaluate.py make: plain functions over arrays, each estimate
+with its interval, as rliable's library and metrics are.
 
 A paired difference is an action's return minus tanh(mu)'s from the same start state (per
 episode) or the mean of those (per seed). Over seeds: Student's t-interval, Welch's interval
 over tasks, and the percentile bootstrap of a mean with an explicit generator. Per seed: the
-verdict, ahead / level / behind by three standard errors of its paired episodes. An estimate
-from one run has no interval: `interval_text` prints "n/a" for it.
+verdict, ahead / level / behind by three standard errors of its paired episodes. Then rliable's
+estimators as the paper uses them: aggregate metrics, performance profiles, curves. An estimate
+from one run has no interval: report.interval_text prints "n/a" for it.
 """
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import scipy.stats
+from rliable import library as rly
+from rliable import metrics
 
 CONFIDENCE = 0.95
 BASELINE = "tanh_mu"  # the action every other one is compared with: Standard SAC's
@@ -96,7 +101,7 @@ def bootstrap_mean(values: np.ndarray, reps: int, rng: np.random.RandomState,
 
     A legacy RandomState seeded s draws what rliable's get_interval_estimates draws after
     np.random.seed(s) (rliable ignores its random_state), so the numbers are rliable's. With
-    one run the interval collapses onto the point: print it with `interval_text(..., runs=1)`."""
+    one run the interval collapses onto the point: report.interval_text(..., runs=1) says so."""
     values = np.asarray(values, dtype=float)
     flat = values.ndim == 1
     matrix = values[:, None] if flat else values
@@ -106,15 +111,6 @@ def bootstrap_mean(values: np.ndarray, reps: int, rng: np.random.RandomState,
     low, high = np.percentile(means, [tail, 100 - tail], axis=0)
     point = matrix.mean(axis=0)
     return (point[0], low[0], high[0]) if flat else (point, low, high)
-
-
-def interval_text(point: float, low: float, high: float, digits: int = 3, runs: int = 2
-                  ) -> str:
-    """"0.123 [0.100, 0.150]"; "0.123 (n/a)" where there is no interval: NaN bounds, or an
-    estimate from one run, whose bootstrap resamples that run alone."""
-    if runs < 2 or math.isnan(low) or math.isnan(high):
-        return f"{point:.{digits}f} (n/a)"
-    return f"{point:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
 
 
 def seed_mean_estimates(samples: dict[tuple, np.ndarray], reps: int, seed: int
@@ -136,4 +132,99 @@ def seed_mean_estimates(samples: dict[tuple, np.ndarray], reps: int, seed: int
         point, low, high = bootstrap_mean(scores, reps, np.random.RandomState(seed))
         for i, task in enumerate(batch):
             estimates[task, group] = (float(point[i]), float(low[i]), float(high[i]))
+    return estimates
+
+
+# ---------------------------------------------------------------------- rliable's estimators
+# rliable's API as the paper uses it, seeded so that a folder and --seed give the same numbers.
+# Where a copy stands in for rliable's own (bootstrap_mean, iqm, iqm_per_step) it is for speed
+# only: bench/bench_analyze.py --copies times both, and tests pin them equal.
+
+def seed_bootstrap(seed: int) -> None:
+    """rliable's bootstraps draw from NumPy's legacy global generator (random_state is ignored)."""
+    np.random.seed(seed)  # noqa: NPY002
+
+
+def interval_estimates(
+    score_dict: dict, func: Callable[..., np.ndarray], reps: int, seed: int
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """rliable's stratified-bootstrap point and interval estimates, reproducible by `seed`."""
+    seed_bootstrap(seed)
+    return rly.get_interval_estimates(
+        score_dict, func, reps=reps, confidence_interval_size=CONFIDENCE
+    )
+
+
+def difference_over_tasks(per_task: Sequence[np.ndarray], reps: int, seed: int
+                          ) -> tuple[np.ndarray, tuple[float, float, float],
+                                     tuple[float, float, float]]:
+    """A paired difference over tasks, each task's per-seed values already divided by its
+    scale: the (seeds, tasks) matrix (the lowest seeds, where tasks have more), the mean over
+    tasks of the mean over seeds with rliable's stratified bootstrap CI (seeds resampled within
+    each task: the tasks are fixed, only the seeds are drawn) and Welch's t-interval beside it."""
+    seeds = min(values.size for values in per_task)
+    matrix = np.stack([values[:seeds] for values in per_task], axis=1)
+    point, interval = interval_estimates({"": matrix}, metrics.aggregate_mean, reps, seed)
+    boot = (float(point[""]), *map(float, interval[""].ravel()))
+    return matrix, boot, welch_interval(list(matrix.T))
+
+
+AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
+
+def iqm(scores: np.ndarray) -> np.float64:
+    """metrics.aggregate_iqm, scipy's 25% trimmed mean over all runs and tasks, as its own lines:
+    the same partition and mean, so the same bits (tests/test_analyze.py), without scipy's
+    per-call checks (~0.3 ms, most of a 20,000-replication bootstrap's time;
+    bench/bench_analyze.py --copies)."""
+    flat = scores.ravel()
+    if np.isnan(flat).any():  # scipy's default nan_policy, "propagate"
+        return np.float64(np.nan)
+    cut = int(0.25 * flat.size)
+    return np.mean(np.partition(flat, (cut, flat.size - cut - 1))[cut:flat.size - cut])
+
+
+def aggregate_metrics(scores: np.ndarray, gap: bool = True) -> np.ndarray:
+    """IQM, median, mean (and optimality gap) of a (runs x tasks) score matrix."""
+    values = [
+        iqm(scores),
+        metrics.aggregate_median(scores),
+        metrics.aggregate_mean(scores),
+    ]
+    return np.array(values + [metrics.aggregate_optimality_gap(scores)] * gap)
+
+
+def iqm_per_step(scores: np.ndarray) -> np.ndarray:
+    """metrics.aggregate_iqm at each step of a (runs x tasks x steps) score array.
+
+    aggregate_iqm is scipy's 25% trimmed mean over all runs and tasks; one call along the step
+    axis gives the same numbers as a call per step, 6x (21 steps) to 15x (51) faster.
+    """
+    return scipy.stats.trim_mean(scores.reshape(-1, scores.shape[-1]), 0.25, axis=0)
+
+
+def aggregate_estimates(scores: dict, gap: bool, reps: int, seed: int
+                        ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Each group's AGGREGATE_METRICS (without the optimality gap where scores are raw returns,
+    whose threshold 1 means nothing) of its (runs, tasks) scores with their bootstrap CIs."""
+    return interval_estimates(scores, functools.partial(aggregate_metrics, gap=gap), reps, seed)
+
+
+def performance_profiles(scores: dict, taus: np.ndarray, reps: int, seed: int
+                         ) -> tuple[dict, dict]:
+    """rliable's create_performance_profile of each group's (runs, tasks) scores with its
+    stratified-bootstrap CIs, reproducible by `seed`."""
+    seed_bootstrap(seed)
+    return rly.create_performance_profile(scores, taus, reps=reps)
+
+
+def mean_curves(curves: dict, reps: int, seed: int, t_up_to: int = 0) -> dict:
+    """group -> (mean, (low, high)) over seeds at every step of its (seeds, steps) values: with
+    `t_up_to` seeds or fewer Student's t-interval (a percentile bootstrap of five values is too
+    narrow), else rliable's bootstrap of metrics.aggregate_mean, every step at once."""
+    estimates = {g: (v.mean(0), np.array([t_interval(v[:, i])[1:] for i in range(v.shape[1])]).T)
+                 for g, v in curves.items() if v.shape[0] <= t_up_to}
+    scores = {g: v[:, None, :] for g, v in curves.items() if g not in estimates}
+    if scores:  # (seeds, 1 task, steps)
+        point, interval = interval_estimates(scores, metrics.aggregate_mean, reps, seed)
+        estimates |= {g: (point[g], interval[g]) for g in scores}
     return estimates
