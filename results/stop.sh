@@ -1,22 +1,36 @@
 #!/bin/bash
-# End of a session: stop the campaign's runs with a checkpoint at their current step, then copy
-# what lets each go on without this machine into the checkout (CSVs, config, and, where the run
-# is 500,000 steps or more past its newest snapshot there, a snapshot made from the checkpoint:
-# `sweep.py restart` continues from it if the checkpoint is lost). A finished run (done.json) is
-# copied whole: its final_model.pt and done.json, no stop snapshot.
-# `stop.sh --checkpoint-only`: only the stop, for a session's last minutes after its commit, so
-# that a kept machine resumes from where the runs were (nothing is copied).
+# End of a session, for every campaign of results/: stop the runs that the clone SRC launched,
+# with a checkpoint at their current step, then copy what lets each run of each CAMPAIGN folder
+# (~/campaign/<name>, whose results/<name>/runs/ holds its copy) go on without this machine into
+# the checkout: the CSVs, config.json, sweep_run.json, the run's own snapshots and, where the run
+# is 500,000 steps or more past its newest snapshot there, one made from the checkpoint
+# (`sweep.py restart` continues from it if the checkpoint is lost). A finished run (done.json) is
+# copied whole: its final_model.pt and done.json, no stop snapshot. Then each campaign's report
+# is rebuilt from its reports.json where a run's CSVs changed.
+#
+#   results/stop.sh [--checkpoint-only] SRC CAMPAIGN...
+#   e.g. results/stop.sh ~/campaign/hbsrc ~/campaign/cube-hb-scene
+#        results/stop.sh ~/campaign/src ~/campaign/cube-10M ~/campaign/powerlift-10M
+#
+# --checkpoint-only: only the stop, for a session's last minutes after its commit, so that a kept
+# machine resumes from where the runs were (nothing is copied). Run it as a copy outside the
+# checkout (~/campaign/notes/stop.sh), as bash reads a script while it runs; CHECKOUT (default
+# /work/main) is the checkout with its .venv.
 set -u
 GAP=500000  # a lost machine costs a run at most this many steps; each stop snapshot is 1.6 MB
-pids=$(pgrep -f "campaign/src/sac_corrected.py" || true)
+CHECKOUT=${CHECKOUT:-/work/main}
+only=0; [ "${1:-}" = --checkpoint-only ] && { only=1; shift; }
+[ $# -ge 2 ] || { echo "usage: stop.sh [--checkpoint-only] SRC CAMPAIGN... (SRC: the clone the runs were launched from)"; exit 2; }
+src=$(realpath "$1"); shift
+pids=$(pgrep -f "$src/sac_(standard|corrected).py" || true)
 [ -n "$pids" ] && kill -TERM $pids
 for p in $pids; do while kill -0 $p 2>/dev/null; do sleep 1; done; done
-[ "${1:-}" = --checkpoint-only ] && { echo "stopped: $pids"; exit 0; }
-for campaign in ~/campaign/*-10M/; do
-  task=$(basename $campaign); OUT=/work/main/results/$task/runs; changed=0
-  for config in $campaign*/config.json; do
+[ $only = 1 ] && { echo "stopped:" $pids; exit 0; }
+for campaign in "$@"; do
+  task=$(basename $campaign); R=results/$task; OUT=$CHECKOUT/$R/runs; changed=0
+  for config in $campaign/*/config.json; do
     [ -e "$config" ] || continue
-    d=$(dirname $config)/; r=$(basename $d); mkdir -p $OUT/$r/snapshots
+    d=$(dirname $config); r=$(basename $d); mkdir -p $OUT/$r/snapshots
     cmp -s $d/train.csv $OUT/$r/train.csv && cmp -s $d/eval.csv $OUT/$r/eval.csv || changed=1
     cp $d/config.json $d/train.csv $d/eval.csv $d/sweep_run.json $OUT/$r/
     # a restart from a snapshot keeps the CSVs as they were in restarts/step<N>/
@@ -28,7 +42,7 @@ for campaign in ~/campaign/*-10M/; do
     # The run's own snapshots (the 1M grid, a restart's) are copied above; one the checkout has
     # and the run has not is an earlier stop's. It gives way to this stop's snapshot, or to a
     # newer grid snapshot; it stays where the run has not gone GAP steps past it.
-    (cd /work/main && .venv/bin/python - $d $OUT/$r/snapshots $GAP <<'PY'
+    (cd $CHECKOUT && .venv/bin/python - $d $OUT/$r/snapshots $GAP <<'PY'
 import sys
 from pathlib import Path
 
@@ -57,10 +71,8 @@ PY
   # The report reads the runs' CSVs, which grew: rebuild it with reports.json's flags
   # (tests/test_results.py checks it against the committed runs). Paths relative to the
   # checkout, as the README's command gives them, so that summary.md names no machine's folders.
-  # (Not when no run's CSVs changed since the last stop: a finished campaign's report stays.)
-  R=results/$task
-  [ -e /work/main/$R/reports.json ] && [ $changed = 1 ] || continue
-  cd /work/main && .venv/bin/python analyze.py $R/runs --out $R/report \
+  [ -e $CHECKOUT/$R/reports.json ] && [ $changed = 1 ] || continue
+  (cd $CHECKOUT && .venv/bin/python analyze.py $R/runs --out $R/report \
     $(python3 -c "import json; print(' '.join(json.load(open('$R/reports.json'))['report']['args']))") \
-    > /tmp/$task-report.log 2>&1 && echo "$task report rebuilt" || echo "$task report FAILED: /tmp/$task-report.log"
+    > /tmp/$task-report.log 2>&1) && echo "$task report rebuilt" || echo "$task report FAILED: /tmp/$task-report.log"
 done
