@@ -7,10 +7,10 @@
 
 Implementations (--impls): sac_corrected.py --compile and --no-compile, Stable-Baselines3's SAC,
 SBX's SAC (JAX) and, given a CleanRL checkout (--cleanrl), its cleanrl/sac_continuous_action.py;
-all at the paper's shape: batch 64, 256x256 MLPs for the actor and both critics, one gradient
-update per env step, learning starting at 1,000 steps, gamma 0.99, tau 0.005, lr 3e-4, no
-evaluation. Every run is a process of its own, pinned to one core (taskset) with one thread
-(OMP/MKL/OpenBLAS, torch and XLA); runs on different --cores go at the same time.
+all at the paper's shape: batch 64 (--batch-size), 256x256 MLPs for the actor and both critics,
+one gradient update per env step, learning starting at 1,000 steps, gamma 0.99, tau 0.005,
+lr 3e-4, no evaluation. Every run is a process of its own, pinned to one core (taskset) with one
+thread (OMP/MKL/OpenBLAS, torch and XLA); runs on different --cores go at the same time.
 
 The figure is the update phase's ms per env step (acting, env step, buffer and update): two runs
 of 1,000 + --short and 1,000 + --long steps, differenced, so that start-up, imports, compiling
@@ -56,8 +56,10 @@ sys.path.insert(0, str(ROOT))
 
 import humanoid_envs  # noqa: E402, F401  (registers the h1hand tasks)
 
-# The paper's shape, shared by every implementation.
-LEARNING_STARTS, BATCH_SIZE, HIDDEN, GAMMA, TAU, LR = 1000, 64, (256, 256), 0.99, 0.005, 3e-4
+# The paper's shape, shared by every implementation; the batch from --batch-size, which main
+# puts in the environment so that the runners' own processes read it too.
+LEARNING_STARTS, HIDDEN, GAMMA, TAU, LR = 1000, (256, 256), 0.99, 0.005, 3e-4
+BATCH_SIZE = int(os.environ.get("BENCH_PEERS_BATCH_SIZE", "64"))
 # One thread per run: torch (and numpy) through OpenMP/MKL/OpenBLAS, JAX through XLA's flags;
 # JAX_PLATFORMS keeps JAX from probing for accelerators (the torch runs are on the CPU too).
 ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
@@ -79,6 +81,8 @@ class Args:
     """the tasks"""
     cleanrl: str | None = None
     """a checkout of github.com/vwxyzjn/cleanrl: time its cleanrl/sac_continuous_action.py too"""
+    batch_size: int = 64
+    """the batch of every update (64 the paper's, 256 the SAC paper's and SB3's)"""
     cores: tuple[int, ...] = (0,)
     """cores to run on: one run per core at a time, pinned to it (two cores: two runs at once)"""
     short: int = 500
@@ -193,7 +197,8 @@ def print_update_ms(env_id: str, path: str) -> None:
     import bench_sac
 
     torch.set_num_threads(1)
-    seconds = bench_sac.time_update(bench_sac.Args(env_id=env_id), make_env(env_id),
+    seconds = bench_sac.time_update(bench_sac.Args(env_id=env_id, batch_size=BATCH_SIZE),
+                                    make_env(env_id),
                                     compiled=path == "compiled")
     print(1e3 * seconds)
 
@@ -386,6 +391,9 @@ def print_report(args: Args, impls: Sequence[str], ms: dict, floors: dict, gflop
 
 
 def main(args: Args) -> None:
+    global BATCH_SIZE
+    BATCH_SIZE = args.batch_size
+    os.environ["BENCH_PEERS_BATCH_SIZE"] = str(args.batch_size)
     impls = args.impls or ("corrected-compiled", "corrected-eager", "sb3", "sbx",
                            *(("cleanrl",) if args.cleanrl else ()))
     if "cleanrl" in impls and not args.cleanrl:
