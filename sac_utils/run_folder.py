@@ -1,16 +1,12 @@
 """A run folder from start to finish, behind the one object the SAC scripts hold (RunFolder):
-named, locked (one writer), started (config.json) or resumed, logged to (eval.csv, train.csv,
-TensorBoard, W&B), checkpointed, snapshotted and finished (final_model.pt, then done.json); the
-training episodes and steps per second it reports; the graceful stop on a signal (StopRequest).
-What a checkpoint holds is sac_utils/checkpoints.py's. The layout: docs/scripts.md ("The run
-folder").
+named, locked, started or resumed, logged to (CSVs, TensorBoard, W&B), checkpointed and finished;
+the graceful stop on a signal (StopRequest). The layout: docs/scripts.md ("The run folder").
 """
 
 import copy
 import csv
 import dataclasses
 import fcntl
-import json
 import os
 import platform
 import signal
@@ -27,10 +23,10 @@ import torch.nn as nn
 from torch.utils.tensorboard import SummaryWriter
 
 from sac_utils import checkpoints, eval_rounds
-from sac_utils.checkpoints import save_tensors
+from sac_utils.checkpoints import read_checkpoint, save_tensors
 from sac_utils.cli import INTERRUPTED_EXIT_CODE, check_checkpoint_args, check_finite, fail
 from sac_utils.eval_rounds import Round, shift_measured_at
-from sac_utils.files import atomic_write, complete_lines
+from sac_utils.files import atomic_write, complete_lines, write_json
 
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
                  "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
@@ -38,8 +34,8 @@ TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1
 
 
 class StopRequest:
-    """SIGTERM/SIGUSR1/SIGUSR2 ask for a graceful stop after the current step (checkpoint, then
-    exit); a second signal exits at once (the last checkpoint stays valid)."""
+    """SIGTERM/SIGUSR1/SIGUSR2: checkpoint after the current step, then exit; a second signal
+    exits at once (the last checkpoint stays valid)."""
 
     def __init__(self):
         self.requested = False
@@ -57,12 +53,9 @@ class StopRequest:
 
 
 class RunFolder:
-    """One run's folder and bookkeeping. Created first thing (a finished run exits here, code 0)
-    with the script's evaluation actions; `open` locks the folder, starts it or checks it for a
-    resume and opens its logs and evaluation workers; `resume` loads the checkpoint; the
-    training loop then reports to it (count_step,
-    log_train, print_progress), has it evaluate (evaluate, poll_evaluations) and keep state
-    (save_snapshot, checkpoint); `stop` or `finish` ends the run."""
+    """One run's folder and bookkeeping (a finished run exits on creation, code 0): `open`,
+    `resume`, then the loop's count_step, log_train, evaluate, save_snapshot, checkpoint; `stop`
+    or `finish` ends the run."""
 
     def __init__(self, args, algorithm: str, script: str, eval_actions: dict):
         self.args, self.algorithm, self.script = args, algorithm, script
@@ -73,16 +66,16 @@ class RunFolder:
         if (self.dir / "done.json").exists():
             print(f"{self.dir}: already finished (done.json); nothing to do")
             sys.exit(0)
-        self.pending_rounds: list[dict] = []
 
     def open(self, obs_dim: int, action_dim: int, device: torch.device) -> None:
-        """Locks the folder (one writer) and checks it before writing; a fresh run writes
-        config.json, a resumed one (`resuming`: --resume and a checkpoint.pt) has its CSVs cut
-        back to the checkpoint's step. Then the logs and the evaluation workers open."""
+        """Locks the folder and checks it before writing: a fresh run writes config.json, a
+        resumed one (--resume and a checkpoint.pt) has its CSVs cut back to the checkpoint's step;
+        then the logs and the evaluation workers open."""
         args, self.device = self.args, device
         lock = lock_run_folder(self.dir)
-        self.ckpt = checkpoints.find_checkpoint(self.dir) if args.resume is not None else None
-        self.elapsed, self.pending_rounds = 0.0, []
+        path = self.dir / "checkpoint.pt"  # none yet: the run restarts from step 0
+        self.ckpt = read_checkpoint(path) if args.resume is not None and path.exists() else None
+        self.elapsed = 0.0
         self.progress = {"episode_returns": [], "episode_lengths": [], "last_eval": None,
                          "episode_return": 0.0, "episode_length": 0}
         if self.ckpt is not None:
@@ -93,10 +86,8 @@ class RunFolder:
         else:
             for old in self.dir.glob("events.out.tfevents.*"):  # a restart from step 0
                 old.unlink()
-            config = run_metadata(args, obs_dim, action_dim, self.algorithm, self.script,
-                                  device)
-            atomic_write(self.dir / "config.json",
-                         lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
+            write_json(self.dir / "config.json", run_metadata(
+                args, obs_dim, action_dim, self.algorithm, self.script, device))
         record_holder(lock)
         global_step = 0 if self.ckpt is None else self.ckpt["global_step"]
         self.logs = open_logs(args, self.dir, self.eval_columns, list(TRAIN_COLUMNS),
@@ -112,10 +103,9 @@ class RunFolder:
 
     def resume(self, agent: dict, buffer, action_space: gym.Space,
                envs: gym.vector.VectorEnv) -> tuple[int, np.ndarray, int]:
-        """The run's state from checkpoint.pt, in place into `agent`, the buffer and the random
-        streams, the episode under way replayed, the evaluation rounds a stop left unfinished
-        rerun. Returns the step, the observation and the step of the first update
-        (--learning-starts, or later where a run restarted from a snapshot refills its buffer)."""
+        """checkpoint.pt into `agent`, the buffer and the random streams, the episode under way
+        replayed, the rounds a stop left unfinished resubmitted. Returns the step, the observation
+        and the first update's step (later than --learning-starts after a restart's refill)."""
         ckpt = self.ckpt
         global_step, self.elapsed, self.progress = checkpoints.load_checkpoint(
             ckpt, agent, buffer, action_space, self.device)
@@ -126,8 +116,7 @@ class RunFolder:
         if updates_from > global_step:
             print(f"restarted from a snapshot: acting to refill the replay buffer, updates "
                   f"resume at step {updates_from}", flush=True)
-        self.pending_rounds = ckpt.get("pending_rounds", [])
-        for state in self.pending_rounds:  # the rounds a stop left unfinished, rerun first
+        for state in ckpt.get("pending_rounds", []):
             self.eval_pool.submit(self.evaluation_round(
                 state["global_step"], state["wall_time"],
                 *checkpoints.pending_round_networks(agent["actor"], agent["qf"], state)))
@@ -135,8 +124,7 @@ class RunFolder:
         return global_step, obs, updates_from
 
     def evaluate(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
-        """Submits this step's evaluation round to a worker (sac_utils/eval_rounds.py); its eval.csv
-        row is written in step order (log_round)."""
+        """Submits this step's evaluation round; its eval.csv row comes in step order."""
         self.eval_pool.submit(self.evaluation_round(global_step, self.wall_time(), actor, qf))
 
     def poll_evaluations(self) -> None:
@@ -145,8 +133,7 @@ class RunFolder:
 
     def evaluation_round(self, global_step: int, wall_time: float, actor: nn.Module,
                          qf: nn.Module) -> Round:
-        """The round at this step, on CPU copies of the networks: every action from the same
-        starts."""
+        """The round at this step, on CPU copies of the networks."""
         args, actions = self.args, self.eval_actions
         eval_round = global_step // args.eval_interval
         seeds = eval_rounds.eval_seeds(args.seed, eval_round, args.eval_episodes)
@@ -161,7 +148,7 @@ class RunFolder:
                            "eval_round": eval_round})
 
     def log_round(self, round_: Round, result: dict) -> None:
-        """A finished evaluation round's eval.csv row (EvalPool hands them back in step order)."""
+        """A finished round's eval.csv row."""
         row = round_.info | eval_rounds.round_row(result, round_.actions)
         write_row(*self.logs["eval"], self.logs["tb"], self.logs["tracker"], "eval", row,
                   round_.videos.get(""))
@@ -172,8 +159,7 @@ class RunFolder:
         return self.elapsed + time.time() - self.session_start
 
     def count_step(self, reward: float, episode_end: bool) -> None:
-        """Adds a step's reward to the training episode under way; an ended one joins those that
-        the next train.csv row averages."""
+        """A step's reward into the episode under way; an ended one into the next train.csv row."""
         progress = self.progress
         progress["episode_return"] += float(reward)
         progress["episode_length"] += 1
@@ -183,8 +169,7 @@ class RunFolder:
             progress["episode_return"], progress["episode_length"] = 0.0, 0
 
     def log_train(self, global_step: int, losses: tuple[torch.Tensor, ...] | None) -> None:
-        """A train.csv row: the steps per second, the last update's losses (none before learning
-        starts) and the training episodes that ended since the last row."""
+        """A train.csv row: steps/s, the last update's losses, the episodes ended since the last."""
         now = time.time()
         returns, lengths = self.progress["episode_returns"], self.progress["episode_lengths"]
         row = {"global_step": global_step, "wall_time": self.wall_time(),
@@ -218,17 +203,14 @@ class RunFolder:
 
     def save_snapshot(self, global_step: int, actor: nn.Module, qf: nn.Module,
                       log_alpha: torch.Tensor) -> None:
-        """snapshots/step<N>.pt, as final_model.pt plus log alpha: all that a run whose checkpoint
-        is lost needs to restart from it (--restart-from; a resumed run rewrites the later ones
-        with the same numbers)."""
+        """snapshots/step<N>.pt: final_model.pt's content plus log alpha, what a restart needs."""
         (self.dir / "snapshots").mkdir(exist_ok=True)
         save_tensors(self.dir / "snapshots" / f"step{global_step}.pt", checkpoints.policy_weights(
             actor.state_dict(), qf.state_dict(), dataclasses.asdict(self.args), log_alpha))
 
     def checkpoint(self, global_step: int, agent: dict, buffer, action_space: gym.Space,
                    envs: gym.vector.VectorEnv, stopping: bool) -> None:
-        """checkpoint.pt (checkpoints.checkpoint_state). A stop checkpoints at once, keeping the
-        rounds still running for the resumed run to rerun; otherwise they finish first."""
+        """checkpoint.pt; a stop keeps the running rounds in it, otherwise they finish first."""
         unfinished = self.eval_pool.abandon() if stopping else []
         self.eval_pool.drain()
         save_tensors(self.dir / "checkpoint.pt", checkpoints.checkpoint_state(
@@ -243,25 +225,19 @@ class RunFolder:
         sys.exit(INTERRUPTED_EXIT_CODE)
 
     def finish(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
-        """final_model.pt, the logs closed, and done.json last: a folder with done.json is a
-        finished run (sweep.py skips it)."""
+        """final_model.pt, the logs closed, done.json last (a finished run: sweep.py skips it)."""
         self.eval_pool.drain()
         self.eval_pool.close()
         wall_time = self.wall_time()
         save_tensors(self.dir / "final_model.pt", checkpoints.policy_weights(
             actor.state_dict(), qf.state_dict(), dataclasses.asdict(self.args)))
         close_logs(self.logs)
-        atomic_write(self.dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
-            {"global_step": global_step, "wall_time": wall_time})))
+        write_json(self.dir / "done.json", {"global_step": global_step, "wall_time": wall_time})
         print(f"finished {global_step} steps in {wall_time:.0f} s: {self.dir}", flush=True)
 
 
-# The folder's name, lock and config.json.
-
-
 def run_dir(args, algorithm: str) -> Path:
-    """With --resume, the folder given (a copy resumes the copy); else a fresh one under
-    --output-dir, named --run-name or by default."""
+    """--resume's folder, or a fresh one under --output-dir (--run-name or the default name)."""
     if args.resume is not None:
         return Path(args.resume)
     name = args.run_name or (f"{args.env_id}__{algorithm}__seed{args.seed}__"
@@ -274,9 +250,8 @@ def run_dir(args, algorithm: str) -> Path:
 
 
 def lock_run_folder(run_dir: Path) -> int:
-    """An OS lock on run_dir/lock while this process lives: one writer per folder (a Slurm requeue
-    racing a live job, a sweep started twice), never stale (the kernel drops it at any death). A
-    refusal removes the folder and lock file it made. Returns the fd (record_holder)."""
+    """An OS lock on run_dir/lock while this process lives (one writer; never stale: the kernel
+    drops it at any death). A refusal removes what it made. Returns the fd."""
     made = not run_dir.exists()
     run_dir.mkdir(parents=True, exist_ok=True)
     fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
@@ -295,15 +270,15 @@ def lock_run_folder(run_dir: Path) -> int:
 
 
 def record_holder(lock_fd: int) -> None:
-    """Writes this process's pid into the lock file it holds, for a refused second process."""
+    """This process's pid into the lock file, for a refused second process to name."""
     os.ftruncate(lock_fd, 0)
     os.pwrite(lock_fd, f"{os.getpid()}\n".encode(), 0)
 
 
 def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: str,
                  device: torch.device) -> dict:
-    """config.json: every argument, the algorithm, the versions, the git commit, and under "used"
-    what the run started with where flags only ask (--cuda without a GPU trains on the CPU)."""
+    """config.json: the arguments, versions, commit, and "used": what the flags got (--cuda
+    without a GPU trains on the CPU)."""
     return {**dataclasses.asdict(args), "algorithm": algorithm, "script": script,
             "obs_dim": obs_dim, "action_dim": action_dim, "git_commit": git_commit(),
             "versions": {"python": platform.python_version(), "torch": torch.__version__,
@@ -318,7 +293,7 @@ def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: st
 
 
 def git_commit() -> str | None:
-    """The commit of the code that runs (None outside a git checkout)."""
+    """The code's commit (None outside a git checkout)."""
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
                               capture_output=True, text=True, check=True).stdout.strip()
@@ -332,8 +307,7 @@ def machine() -> dict:
 
 
 def cpu_model() -> str:
-    """The CPU's name as the OS gives it. A seed's run is the same run only on the same kind of
-    CPU: compiled kernels and MuJoCo round by its instruction set, and a chaotic run diverges."""
+    """The CPU's name: a seed's run repeats only on the same kind (kernels round by its ISA)."""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
@@ -343,12 +317,8 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
-# The logs: CSVs, TensorBoard, W&B.
-
-
 def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
-    """An append-mode CSV writer. Resuming keeps the whole rows up to the checkpoint's step, so
-    the file ends up with no duplicate or missing rows."""
+    """An append-mode CSV writer; a resume keeps the whole rows up to its step."""
     kept = []
     if keep_until_step is not None and path.exists():
         kept = [r for r in complete_lines(path)[1:] if int(r.split(",")[0]) <= keep_until_step]
@@ -358,7 +328,7 @@ def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
 
 
 def check_csv(path: Path, columns: list[str]) -> None:
-    """Before a resume writes anything: the CSV must be this run's (its header, whole steps)."""
+    """Before a resume writes: the CSV must be this run's (its header, step numbers)."""
     if not path.exists():
         return
     lines = path.read_text(errors="replace").splitlines(keepends=True)
@@ -389,8 +359,7 @@ def write_row(f, writer: csv.DictWriter, tb: SummaryWriter, tracker, group: str,
 
 
 def start_tracking(args, run_dir: Path, algorithm: str):
-    """With --track, the W&B run (imported only then), as CleanRL logs it: the config, every
-    TensorBoard scalar and the videos. Its id is kept in the folder: a resume continues it."""
+    """With --track, the W&B run as CleanRL logs it; its id kept in the folder for a resume."""
     if not args.track:
         return None
     import wandb
@@ -409,8 +378,7 @@ def start_tracking(args, run_dir: Path, algorithm: str):
 
 def open_logs(args, run_dir: Path, eval_header: list[str], train_header: list[str],
               global_step: int, resumed: bool, algorithm: str) -> dict:
-    """The eval.csv and train.csv writers (a resume keeps their rows up to its step),
-    TensorBoard and, with --track, W&B."""
+    """The eval.csv and train.csv writers, TensorBoard and, with --track, W&B."""
     keep = global_step if resumed else None
     tb = SummaryWriter(run_dir, purge_step=global_step + 1 if resumed else None)
     if not resumed:
