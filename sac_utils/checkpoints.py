@@ -106,16 +106,9 @@ def replay_episode(envs: gym.vector.VectorEnv, seed: int, ckpt: dict) -> np.ndar
     return np.stack(envs.call("replay"))
 
 
-def pending_round_state(round_) -> dict:
-    """A round a stop left unfinished: with the run's arguments, all a rerun needs."""
-    return {"global_step": round_.info["global_step"], "wall_time": round_.info["wall_time"],
-            "actor": round_.actor.state_dict(),
-            "qf": None if round_.critic is None else round_.critic.state_dict()}
-
-
 def pending_round_networks(actor: nn.Module, qf: nn.Module,
                            state: dict) -> tuple[nn.Module, nn.Module]:
-    """CPU copies of the networks as an unfinished round had them (pending_round_state)."""
+    """CPU copies of the networks as an unfinished round had them (checkpoint_state)."""
     round_actor, round_qf = copy.deepcopy(actor).cpu(), copy.deepcopy(qf).cpu()
     round_actor.load_state_dict(state["actor"])
     if state["qf"] is not None:
@@ -147,7 +140,11 @@ def checkpoint_state(args, global_step: int, elapsed: float, progress: dict, age
             "buffer": buffer_state(buffer),
             "rng": rng | {"action_space": action_space.np_random.bit_generator.state,
                           "episode": episode_state(episode, action_space.shape[0])},
-            "pending_rounds": [pending_round_state(r) for r in unfinished]}
+            # A round a stop left unfinished: with the run's arguments, all a rerun needs.
+            "pending_rounds": [{"global_step": r.info["global_step"],
+                                "wall_time": r.info["wall_time"], "actor": r.actor.state_dict(),
+                                "qf": None if r.critic is None else r.critic.state_dict()}
+                               for r in unfinished]}
 
 
 def load_checkpoint(ckpt: dict, agent: dict, buffer, action_space: gym.Space,

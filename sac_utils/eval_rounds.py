@@ -297,13 +297,11 @@ def _init_worker() -> None:
 
 class EvalPool:
     """Rounds run by `workers` processes (0: at once, in-process); `on_done(round, result)` in
-    submission order. Past `max_pending` in flight (two per worker), submit waits for the oldest.
+    submission order. Past two in flight per worker, submit first waits for the oldest.
     A failed round ends the run with one line naming it and the cause (SystemExit)."""
 
-    def __init__(self, workers: int, on_done: Callable[[Round, dict], None],
-                 max_pending: int | None = None):
-        self.workers, self.on_done = workers, on_done
-        self.max_pending = max_pending or 2 * max(workers, 1)
+    def __init__(self, workers: int, on_done: Callable[[Round, dict], None]):
+        self.on_done, self.max_pending = on_done, 2 * max(workers, 1)
         self.pending: collections.deque = collections.deque()
         self.executor = None if workers == 0 else concurrent.futures.ProcessPoolExecutor(
             workers, mp_context=multiprocessing.get_context("spawn"), initializer=_init_worker)

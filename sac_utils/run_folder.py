@@ -88,7 +88,8 @@ class RunFolder:
                 old.unlink()
             write_json(self.dir / "config.json", run_metadata(
                 args, obs_dim, action_dim, self.algorithm, self.script, device))
-        record_holder(lock)
+        os.ftruncate(lock, 0)  # this process's pid, for a refused second process to name
+        os.pwrite(lock, f"{os.getpid()}\n".encode(), 0)
         global_step = 0 if self.ckpt is None else self.ckpt["global_step"]
         self.logs = open_logs(args, self.dir, self.eval_columns, list(TRAIN_COLUMNS),
                               global_step, self.resuming, self.algorithm)
@@ -269,12 +270,6 @@ def lock_run_folder(run_dir: Path) -> int:
     return fd
 
 
-def record_holder(lock_fd: int) -> None:
-    """This process's pid into the lock file, for a refused second process to name."""
-    os.ftruncate(lock_fd, 0)
-    os.pwrite(lock_fd, f"{os.getpid()}\n".encode(), 0)
-
-
 def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: str,
                  device: torch.device) -> dict:
     """config.json: the arguments, versions, commit, and "used": what the flags got (--cuda
@@ -302,19 +297,16 @@ def git_commit() -> str | None:
 
 
 def machine() -> dict:
-    """The machine a run (or its restart) trains on, as config.json records it."""
-    return {"cpu": cpu_model(), "cores": os.cpu_count()}
-
-
-def cpu_model() -> str:
-    """The CPU's name: a seed's run repeats only on the same kind (kernels round by its ISA)."""
+    """The machine a run (or its restart) trains on, as config.json records it: a seed's run
+    repeats only on the same kind of CPU (kernels and MuJoCo round by its instruction set)."""
+    cpu = platform.processor() or platform.machine()
     try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
+        names = [line for line in Path("/proc/cpuinfo").read_text().splitlines()
+                 if line.startswith("model name")]
+        cpu = names[0].split(":", 1)[1].strip() if names else cpu
     except OSError:
         pass
-    return platform.processor() or platform.machine()
+    return {"cpu": cpu, "cores": os.cpu_count()}
 
 
 def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
