@@ -91,8 +91,7 @@ class RunFolder:
         os.ftruncate(lock, 0)  # this process's pid, for a refused second process to name
         os.pwrite(lock, f"{os.getpid()}\n".encode(), 0)
         global_step = 0 if self.ckpt is None else self.ckpt["global_step"]
-        self.logs = open_logs(args, self.dir, self.eval_columns, list(TRAIN_COLUMNS),
-                              global_step, self.resuming, self.algorithm)
+        self.open_logs(global_step)
         self.session_start = self.row_start = time.time()
         self.row_step = global_step
         workers = eval_rounds.default_workers() if args.eval_workers is None else args.eval_workers
@@ -151,8 +150,7 @@ class RunFolder:
     def log_round(self, round_: Round, result: dict) -> None:
         """A finished round's eval.csv row."""
         row = round_.info | eval_rounds.round_row(result, round_.actions)
-        write_row(*self.logs["eval"], self.logs["tb"], self.logs["tracker"], "eval", row,
-                  round_.videos.get(""))
+        self.write_row("eval", row, round_.videos.get(""))
         self.progress["last_eval"] = (row["global_step"], row["return_mean"])
 
     def wall_time(self) -> float:
@@ -188,7 +186,7 @@ class RunFolder:
                     "qf2_value": qf_values[1].mean().item(), "actor_loss": actor_loss.item(),
                     "alpha": alpha.item(), "alpha_loss": alpha_loss.item(),
                     "entropy": -log_pi.mean().item()}
-        write_row(*self.logs["train"], self.logs["tb"], self.logs["tracker"], "train", row)
+        self.write_row("train", row)
         self.row_start, self.row_step = now, global_step
 
     def print_progress(self, global_step: int) -> None:
@@ -221,7 +219,7 @@ class RunFolder:
 
     def stop(self, global_step: int) -> None:
         """Ends a run stopped by a signal, after its checkpoint: exit code 3."""
-        close_logs(self.logs)
+        self.close_logs()
         print(f"interrupted at step {global_step}; resume with --resume {self.dir}", flush=True)
         sys.exit(INTERRUPTED_EXIT_CODE)
 
@@ -232,9 +230,42 @@ class RunFolder:
         wall_time = self.wall_time()
         save_tensors(self.dir / "final_model.pt", checkpoints.policy_weights(
             actor.state_dict(), qf.state_dict(), dataclasses.asdict(self.args)))
-        close_logs(self.logs)
+        self.close_logs()
         write_json(self.dir / "done.json", {"global_step": global_step, "wall_time": wall_time})
         print(f"finished {global_step} steps in {wall_time:.0f} s: {self.dir}", flush=True)
+
+    def open_logs(self, global_step: int) -> None:
+        """eval.csv and train.csv (a resume keeps their rows up to its step), TensorBoard, W&B."""
+        keep = global_step if self.resuming else None
+        self.tb = SummaryWriter(self.dir, purge_step=global_step + 1 if self.resuming else None)
+        if not self.resuming:
+            self.tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
+                f"|{name}|{value}|" for name, value in dataclasses.asdict(self.args).items()))
+        self.csvs = {"eval": open_csv(self.dir / "eval.csv", self.eval_columns, keep),
+                     "train": open_csv(self.dir / "train.csv", list(TRAIN_COLUMNS), keep)}
+        self.tracker = start_tracking(self.args, self.dir, self.algorithm)
+
+    def write_row(self, group: str, row: dict, video: Path | None = None) -> None:
+        """One row to its CSV (flushed), to TensorBoard and, with --track, to W&B."""
+        f, writer = self.csvs[group]
+        writer.writerow(row)
+        f.flush()
+        scalars = {f"{group}/{k}": v for k, v in row.items()
+                   if v is not None and k not in ("global_step", "wall_time")}
+        for k, v in scalars.items():
+            self.tb.add_scalar(k, v, row["global_step"])
+        if self.tracker is not None:
+            import wandb  # only with --track
+
+            media = {f"{group}/video": wandb.Video(str(video), format="mp4")} if video else {}
+            self.tracker.log({"global_step": row["global_step"], **scalars, **media})
+
+    def close_logs(self) -> None:
+        self.tb.close()
+        if self.tracker is not None:
+            self.tracker.finish()
+        for f, _ in self.csvs.values():
+            f.close()
 
 
 def run_dir(args, algorithm: str) -> Path:
@@ -334,22 +365,6 @@ def check_csv(path: Path, columns: list[str]) -> None:
                  "number; restore the file, or delete that line")
 
 
-def write_row(f, writer: csv.DictWriter, tb: SummaryWriter, tracker, group: str, row: dict,
-              video: Path | None = None) -> None:
-    """One row to its CSV (flushed), to TensorBoard and, with --track, to W&B."""
-    writer.writerow(row)
-    f.flush()
-    scalars = {f"{group}/{k}": v for k, v in row.items()
-               if v is not None and k not in ("global_step", "wall_time")}
-    for k, v in scalars.items():
-        tb.add_scalar(k, v, row["global_step"])
-    if tracker is not None:
-        import wandb  # only with --track
-
-        media = {f"{group}/video": wandb.Video(str(video), format="mp4")} if video else {}
-        tracker.log({"global_step": row["global_step"], **scalars, **media})
-
-
 def start_tracking(args, run_dir: Path, algorithm: str):
     """With --track, the W&B run as CleanRL logs it; its id kept in the folder for a resume."""
     if not args.track:
@@ -367,23 +382,3 @@ def start_tracking(args, run_dir: Path, algorithm: str):
     tracker.define_metric("*", step_metric="global_step")
     return tracker
 
-
-def open_logs(args, run_dir: Path, eval_header: list[str], train_header: list[str],
-              global_step: int, resumed: bool, algorithm: str) -> dict:
-    """The eval.csv and train.csv writers, TensorBoard and, with --track, W&B."""
-    keep = global_step if resumed else None
-    tb = SummaryWriter(run_dir, purge_step=global_step + 1 if resumed else None)
-    if not resumed:
-        tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
-            f"|{name}|{value}|" for name, value in dataclasses.asdict(args).items()))
-    return {"eval": open_csv(run_dir / "eval.csv", eval_header, keep),
-            "train": open_csv(run_dir / "train.csv", train_header, keep), "tb": tb,
-            "tracker": start_tracking(args, run_dir, algorithm)}
-
-
-def close_logs(logs: dict) -> None:
-    logs["tb"].close()
-    if logs["tracker"] is not None:
-        logs["tracker"].finish()
-    for f, _ in (logs["eval"], logs["train"]):
-        f.close()
