@@ -1,9 +1,8 @@
 """Soft Actor-Critic, corrected: evaluates with the mode of the tanh-squashed Gaussian policy.
 
-Defaults are the paper's protocol (its Tables I and II) and HumanoidBench's SAC; the run folder
-is described in docs/scripts.md. Training is sac_standard.py's, step for step: `diff` the two files
-to see the correction. Each evaluation round also acts with tanh(mu) from the same starts (paired)
-and logs how far the mode is from it: the paper's distribution shift, measured during training.
+Defaults: the paper's protocol (Tables I, II) and HumanoidBench's SAC; run folder: docs/scripts.md.
+Training is sac_standard.py's: `diff` the two files to see the correction. Each evaluation round
+also acts with tanh(mu) from the same starts and logs the mode's distance from it (the shift).
 """
 
 import copy
@@ -22,8 +21,7 @@ import torch.nn.functional as F
 import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
 from mode_search import mode_action
 
-# Not the algorithm (docs/scripts.md), from sac_utils/: cli (bad input), run_folder (RunFolder: the
-# folder, logs, evaluation rounds, checkpoints), speedups (torch.compile, CUDA graphs).
+# Not the algorithm (docs/scripts.md): bad input, the run folder, torch.compile and CUDA graphs.
 from sac_utils import cli, speedups
 from sac_utils.checkpoints import EpisodeRecord
 from sac_utils.run_folder import RunFolder, StopRequest
@@ -40,7 +38,7 @@ class Args:
     total_timesteps: int = 10_000_000
     """total environment steps of the run"""
     buffer_size: int = 1_000_000
-    """the replay buffer size (transitions; each stores its observation and next observation)"""
+    """the replay buffer size, in transitions"""
     gamma: float = 0.99
     """the discount factor gamma"""
     tau: float = 0.005
@@ -62,7 +60,7 @@ class Args:
     hidden_sizes: tuple[int, ...] = (256, 256)
     """hidden layer widths of the actor and of each critic"""
     log_std_min: float = -10.0
-    """lower clip of the actor's log sigma (clipped, as HumanoidBench; not tanh-rescaled)"""
+    """lower clip of the actor's log sigma (HumanoidBench clips; CleanRL tanh-rescales)"""
     log_std_max: float = 2.0
     """upper clip of the actor's log sigma"""
     eval_interval: int = 10_000
@@ -70,12 +68,9 @@ class Args:
     eval_episodes: int = 10
     """episodes per evaluation round"""
     eval_reset_noise: float | None = None
-    """h1hand tasks: uniform noise of this half-width on qpos at each evaluation reset (default:
-    the task's own, the paper's protocol; 0.01 is HumanoidBench's, off on bookshelf and cube)"""
+    """h1hand tasks: half-width of the uniform qpos noise at evaluation resets (None: the task's)"""
     eval_selectors: tuple[Literal["mode", "tanh_mu", "mean", "q_best"], ...] = ()
-    """more evaluation actions, paired with the script's own (the same starts; eval_rounds.py):
-    "mean" (E[tanh(u)]), "q_best" (the critic's pick), "mode", "tanh_mu"; eval.csv columns
-    <name>_*"""
+    """more evaluation actions from the same starts (eval_rounds.py); eval.csv columns <name>_*"""
     mode_solver: Literal["exact", "grid"] = "exact"
     """how to find the mode: "exact" (iterative solve) or "grid" (the paper's Algorithm 1)"""
     eval_workers: int | None = None
@@ -97,8 +92,7 @@ class Args:
     cuda: bool = True
     """use a CUDA GPU if there is one"""
     compile: bool = True
-    """torch.compile the acting and the update (the same losses, their gradients and Adam's step
-    in one graph: sac_utils/speedups.py) at start-up (faster on a CPU; needs g++)"""
+    """torch.compile the acting and the update at start-up (sac_utils/speedups.py; needs g++)"""
     cudagraphs: bool = True
     """on CUDA: replay the update and the training action as CUDA graphs"""
     gpu_buffer: bool = True
@@ -118,42 +112,35 @@ class Args:
 
 
 def mode(mu: torch.Tensor, log_std: torch.Tensor, solver: str) -> torch.Tensor:
-    """The action this script evaluates with, in (-1, 1)^A before the env's scaling: the mode of
-    the tanh-squashed Gaussian, its most probable action (mode_search.py), not tanh(mu)."""
+    """The evaluation action, in (-1, 1)^A before the env's scaling: the squashed policy's mode."""
     return mode_action(mu, log_std, solver)
 
 
 def eval_actions(args: Args) -> dict:
-    """Evaluation actions by eval.csv column prefix: this script's own (unprefixed columns),
-    tanh(mu) paired with it (the same start states), and the --eval-selectors (eval_rounds.py)."""
+    """Evaluation actions by eval.csv column prefix: its own (""), tanh(mu), --eval-selectors."""
     return {"": mode, "tanh_mu_": "tanh_mu", **{f"{s}_": s for s in args.eval_selectors}}
 
 
-def make_env(env_id: str, render: bool = False) -> gym.Env:
+def make_env(env_id: str) -> gym.Env:
     """The gymnasium env; an unknown id or spaces SAC cannot use end the run in one line."""
-    render_mode = {"render_mode": "rgb_array"} if render else {}
-    env = gym.make(cli.registered_env_id(env_id), **render_mode)
-    return cli.check_spaces(env, env_id)
+    return cli.check_spaces(gym.make(cli.registered_env_id(env_id)), env_id)
 
 
 def make_vector_env(env_id: str) -> gym.vector.VectorEnv:
-    """The training env, a vector env of one (CleanRL's way) that resets in the step that ends an
-    episode, its final observation in info["final_obs"]."""
+    """A vector env of one (CleanRL's): it resets in the step that ends an episode."""
     return gym.vector.SyncVectorEnv([lambda: EpisodeRecord(gym.make(env_id))],
                                     autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
 
 
 def mlp(sizes: tuple[int, ...]) -> nn.Sequential:
     """Linear layers with a ReLU between each two, none after the last."""
-    layers = [m for i, o in zip(sizes, sizes[1:], strict=False) for m in (nn.Linear(i, o),
-                                                                           nn.ReLU())]
+    pairs = zip(sizes, sizes[1:], strict=False)
+    layers = [m for i, o in pairs for m in (nn.Linear(i, o), nn.ReLU())]
     return nn.Sequential(*layers[:-1])
 
 
 def init_glorot(module: nn.Module, generator: torch.Generator | None) -> None:
-    """Glorot-uniform weights and zero biases on every layer, output heads included:
-    HumanoidBench's jaxrl_m networks (flax's variance_scaling(1, "fan_avg", "uniform")), not
-    PyTorch's default."""
+    """Glorot-uniform weights, zero biases, heads included: HumanoidBench's, not PyTorch's."""
     for layer in module.modules():
         if isinstance(layer, nn.Linear):
             nn.init.xavier_uniform_(layer.weight, generator=generator)
@@ -168,8 +155,8 @@ class Actor(nn.Module):
         self.trunk = nn.Sequential(*mlp(sizes), nn.ReLU())
         self.fc_mean = nn.Linear(sizes[-1], action_dim)
         self.fc_logstd = nn.Linear(sizes[-1], action_dim)
-        low, high = (torch.as_tensor(b, dtype=torch.float32) for b in (action_space.low,
-                                                                      action_space.high))
+        low = torch.as_tensor(action_space.low, dtype=torch.float32)
+        high = torch.as_tensor(action_space.high, dtype=torch.float32)
         self.register_buffer("action_scale", (high - low) / 2)
         self.register_buffer("action_bias", (high + low) / 2)
         self.log_std_min, self.log_std_max = log_std_min, log_std_max
@@ -182,8 +169,7 @@ class Actor(nn.Module):
 
     def squash(self, mu: torch.Tensor, log_std: torch.Tensor,
                noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The sample scale * tanh(u) + bias, u = mu + sigma * noise (reparameterized: the noise
-        is drawn outside, so that every path draws the same numbers), and its log-density."""
+        """scale * tanh(mu + sigma * noise) + bias and its log-density (noise drawn outside)."""
         u = mu + noise * log_std.exp()
         # log N(u) - log|d tanh(u)/du| - log(scale), with the stable form of log(1 - tanh(u)^2).
         log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * np.log(2 * np.pi)
@@ -196,8 +182,6 @@ class Actor(nn.Module):
 
 
 class TwinQ(nn.Module):
-    """The twin critics Q1 and Q2, two MLPs in one module."""
-
     def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...],
                  generator: torch.Generator | None = None):
         super().__init__()
@@ -211,9 +195,7 @@ class TwinQ(nn.Module):
 
 
 class ReplayBuffer:
-    """CleanRL's replay buffer, as float32 tensors on `device`: each transition with its
-    observation and next observation (a truncated episode's is its true final one), a ring of
-    `size` transitions, batches drawn uniformly over those stored."""
+    """CleanRL's: a ring of `size` transitions as float32 tensors on `device`."""
 
     ARRAYS = ("obs", "actions", "rewards", "next_obs", "terminated")  # what a checkpoint keeps
 
@@ -238,24 +220,18 @@ class ReplayBuffer:
         self.ptr, self.filled = (i + 1) % self.size, min(self.filled + 1, self.size)
 
     def sample(self, batch_size: int, device: torch.device) -> tuple[torch.Tensor, ...]:
-        """A batch of stored transitions, uniformly with replacement: obs, actions, rewards,
-        next_obs, 1 - terminated."""
+        """obs, actions, rewards, next_obs, 1 - terminated, drawn uniformly with replacement."""
         idx = torch.randint(self.filled, (batch_size,), device=self.obs.device)
         batch = (self.obs[idx], self.actions[idx], self.rewards[idx], self.next_obs[idx],
                  1 - self.terminated[idx])
         return tuple(t.to(device, non_blocking=True) for t in batch)
 
 
-# The losses, written once: sac_update steps them as PyTorch users do; the compiled path
-# (speedups.compiled_update) takes the same functions' gradients in one graph.
-
-
+# The losses, written once for sac_update and for speedups.compiled_update's one graph.
 def critic_loss(qf: TwinQ, qf_target: TwinQ, actor: Actor, alpha: torch.Tensor,
                 batch: tuple[torch.Tensor, ...], noise: torch.Tensor,
                 gamma: float) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
-    """Q1's and Q2's mean squared TD errors, summed, against the soft target: the reward plus
-    the discounted min of the target critics at the next state and the policy's next action,
-    entropy bonus included. Also returns each critic's loss and Q values, (2,) and (2, batch)."""
+    """Q1's plus Q2's mean squared error against the soft TD target; each loss and Q value."""
     obs, actions, rewards, next_obs, not_done = batch
     with torch.no_grad():
         next_actions, next_log_pi = actor.squash(*actor(next_obs), noise)
@@ -283,10 +259,8 @@ def sac_update(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.Tenso
                optimizers: tuple[torch.optim.Optimizer, ...], batch: tuple[torch.Tensor, ...],
                noise: torch.Tensor, gamma: float, tau: float,
                target_entropy: float) -> tuple[torch.Tensor, ...]:
-    """One gradient step of the critics, the actor and the temperature, and the Polyak step of
-    the target critics. As HumanoidBench's jaxrl_m: all three losses from the parameters before
-    this update (the actor scored by the critic before its step), the target moved towards that
-    critic. noise: (2, batch, A), the next action's and the action's. Returns train.csv's logs."""
+    """One step of the critics, actor, temperature and target, all from the parameters before
+    it (HumanoidBench's jaxrl_m). noise: (2, batch, A). Returns train.csv's logs."""
     actor_optimizer, q_optimizer, alpha_optimizer = optimizers
     alpha = log_alpha.exp().detach()
     qf_loss, (qf_losses, qf_values) = critic_loss(qf, qf_target, actor, alpha, batch, noise[0],
@@ -312,9 +286,8 @@ def sac_update(actor: Actor, qf: TwinQ, qf_target: TwinQ, log_alpha: torch.Tenso
 
 def make_agent(args: Args, obs_dim: int, action_space: gym.spaces.Box,
                device: torch.device) -> dict:
-    """The actor, twin critics and their target, log alpha and their Adam optimizers, by their
-    names in checkpoint.pt. The initial weights come from a generator of their own, so torch's
-    (the actions and the batches) starts from the seed alone."""
+    """The networks, log alpha and their optimizers, by checkpoint.pt's names; the weights from
+    a generator of their own, so torch's (actions, batches) starts from the seed alone."""
     generator = torch.Generator().manual_seed(args.seed)
     actor = Actor(obs_dim, args.hidden_sizes, action_space, args.log_std_min, args.log_std_max,
                   generator).to(device)
@@ -329,16 +302,13 @@ def make_agent(args: Args, obs_dim: int, action_space: gym.spaces.Box,
 
 
 def ends_without_bootstrap(terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
-    """Whether a transition's target drops the next state's value (HumanoidBench's mask is
-    `not terminated or truncated`)."""
+    """Whether the target drops the next state's value (not on a truncation)."""
     return terminated & ~truncated
 
 
 def physics_blow_up(info: dict, episode_end: bool) -> bool:
-    """Whether the env's last step was a physics blow-up (h1hand's info["physics_unstable"]):
-    its transition, which reports the previous observation, is not stored."""
-    final = info.get("final_info", {})
-    return episode_end and bool(final.get("physics_unstable", [False])[0])
+    """Whether the last step blew up the physics (h1hand): that transition is not stored."""
+    return episode_end and bool(info.get("final_info", {}).get("physics_unstable", [False])[0])
 
 
 if __name__ == "__main__":
@@ -360,8 +330,7 @@ if __name__ == "__main__":
     obs_dim, action_dim = envs.single_observation_space.shape[0], action_space.shape[0]
 
     agent = make_agent(args, obs_dim, action_space, device)
-    actor, qf, qf_target, log_alpha = (agent[k] for k in ("actor", "qf", "qf_target",
-                                                          "log_alpha"))
+    actor, qf, log_alpha = agent["actor"], agent["qf"], agent["log_alpha"]
     optimizers = (agent["actor_optimizer"], agent["q_optimizer"], agent["alpha_optimizer"])
     target_entropy = -args.target_entropy_scale * action_dim
     rb = ReplayBuffer(args.buffer_size, obs_dim, action_dim,
@@ -374,11 +343,10 @@ if __name__ == "__main__":
         global_step, obs, updates_from = run.resume(agent, rb, action_space, envs)
 
     def act(obs: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
-        """A sampled action, (1, obs) -> (1, A)."""
         with torch.no_grad():
             return actor.squash(*actor(obs), noise)[0]
 
-    update = functools.partial(sac_update, actor, qf, qf_target, log_alpha, optimizers,
+    update = functools.partial(sac_update, actor, qf, agent["qf_target"], log_alpha, optimizers,
                                gamma=args.gamma, tau=args.tau, target_entropy=target_entropy)
     noise_shape = (2, args.batch_size, action_dim)  # the next action's and the action's
     if args.compile:  # the same losses, their gradients and Adam in one graph: speedups.py

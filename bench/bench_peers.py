@@ -349,10 +349,10 @@ def print_report(args: Args, impls: Sequence[str], ms: dict, floors: dict, gflop
     """The markdown report: setup, one row per task and implementation, the floor per task."""
     # Imported here, not at the top: the peers' processes start from this file and must not
     # load torch (run_folder's) beside JAX or another library's own.
-    from sac_utils.run_folder import cpu_model  # the CPU's name as config.json records it
+    from sac_utils.run_folder import machine  # the CPU's name as config.json records it
     clock = "CPU seconds" if args.cpu_time else "wall clock"
     print(f"### SAC on one CPU core: ms per env step ({date.today().isoformat()})\n")
-    print(f"- machine: {cpu_model()}, {os.cpu_count()} cores; each run pinned to one core "
+    print(f"- machine: {machine()['cpu']}, {os.cpu_count()} cores; each run pinned to one core "
           f"(taskset -c; cores {', '.join(map(str, args.cores))}) with one thread")
     print(f"- versions: {versions()}"
           + (f"; CleanRL {cleanrl_revision(args.cleanrl)}" if args.cleanrl else ""))

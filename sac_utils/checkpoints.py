@@ -1,8 +1,6 @@
-"""What a run keeps on disk as CPU tensors, written atomically: the weights files (final_model.pt,
-snapshots) and checkpoint.pt, with all that an exact resume needs (networks, optimizers, buffer,
-random states, the episode under way, unfinished evaluation rounds): a run killed at any point
-and resumed computes what the uninterrupted run computes, bit for bit. RunFolder's, not the
-scripts'.
+"""What a run keeps on disk as CPU tensors, written atomically: the weights files and
+checkpoint.pt, with all an exact resume needs (networks, optimizers, buffer, random states, the
+episode under way, unfinished rounds): a run killed anywhere and resumed is the same, bit for bit.
 """
 
 import copy
@@ -27,18 +25,17 @@ CHECKPOINT_KEYS = ("args", "global_step", "elapsed", "progress", "actor", "qf", 
 
 
 def on_cpu(tree):
-    """The tree with every tensor on the CPU: a plain torch.load then reads it without a GPU."""
+    """The tree with every tensor on the CPU (a plain torch.load reads it without a GPU)."""
     return pytree.tree_map_only(torch.Tensor, torch.Tensor.cpu, tree)
 
 
 def save_tensors(path: Path, tree: dict) -> None:
-    """torch.save of the tree's tensors moved to the CPU, atomically (atomic_write)."""
+    """torch.save of the tree on the CPU, atomically."""
     atomic_write(path, lambda tmp: torch.save(on_cpu(tree), tmp))
 
 
 def read_checkpoint(path: Path) -> dict:
-    """checkpoint.pt on the CPU (RNG states must stay there; load_state_dict moves the rest to
-    the run's device), or one line saying it is damaged."""
+    """checkpoint.pt on the CPU (where RNG states must stay), or one line saying it is damaged."""
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=False, mmap=True)
         missing = [k for k in CHECKPOINT_KEYS if k not in ckpt]
@@ -51,18 +48,8 @@ def read_checkpoint(path: Path) -> dict:
     return ckpt
 
 
-def find_checkpoint(run_dir: Path) -> dict | None:
-    """The run's checkpoint.pt, or None where it has none yet (it restarts from step 0)."""
-    path = run_dir / "checkpoint.pt"
-    return read_checkpoint(path) if path.exists() else None
-
-
-# The random streams and the episode under way.
-
-
 def rng_states(device: torch.device) -> dict:
-    """The random streams (torch's draws the actions and batches; libraries might use the others).
-    The CUDA generators only on CUDA: reading them creates a CUDA context."""
+    """The random streams; CUDA's only on CUDA (reading them creates a CUDA context)."""
     name, keys, pos, has_gauss, gauss = np.random.get_state()  # noqa: NPY002
     # Plain lists, not arrays: a checkpoint then loads with torch.load(weights_only=True).
     return {"python": random.getstate(), "numpy": (name, keys.tolist(), pos, has_gauss, gauss),
@@ -80,7 +67,7 @@ def set_rng_states(states: dict, device: torch.device) -> None:
 
 
 class EpisodeRecord(gym.Wrapper):
-    """Remembers how the episode began (its reset seed, or the env's random state) and every action
+    """Remembers how the episode began (its seed or the env's random state) and every action
     since, so that a checkpoint taken mid-episode rebuilds it exactly (`replay`): any env."""
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -106,8 +93,8 @@ class EpisodeRecord(gym.Wrapper):
 
 
 def episode_state(record: dict, action_dim: int) -> dict:
-    """An EpisodeRecord's record for a checkpoint: the actions as one tensor, in the dtype numpy
-    promotes them to (float64 where random and policy actions mix), which holds each exactly."""
+    """An EpisodeRecord's record for a checkpoint: the actions as one tensor, in numpy's
+    promoted dtype (float64 where random and policy actions mix: each held exactly)."""
     actions = np.array(record["actions"]).reshape(len(record["actions"]), action_dim)
     return {"seed": record["seed"], "rng": record["rng"], "actions": torch.from_numpy(actions)}
 
@@ -119,19 +106,9 @@ def replay_episode(envs: gym.vector.VectorEnv, seed: int, ckpt: dict) -> np.ndar
     return np.stack(envs.call("replay"))
 
 
-# Evaluation rounds that a stop left unfinished.
-
-
-def pending_round_state(round_) -> dict:
-    """An evaluation round a stop left unfinished: with the run's arguments, all a rerun needs."""
-    return {"global_step": round_.info["global_step"], "wall_time": round_.info["wall_time"],
-            "actor": round_.actor.state_dict(),
-            "qf": None if round_.critic is None else round_.critic.state_dict()}
-
-
 def pending_round_networks(actor: nn.Module, qf: nn.Module,
                            state: dict) -> tuple[nn.Module, nn.Module]:
-    """CPU copies of the networks as an unfinished round had them (pending_round_state)."""
+    """CPU copies of the networks as an unfinished round had them (checkpoint_state)."""
     round_actor, round_qf = copy.deepcopy(actor).cpu(), copy.deepcopy(qf).cpu()
     round_actor.load_state_dict(state["actor"])
     if state["qf"] is not None:
@@ -139,12 +116,8 @@ def pending_round_networks(actor: nn.Module, qf: nn.Module,
     return round_actor, round_qf
 
 
-# The checkpoint as a whole.
-
-
 def buffer_state(buffer) -> dict:
-    """A script's ReplayBuffer: its filled slots as CPU tensors of their own (torch.save of a view
-    would write the whole storage), so that a checkpoint loads on any device."""
+    """A ReplayBuffer's filled slots as CPU tensors of their own (a view saves all storage)."""
     return {"ptr": buffer.ptr, "filled": buffer.filled,
             **{a: getattr(buffer, a)[: buffer.filled].to("cpu", copy=True) for a in buffer.ARRAYS}}
 
@@ -158,8 +131,8 @@ def load_buffer_state(buffer, state: dict) -> None:
 def checkpoint_state(args, global_step: int, elapsed: float, progress: dict, agent: dict,
                      buffer, action_space: gym.Space, episode: dict, rng: dict,
                      unfinished: list) -> dict:
-    """checkpoint.pt: `agent` by name (modules and optimizers by state_dict), the replay
-    buffer, the random states, the episode under way and the unfinished evaluation rounds."""
+    """checkpoint.pt: `agent` by name (state_dicts), the buffer, the random states, the episode
+    under way, the unfinished rounds."""
     return {"args": dataclasses.asdict(args), "global_step": global_step, "elapsed": elapsed,
             "progress": progress,
             **{name: obj.detach().clone() if torch.is_tensor(obj) else obj.state_dict()
@@ -167,13 +140,17 @@ def checkpoint_state(args, global_step: int, elapsed: float, progress: dict, age
             "buffer": buffer_state(buffer),
             "rng": rng | {"action_space": action_space.np_random.bit_generator.state,
                           "episode": episode_state(episode, action_space.shape[0])},
-            "pending_rounds": [pending_round_state(r) for r in unfinished]}
+            # A round a stop left unfinished: with the run's arguments, all a rerun needs.
+            "pending_rounds": [{"global_step": r.info["global_step"],
+                                "wall_time": r.info["wall_time"], "actor": r.actor.state_dict(),
+                                "qf": None if r.critic is None else r.critic.state_dict()}
+                               for r in unfinished]}
 
 
 def load_checkpoint(ckpt: dict, agent: dict, buffer, action_space: gym.Space,
                     device: torch.device) -> tuple[int, float, dict]:
-    """The run's state from its checkpoint (checkpoint_state), in place into the objects of
-    `agent` and the buffer; returns the step, the training time so far and the progress."""
+    """checkpoint_state's, in place into `agent` and the buffer; returns the step, the training
+    time so far and the progress."""
     for name, obj in agent.items():
         if torch.is_tensor(obj):
             with torch.no_grad():
@@ -189,13 +166,9 @@ def load_checkpoint(ckpt: dict, agent: dict, buffer, action_space: gym.Space,
     return ckpt["global_step"], ckpt["elapsed"], ckpt["progress"]
 
 
-# The weights' layout: nn.Linear's (out, in) since issue 87; (in, out) before (the scripts' own
-# Linear), in every weights file and checkpoint that earlier commits wrote (results/).
-
-
 def old_layout(weights: dict) -> bool:
-    """Whether a state dict of our networks stores its weights (in, out): told by its first layer
-    whose in and out sizes differ (the critic's first layer always does), by its bias's length."""
+    """Whether our networks' weights are stored (in, out), as before issue 87 (results/), not
+    nn.Linear's (out, in): told by the first non-square layer's bias length."""
     for key, weight in weights.items():
         bias = weights.get(key.removesuffix("weight") + "bias")
         if key.endswith(".weight") and weight.dim() == 2 and bias is not None \
@@ -204,38 +177,24 @@ def old_layout(weights: dict) -> bool:
     return False
 
 
-def to_linear_layout(weights: dict) -> dict:
-    """A state dict of our networks in nn.Linear's layout, whichever it was written in."""
-    if not old_layout(weights):
-        return weights
-    return {k: v.T.contiguous() if k.endswith(".weight") and v.dim() == 2 else v
-            for k, v in weights.items()}
-
-
 def check_layout(path: Path, ckpt: dict) -> None:
-    """A checkpoint written before issue 87 (weights (in, out), another replay buffer) resumes
-    only with the commit that wrote it."""
+    """A checkpoint written before issue 87 resumes only with the commit that wrote it."""
     if old_layout(ckpt["actor"]) or old_layout(ckpt["qf"]):
         fail(f"{path} was written by an earlier version of this script (weights stored (in, "
              "out)); resume it with the commit that made it (config.json's git_commit)")
 
 
-# The policy alone: final_model.pt and snapshots. A run whose checkpoint is lost (a machine gone
-# with it) restarts from its last snapshot.
-
-
 def policy_weights(actor: dict, qf: dict, args: dict,
                    log_alpha: torch.Tensor | None = None) -> dict:
     """final_model.pt: the actor's and critic's state dicts and the arguments that rebuild them;
-    with log alpha, a snapshot (snapshots/step<N>.pt), all that restart_from_snapshot needs."""
+    with log alpha, a snapshot (all that restart_from_snapshot needs)."""
     weights = {"actor": actor, "qf": qf, "config": {f: args[f] for f in MODEL_FIELDS}}
     return weights if log_alpha is None else weights | {"log_alpha": log_alpha.detach().clone()}
 
 
 def snapshot_from_checkpoint(run_dir: Path, out_dir: Path) -> int:
-    """Writes out_dir/step<N>.pt, the snapshot of a stopped run at its checkpoint's step N, and
-    returns N: committed where the checkpoint (with its buffer, too big to keep) is not, it lets
-    `sweep.py restart` continue the run if the machine holding the checkpoint is lost."""
+    """Writes out_dir/step<N>.pt, a snapshot of a stopped run's checkpoint, and returns N: small
+    enough to commit, it lets `sweep.py restart` go on if the checkpoint is lost."""
     ckpt = read_checkpoint(run_dir / "checkpoint.pt")
     step = ckpt["global_step"]
     out_dir.mkdir(parents=True, exist_ok=True)

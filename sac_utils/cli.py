@@ -1,7 +1,6 @@
 """Bad input, for the SAC scripts and evaluate.py: the one-line error (`fail`), each flag's range
-(broken_rule words it, for sweep.py too), --resume's rules (the run's stored arguments are the
-defaults; a flag may change where and how fast, never what is computed), --env-id, a run's
-config.json, a non-finite action or loss. The flags themselves are the scripts' Args.
+(`broken_rule`, for sweep.py too), --resume's rules (a flag may change where and how fast, never
+what is computed), --env-id, a run's config.json, a non-finite action or loss.
 """
 
 import dataclasses
@@ -19,15 +18,14 @@ import tyro
 
 from sac_utils.files import read_json_object
 
-# A training script's exit code after a graceful stop on a signal: "resume with --resume".
-INTERRUPTED_EXIT_CODE = 3
+INTERRUPTED_EXIT_CODE = 3  # a graceful stop on a signal: "resume with --resume"
 # Flags that may differ when resuming: they change where and how fast, not what is computed.
 TRACKING_FIELDS = ("track", "wandb_project_name", "wandb_entity", "wandb_group")
 RUNTIME_FIELDS = ("output_dir", "run_name", "resume", "checkpoint_interval", "snapshot_interval",
                   "print_interval", "cuda", "compile", "cudagraphs", "gpu_buffer", "torch_threads",
                   "capture_video", "eval_workers", *TRACKING_FIELDS)
-# What a resume keeps unless told otherwise (sweep.py resumes with --resume alone): the W&B run,
-# compiled or eager (they round apart), the checkpoint and snapshot intervals.
+# What a resume keeps unless told otherwise (sweep.py gives --resume alone); compiled and eager
+# round apart.
 KEPT_FIELDS = (*TRACKING_FIELDS, "compile", "checkpoint_interval", "snapshot_interval")
 
 
@@ -45,7 +43,7 @@ def check_finite(x: np.ndarray, what: str) -> None:
 
 
 def json_object_or_fail(path: Path, fix: str) -> dict:
-    """A JSON file that holds an object, or one line naming what is wrong with it and `fix`."""
+    """A JSON file's object, or one line naming what is wrong with it and `fix`."""
     try:
         return read_json_object(path, fix)
     except ValueError as error:
@@ -53,33 +51,27 @@ def json_object_or_fail(path: Path, fix: str) -> dict:
 
 
 def read_config_json(run_dir: Path, give_instead: str, restore: str) -> dict:
-    """A run folder's config.json as a dict, or one line naming the problem: `give_instead` says
-    what to give where the folder is not a run, `restore` what to do about a damaged file."""
+    """A run folder's config.json, or one line: `give_instead` where the folder is not a run,
+    `restore` where the file is damaged."""
     path = run_dir / "config.json"
     if not path.is_file():
         fail(f"{run_dir} is not a run folder (no config.json); {give_instead}")
     return json_object_or_fail(path, restore)
 
 
-def read_run_config(run_dir: Path, algorithm: str) -> dict:
-    """The config.json of a run folder made by this script, or a clear error."""
-    config = read_config_json(
-        run_dir, "give --resume a folder made by sac_standard.py or sac_corrected.py",
-        "restore it from a copy, or start a new run")
-    if config.get("algorithm") != algorithm:
-        fail(f"{run_dir} is a run of {config.get('script')}; resume it with that script")
-    return config
-
-
 def parse_args(args_class: type, algorithm: str, eval_actions: Callable) -> object:
-    """Parses and checks the flags of a script's Args; with --resume, the run's stored arguments
-    are the defaults and a flag that contradicts them is an error."""
+    """A script's Args, checked; with --resume, the run's stored arguments are the defaults and a
+    flag that contradicts them is an error."""
     args = tyro.cli(args_class)
     if args.resume is None:
         check_args(args, eval_actions)
         return args
-    path = Path(args.resume) / "config.json"
-    config = read_run_config(Path(args.resume), algorithm)
+    run_dir = Path(args.resume)
+    path = run_dir / "config.json"
+    config = read_config_json(run_dir, "give --resume a folder made by sac_standard.py or "
+                              "sac_corrected.py", "restore it from a copy, or start a new run")
+    if config.get("algorithm") != algorithm:
+        fail(f"{run_dir} is a run of {config.get('script')}; resume it with that script")
     stored = stored_args(args_class, config, skip=RUNTIME_FIELDS)
     kept = {k: config[k] for k in KEPT_FIELDS if k in config}
     wrong = [k for k, v in (stored | kept).items() if not same_type(v, getattr(args, k))]
@@ -96,9 +88,7 @@ def parse_args(args_class: type, algorithm: str, eval_actions: Callable) -> obje
 
 
 def stored_args(args_class: type, config: dict, skip: tuple[str, ...] = ()) -> dict:
-    """The arguments of a run's config.json that args_class has (but those in `skip`), its JSON
-    lists back to the flags' tuples (--hidden-sizes, --eval-selectors): for --resume, and for
-    checkpoints.restart_from_snapshot."""
+    """The arguments of a config.json that args_class has (but `skip`), lists back to tuples."""
     names = [f.name for f in dataclasses.fields(args_class) if f.name not in skip]
     return {k: tuple(config[k]) if isinstance(config[k], list) else config[k]
             for k in names if k in config}
@@ -117,11 +107,12 @@ def same_type(value: object, default: object) -> bool:
 
 
 def check_args(args, eval_actions: Callable) -> None:
-    """Every flag's valid range, checked before anything is created or written. eval_actions:
-    the script's own (it names the evaluation actions that --eval-selectors may add to)."""
+    """Every flag's range, before anything is written; eval_actions: the script's own."""
     from sac_utils.eval_rounds import action_name  # torch: not for sweep.py, which imports cli
 
     finite = math.isfinite
+    positive = [(k, finite(getattr(args, k)) and getattr(args, k) > 0, "a positive number")
+                for k in ("policy_lr", "q_lr", "alpha_lr", "alpha_init")]
     own_actions = [action_name(a) for a in
                    eval_actions(dataclasses.replace(args, eval_selectors=())).values()]
     actions = [action_name(a) for a in eval_actions(args).values()]
@@ -135,10 +126,7 @@ def check_args(args, eval_actions: Callable) -> None:
         ("tau", 0 < args.tau <= 1, "in (0, 1]"),
         ("learning_starts", 0 <= args.learning_starts < args.total_timesteps,
          f"in [0, --total-timesteps ({args.total_timesteps})), or no gradient update would run"),
-        ("policy_lr", finite(args.policy_lr) and args.policy_lr > 0, "a positive number"),
-        ("q_lr", finite(args.q_lr) and args.q_lr > 0, "a positive number"),
-        ("alpha_lr", finite(args.alpha_lr) and args.alpha_lr > 0, "a positive number"),
-        ("alpha_init", finite(args.alpha_init) and args.alpha_init > 0, "a positive number"),
+        *positive,
         ("target_entropy_scale", finite(args.target_entropy_scale), "a finite number"),
         ("hidden_sizes", len(args.hidden_sizes) > 0 and min(args.hidden_sizes) >= 1,
          "one or more positive layer widths, e.g. --hidden-sizes 256 256"),
@@ -171,9 +159,8 @@ def check_args(args, eval_actions: Callable) -> None:
 
 
 def broken_rule(args, rules: tuple[tuple[str, bool, str], ...]) -> str | None:
-    """The first rule (a field of args, whether its value is allowed, what is allowed) that args
-    break, as one line for the user (`--flag VALUE: must be ...`); None if they keep them all.
-    Shared with sweep.py, whose own errors are its SweepError."""
+    """The first rule (field, whether its value is allowed, what is) that args break, as one line
+    (`--flag VALUE: must be ...`); None if they keep them all. Shared with sweep.py."""
     for name, ok, allowed in rules:
         if not ok:
             value = getattr(args, name)
@@ -183,8 +170,7 @@ def broken_rule(args, rules: tuple[tuple[str, bool, str], ...]) -> str | None:
 
 
 def check_checkpoint_args(run_dir: Path, ckpt: dict, args) -> None:
-    """A resume's checkpoint must have been made with the arguments config.json holds (those the
-    script still has)."""
+    """A resume's checkpoint must have been made with config.json's arguments."""
     wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}
     if {k: v for k, v in ckpt["args"].items() if k in wanted} != wanted:
         fail(f"{run_dir / 'checkpoint.pt'} was made with other arguments than "
@@ -192,8 +178,8 @@ def check_checkpoint_args(run_dir: Path, ckpt: dict, args) -> None:
 
 
 def registered_env_id(env_id: str) -> str:
-    """The gymnasium id of --env-id, or one line naming close matches. An id
-    "package.module:EnvId" imports the module first, which registers the env (gymnasium's way)."""
+    """The gymnasium id of --env-id, or one line naming close matches ("module:EnvId" imports
+    the module first, which registers the env)."""
     module, _, name = env_id.rpartition(":")
     if module:
         try:

@@ -1,5 +1,5 @@
-"""Files written whole or not at all, and read without a half-written last line: a run, a sweep
-or an evaluation may be killed at any moment. No torch here: sweep.py's processes import it."""
+"""Files written whole or not at all, read without a half-written last line (a process may be
+killed at any moment). No torch here: sweep.py's processes import it."""
 
 import json
 import os
@@ -15,8 +15,7 @@ def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
 
 
 def write_text_atomically(path: Path, text: str) -> None:
-    """path holds its old content or `text`, wherever the process is killed, synced to disk
-    before the rename (a machine that loses power keeps one or the other too)."""
+    """path holds its old content or `text`, synced before the rename (a power loss, too)."""
     def write(tmp: Path) -> None:
         with open(tmp, "w", newline="") as f:
             f.write(text)
@@ -27,13 +26,12 @@ def write_text_atomically(path: Path, text: str) -> None:
 
 
 def write_json(path: Path, data: dict) -> None:
-    """data as indented JSON with a final newline, written as write_text_atomically writes."""
+    """data as indented JSON, written as write_text_atomically writes."""
     write_text_atomically(path, json.dumps(data, indent=2) + "\n")
 
 
 def read_json_object(path: Path, fix: str = "", error: type[Exception] = ValueError) -> dict:
-    """A JSON file that holds an object; else `error` naming what is wrong with it, then `fix`
-    (analyze.py's AnalysisError, read by the user as one line)."""
+    """A JSON file's object; else `error` (one line) naming what is wrong with it, then `fix`."""
     then = f"; {fix}" if fix else ""
     try:
         value = json.loads(path.read_text(encoding="utf-8"))
@@ -45,7 +43,6 @@ def read_json_object(path: Path, fix: str = "", error: type[Exception] = ValueEr
 
 
 def complete_lines(path: Path) -> list[str]:
-    """The file's lines with their ends, as written (csv ends rows with \\r\\n); a last line
-    without its end, left by a kill mid-write, is not one yet."""
+    """The file's lines with their ends (csv's \\r\\n); a last line a kill cut short is not one."""
     with path.open(newline="") as f:
         return [line for line in f.read().splitlines(keepends=True) if line.endswith("\n")]

@@ -15,7 +15,7 @@ import torch
 import torch.nn as nn
 
 import sac_corrected as sac
-from sac_utils.checkpoints import to_linear_layout
+from sac_utils.checkpoints import old_layout
 from sac_utils.cli import fail, read_config_json
 
 
@@ -113,6 +113,14 @@ def load_weights(path: Path) -> dict:
 
     return state | {part: to_linear_layout({k: fit(k, v) for k, v in state[part].items()})
                     for part in ("actor", "qf") if tensors(state.get(part))}
+
+
+def to_linear_layout(weights: dict) -> dict:
+    """A state dict of our networks in nn.Linear's layout, whichever it was written in."""
+    if not old_layout(weights):
+        return weights
+    return {k: v.T.contiguous() if k.endswith(".weight") and v.dim() == 2 else v
+            for k, v in weights.items()}
 
 
 def tensors(weights: object) -> bool:

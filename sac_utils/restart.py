@@ -13,9 +13,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from sac_utils.checkpoints import checkpoint_state, rng_states, save_tensors, to_linear_layout
+from sac_utils.checkpoints import checkpoint_state, rng_states, save_tensors
 from sac_utils.cli import fail, read_config_json, stored_args
 from sac_utils.files import atomic_write, complete_lines
+from sac_utils.policies import to_linear_layout
 from sac_utils.run_folder import git_commit, machine
 
 

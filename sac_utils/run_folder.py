@@ -1,16 +1,12 @@
 """A run folder from start to finish, behind the one object the SAC scripts hold (RunFolder):
-named, locked (one writer), started (config.json) or resumed, logged to (eval.csv, train.csv,
-TensorBoard, W&B), checkpointed, snapshotted and finished (final_model.pt, then done.json); the
-training episodes and steps per second it reports; the graceful stop on a signal (StopRequest).
-What a checkpoint holds is sac_utils/checkpoints.py's. The layout: docs/scripts.md ("The run
-folder").
+named, locked, started or resumed, logged to (CSVs, TensorBoard, W&B), checkpointed and finished;
+the graceful stop on a signal (StopRequest). The layout: docs/scripts.md ("The run folder").
 """
 
 import copy
 import csv
 import dataclasses
 import fcntl
-import json
 import os
 import platform
 import signal
@@ -27,10 +23,10 @@ import torch.nn as nn
 from torch.utils.tensorboard import SummaryWriter
 
 from sac_utils import checkpoints, eval_rounds
-from sac_utils.checkpoints import save_tensors
+from sac_utils.checkpoints import read_checkpoint, save_tensors
 from sac_utils.cli import INTERRUPTED_EXIT_CODE, check_checkpoint_args, check_finite, fail
 from sac_utils.eval_rounds import Round, shift_measured_at
-from sac_utils.files import atomic_write, complete_lines
+from sac_utils.files import atomic_write, complete_lines, write_json
 
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
                  "qf2_value", "actor_loss", "alpha", "alpha_loss", "entropy", "episodes",
@@ -38,8 +34,8 @@ TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1
 
 
 class StopRequest:
-    """SIGTERM/SIGUSR1/SIGUSR2 ask for a graceful stop after the current step (checkpoint, then
-    exit); a second signal exits at once (the last checkpoint stays valid)."""
+    """SIGTERM/SIGUSR1/SIGUSR2: checkpoint after the current step, then exit; a second signal
+    exits at once (the last checkpoint stays valid)."""
 
     def __init__(self):
         self.requested = False
@@ -57,12 +53,9 @@ class StopRequest:
 
 
 class RunFolder:
-    """One run's folder and bookkeeping. Created first thing (a finished run exits here, code 0)
-    with the script's evaluation actions; `open` locks the folder, starts it or checks it for a
-    resume and opens its logs and evaluation workers; `resume` loads the checkpoint; the
-    training loop then reports to it (count_step,
-    log_train, print_progress), has it evaluate (evaluate, poll_evaluations) and keep state
-    (save_snapshot, checkpoint); `stop` or `finish` ends the run."""
+    """One run's folder and bookkeeping (a finished run exits on creation, code 0): `open`,
+    `resume`, then the loop's count_step, log_train, evaluate, save_snapshot, checkpoint; `stop`
+    or `finish` ends the run."""
 
     def __init__(self, args, algorithm: str, script: str, eval_actions: dict):
         self.args, self.algorithm, self.script = args, algorithm, script
@@ -73,16 +66,16 @@ class RunFolder:
         if (self.dir / "done.json").exists():
             print(f"{self.dir}: already finished (done.json); nothing to do")
             sys.exit(0)
-        self.pending_rounds: list[dict] = []
 
     def open(self, obs_dim: int, action_dim: int, device: torch.device) -> None:
-        """Locks the folder (one writer) and checks it before writing; a fresh run writes
-        config.json, a resumed one (`resuming`: --resume and a checkpoint.pt) has its CSVs cut
-        back to the checkpoint's step. Then the logs and the evaluation workers open."""
+        """Locks the folder and checks it before writing: a fresh run writes config.json, a
+        resumed one (--resume and a checkpoint.pt) has its CSVs cut back to the checkpoint's step;
+        then the logs and the evaluation workers open."""
         args, self.device = self.args, device
         lock = lock_run_folder(self.dir)
-        self.ckpt = checkpoints.find_checkpoint(self.dir) if args.resume is not None else None
-        self.elapsed, self.pending_rounds = 0.0, []
+        path = self.dir / "checkpoint.pt"  # none yet: the run restarts from step 0
+        self.ckpt = read_checkpoint(path) if args.resume is not None and path.exists() else None
+        self.elapsed = 0.0
         self.progress = {"episode_returns": [], "episode_lengths": [], "last_eval": None,
                          "episode_return": 0.0, "episode_length": 0}
         if self.ckpt is not None:
@@ -93,14 +86,12 @@ class RunFolder:
         else:
             for old in self.dir.glob("events.out.tfevents.*"):  # a restart from step 0
                 old.unlink()
-            config = run_metadata(args, obs_dim, action_dim, self.algorithm, self.script,
-                                  device)
-            atomic_write(self.dir / "config.json",
-                         lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
-        record_holder(lock)
+            write_json(self.dir / "config.json", run_metadata(
+                args, obs_dim, action_dim, self.algorithm, self.script, device))
+        os.ftruncate(lock, 0)  # this process's pid, for a refused second process to name
+        os.pwrite(lock, f"{os.getpid()}\n".encode(), 0)
         global_step = 0 if self.ckpt is None else self.ckpt["global_step"]
-        self.logs = open_logs(args, self.dir, self.eval_columns, list(TRAIN_COLUMNS),
-                              global_step, self.resuming, self.algorithm)
+        self.open_logs(global_step)
         self.session_start = self.row_start = time.time()
         self.row_step = global_step
         workers = eval_rounds.default_workers() if args.eval_workers is None else args.eval_workers
@@ -112,10 +103,9 @@ class RunFolder:
 
     def resume(self, agent: dict, buffer, action_space: gym.Space,
                envs: gym.vector.VectorEnv) -> tuple[int, np.ndarray, int]:
-        """The run's state from checkpoint.pt, in place into `agent`, the buffer and the random
-        streams, the episode under way replayed, the evaluation rounds a stop left unfinished
-        rerun. Returns the step, the observation and the step of the first update
-        (--learning-starts, or later where a run restarted from a snapshot refills its buffer)."""
+        """checkpoint.pt into `agent`, the buffer and the random streams, the episode under way
+        replayed, the rounds a stop left unfinished resubmitted. Returns the step, the observation
+        and the first update's step (later than --learning-starts after a restart's refill)."""
         ckpt = self.ckpt
         global_step, self.elapsed, self.progress = checkpoints.load_checkpoint(
             ckpt, agent, buffer, action_space, self.device)
@@ -126,8 +116,7 @@ class RunFolder:
         if updates_from > global_step:
             print(f"restarted from a snapshot: acting to refill the replay buffer, updates "
                   f"resume at step {updates_from}", flush=True)
-        self.pending_rounds = ckpt.get("pending_rounds", [])
-        for state in self.pending_rounds:  # the rounds a stop left unfinished, rerun first
+        for state in ckpt.get("pending_rounds", []):
             self.eval_pool.submit(self.evaluation_round(
                 state["global_step"], state["wall_time"],
                 *checkpoints.pending_round_networks(agent["actor"], agent["qf"], state)))
@@ -135,8 +124,7 @@ class RunFolder:
         return global_step, obs, updates_from
 
     def evaluate(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
-        """Submits this step's evaluation round to a worker (sac_utils/eval_rounds.py); its eval.csv
-        row is written in step order (log_round)."""
+        """Submits this step's evaluation round; its eval.csv row comes in step order."""
         self.eval_pool.submit(self.evaluation_round(global_step, self.wall_time(), actor, qf))
 
     def poll_evaluations(self) -> None:
@@ -145,8 +133,7 @@ class RunFolder:
 
     def evaluation_round(self, global_step: int, wall_time: float, actor: nn.Module,
                          qf: nn.Module) -> Round:
-        """The round at this step, on CPU copies of the networks: every action from the same
-        starts."""
+        """The round at this step, on CPU copies of the networks."""
         args, actions = self.args, self.eval_actions
         eval_round = global_step // args.eval_interval
         seeds = eval_rounds.eval_seeds(args.seed, eval_round, args.eval_episodes)
@@ -161,10 +148,9 @@ class RunFolder:
                            "eval_round": eval_round})
 
     def log_round(self, round_: Round, result: dict) -> None:
-        """A finished evaluation round's eval.csv row (EvalPool hands them back in step order)."""
+        """A finished round's eval.csv row."""
         row = round_.info | eval_rounds.round_row(result, round_.actions)
-        write_row(*self.logs["eval"], self.logs["tb"], self.logs["tracker"], "eval", row,
-                  round_.videos.get(""))
+        self.write_row("eval", row, round_.videos.get(""))
         self.progress["last_eval"] = (row["global_step"], row["return_mean"])
 
     def wall_time(self) -> float:
@@ -172,8 +158,7 @@ class RunFolder:
         return self.elapsed + time.time() - self.session_start
 
     def count_step(self, reward: float, episode_end: bool) -> None:
-        """Adds a step's reward to the training episode under way; an ended one joins those that
-        the next train.csv row averages."""
+        """A step's reward into the episode under way; an ended one into the next train.csv row."""
         progress = self.progress
         progress["episode_return"] += float(reward)
         progress["episode_length"] += 1
@@ -183,8 +168,7 @@ class RunFolder:
             progress["episode_return"], progress["episode_length"] = 0.0, 0
 
     def log_train(self, global_step: int, losses: tuple[torch.Tensor, ...] | None) -> None:
-        """A train.csv row: the steps per second, the last update's losses (none before learning
-        starts) and the training episodes that ended since the last row."""
+        """A train.csv row: steps/s, the last update's losses, the episodes ended since the last."""
         now = time.time()
         returns, lengths = self.progress["episode_returns"], self.progress["episode_lengths"]
         row = {"global_step": global_step, "wall_time": self.wall_time(),
@@ -202,7 +186,7 @@ class RunFolder:
                     "qf2_value": qf_values[1].mean().item(), "actor_loss": actor_loss.item(),
                     "alpha": alpha.item(), "alpha_loss": alpha_loss.item(),
                     "entropy": -log_pi.mean().item()}
-        write_row(*self.logs["train"], self.logs["tb"], self.logs["tracker"], "train", row)
+        self.write_row("train", row)
         self.row_start, self.row_step = now, global_step
 
     def print_progress(self, global_step: int) -> None:
@@ -218,17 +202,14 @@ class RunFolder:
 
     def save_snapshot(self, global_step: int, actor: nn.Module, qf: nn.Module,
                       log_alpha: torch.Tensor) -> None:
-        """snapshots/step<N>.pt, as final_model.pt plus log alpha: all that a run whose checkpoint
-        is lost needs to restart from it (--restart-from; a resumed run rewrites the later ones
-        with the same numbers)."""
+        """snapshots/step<N>.pt: final_model.pt's content plus log alpha, what a restart needs."""
         (self.dir / "snapshots").mkdir(exist_ok=True)
         save_tensors(self.dir / "snapshots" / f"step{global_step}.pt", checkpoints.policy_weights(
             actor.state_dict(), qf.state_dict(), dataclasses.asdict(self.args), log_alpha))
 
     def checkpoint(self, global_step: int, agent: dict, buffer, action_space: gym.Space,
                    envs: gym.vector.VectorEnv, stopping: bool) -> None:
-        """checkpoint.pt (checkpoints.checkpoint_state). A stop checkpoints at once, keeping the
-        rounds still running for the resumed run to rerun; otherwise they finish first."""
+        """checkpoint.pt; a stop keeps the running rounds in it, otherwise they finish first."""
         unfinished = self.eval_pool.abandon() if stopping else []
         self.eval_pool.drain()
         save_tensors(self.dir / "checkpoint.pt", checkpoints.checkpoint_state(
@@ -238,30 +219,57 @@ class RunFolder:
 
     def stop(self, global_step: int) -> None:
         """Ends a run stopped by a signal, after its checkpoint: exit code 3."""
-        close_logs(self.logs)
+        self.close_logs()
         print(f"interrupted at step {global_step}; resume with --resume {self.dir}", flush=True)
         sys.exit(INTERRUPTED_EXIT_CODE)
 
     def finish(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
-        """final_model.pt, the logs closed, and done.json last: a folder with done.json is a
-        finished run (sweep.py skips it)."""
+        """final_model.pt, the logs closed, done.json last (a finished run: sweep.py skips it)."""
         self.eval_pool.drain()
         self.eval_pool.close()
         wall_time = self.wall_time()
         save_tensors(self.dir / "final_model.pt", checkpoints.policy_weights(
             actor.state_dict(), qf.state_dict(), dataclasses.asdict(self.args)))
-        close_logs(self.logs)
-        atomic_write(self.dir / "done.json", lambda tmp: tmp.write_text(json.dumps(
-            {"global_step": global_step, "wall_time": wall_time})))
+        self.close_logs()
+        write_json(self.dir / "done.json", {"global_step": global_step, "wall_time": wall_time})
         print(f"finished {global_step} steps in {wall_time:.0f} s: {self.dir}", flush=True)
 
+    def open_logs(self, global_step: int) -> None:
+        """eval.csv and train.csv (a resume keeps their rows up to its step), TensorBoard, W&B."""
+        keep = global_step if self.resuming else None
+        self.tb = SummaryWriter(self.dir, purge_step=global_step + 1 if self.resuming else None)
+        if not self.resuming:
+            self.tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
+                f"|{name}|{value}|" for name, value in dataclasses.asdict(self.args).items()))
+        self.csvs = {"eval": open_csv(self.dir / "eval.csv", self.eval_columns, keep),
+                     "train": open_csv(self.dir / "train.csv", list(TRAIN_COLUMNS), keep)}
+        self.tracker = start_tracking(self.args, self.dir, self.algorithm)
 
-# The folder's name, lock and config.json.
+    def write_row(self, group: str, row: dict, video: Path | None = None) -> None:
+        """One row to its CSV (flushed), to TensorBoard and, with --track, to W&B."""
+        f, writer = self.csvs[group]
+        writer.writerow(row)
+        f.flush()
+        scalars = {f"{group}/{k}": v for k, v in row.items()
+                   if v is not None and k not in ("global_step", "wall_time")}
+        for k, v in scalars.items():
+            self.tb.add_scalar(k, v, row["global_step"])
+        if self.tracker is not None:
+            import wandb  # only with --track
+
+            media = {f"{group}/video": wandb.Video(str(video), format="mp4")} if video else {}
+            self.tracker.log({"global_step": row["global_step"], **scalars, **media})
+
+    def close_logs(self) -> None:
+        self.tb.close()
+        if self.tracker is not None:
+            self.tracker.finish()
+        for f, _ in self.csvs.values():
+            f.close()
 
 
 def run_dir(args, algorithm: str) -> Path:
-    """With --resume, the folder given (a copy resumes the copy); else a fresh one under
-    --output-dir, named --run-name or by default."""
+    """--resume's folder, or a fresh one under --output-dir (--run-name or the default name)."""
     if args.resume is not None:
         return Path(args.resume)
     name = args.run_name or (f"{args.env_id}__{algorithm}__seed{args.seed}__"
@@ -274,9 +282,8 @@ def run_dir(args, algorithm: str) -> Path:
 
 
 def lock_run_folder(run_dir: Path) -> int:
-    """An OS lock on run_dir/lock while this process lives: one writer per folder (a Slurm requeue
-    racing a live job, a sweep started twice), never stale (the kernel drops it at any death). A
-    refusal removes the folder and lock file it made. Returns the fd (record_holder)."""
+    """An OS lock on run_dir/lock while this process lives (one writer; never stale: the kernel
+    drops it at any death). A refusal removes what it made. Returns the fd."""
     made = not run_dir.exists()
     run_dir.mkdir(parents=True, exist_ok=True)
     fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
@@ -294,16 +301,10 @@ def lock_run_folder(run_dir: Path) -> int:
     return fd
 
 
-def record_holder(lock_fd: int) -> None:
-    """Writes this process's pid into the lock file it holds, for a refused second process."""
-    os.ftruncate(lock_fd, 0)
-    os.pwrite(lock_fd, f"{os.getpid()}\n".encode(), 0)
-
-
 def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: str,
                  device: torch.device) -> dict:
-    """config.json: every argument, the algorithm, the versions, the git commit, and under "used"
-    what the run started with where flags only ask (--cuda without a GPU trains on the CPU)."""
+    """config.json: the arguments, versions, commit, and "used": what the flags got (--cuda
+    without a GPU trains on the CPU)."""
     return {**dataclasses.asdict(args), "algorithm": algorithm, "script": script,
             "obs_dim": obs_dim, "action_dim": action_dim, "git_commit": git_commit(),
             "versions": {"python": platform.python_version(), "torch": torch.__version__,
@@ -318,7 +319,7 @@ def run_metadata(args, obs_dim: int, action_dim: int, algorithm: str, script: st
 
 
 def git_commit() -> str | None:
-    """The commit of the code that runs (None outside a git checkout)."""
+    """The code's commit (None outside a git checkout)."""
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
                               capture_output=True, text=True, check=True).stdout.strip()
@@ -327,28 +328,20 @@ def git_commit() -> str | None:
 
 
 def machine() -> dict:
-    """The machine a run (or its restart) trains on, as config.json records it."""
-    return {"cpu": cpu_model(), "cores": os.cpu_count()}
-
-
-def cpu_model() -> str:
-    """The CPU's name as the OS gives it. A seed's run is the same run only on the same kind of
-    CPU: compiled kernels and MuJoCo round by its instruction set, and a chaotic run diverges."""
+    """The machine a run (or its restart) trains on, as config.json records it: a seed's run
+    repeats only on the same kind of CPU (kernels and MuJoCo round by its instruction set)."""
+    cpu = platform.processor() or platform.machine()
     try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
+        names = [line for line in Path("/proc/cpuinfo").read_text().splitlines()
+                 if line.startswith("model name")]
+        cpu = names[0].split(":", 1)[1].strip() if names else cpu
     except OSError:
         pass
-    return platform.processor() or platform.machine()
-
-
-# The logs: CSVs, TensorBoard, W&B.
+    return {"cpu": cpu, "cores": os.cpu_count()}
 
 
 def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
-    """An append-mode CSV writer. Resuming keeps the whole rows up to the checkpoint's step, so
-    the file ends up with no duplicate or missing rows."""
+    """An append-mode CSV writer; a resume keeps the whole rows up to its step."""
     kept = []
     if keep_until_step is not None and path.exists():
         kept = [r for r in complete_lines(path)[1:] if int(r.split(",")[0]) <= keep_until_step]
@@ -358,7 +351,7 @@ def open_csv(path: Path, columns: list[str], keep_until_step: int | None):
 
 
 def check_csv(path: Path, columns: list[str]) -> None:
-    """Before a resume writes anything: the CSV must be this run's (its header, whole steps)."""
+    """Before a resume writes: the CSV must be this run's (its header, step numbers)."""
     if not path.exists():
         return
     lines = path.read_text(errors="replace").splitlines(keepends=True)
@@ -372,25 +365,8 @@ def check_csv(path: Path, columns: list[str]) -> None:
                  "number; restore the file, or delete that line")
 
 
-def write_row(f, writer: csv.DictWriter, tb: SummaryWriter, tracker, group: str, row: dict,
-              video: Path | None = None) -> None:
-    """One row to its CSV (flushed), to TensorBoard and, with --track, to W&B."""
-    writer.writerow(row)
-    f.flush()
-    scalars = {f"{group}/{k}": v for k, v in row.items()
-               if v is not None and k not in ("global_step", "wall_time")}
-    for k, v in scalars.items():
-        tb.add_scalar(k, v, row["global_step"])
-    if tracker is not None:
-        import wandb  # only with --track
-
-        media = {f"{group}/video": wandb.Video(str(video), format="mp4")} if video else {}
-        tracker.log({"global_step": row["global_step"], **scalars, **media})
-
-
 def start_tracking(args, run_dir: Path, algorithm: str):
-    """With --track, the W&B run (imported only then), as CleanRL logs it: the config, every
-    TensorBoard scalar and the videos. Its id is kept in the folder: a resume continues it."""
+    """With --track, the W&B run as CleanRL logs it; its id kept in the folder for a resume."""
     if not args.track:
         return None
     import wandb
@@ -406,24 +382,3 @@ def start_tracking(args, run_dir: Path, algorithm: str):
     tracker.define_metric("*", step_metric="global_step")
     return tracker
 
-
-def open_logs(args, run_dir: Path, eval_header: list[str], train_header: list[str],
-              global_step: int, resumed: bool, algorithm: str) -> dict:
-    """The eval.csv and train.csv writers (a resume keeps their rows up to its step),
-    TensorBoard and, with --track, W&B."""
-    keep = global_step if resumed else None
-    tb = SummaryWriter(run_dir, purge_step=global_step + 1 if resumed else None)
-    if not resumed:
-        tb.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(
-            f"|{name}|{value}|" for name, value in dataclasses.asdict(args).items()))
-    return {"eval": open_csv(run_dir / "eval.csv", eval_header, keep),
-            "train": open_csv(run_dir / "train.csv", train_header, keep), "tb": tb,
-            "tracker": start_tracking(args, run_dir, algorithm)}
-
-
-def close_logs(logs: dict) -> None:
-    logs["tb"].close()
-    if logs["tracker"] is not None:
-        logs["tracker"].finish()
-    for f, _ in (logs["eval"], logs["train"]):
-        f.close()
