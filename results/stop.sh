@@ -46,7 +46,8 @@ for campaign in "$@"; do
 import sys
 from pathlib import Path
 
-from sac_utils.checkpoints import read_checkpoint, snapshot_from_checkpoint
+from sac_utils.checkpoints import read_checkpoint
+from sac_utils.restart import snapshot_from_checkpoint
 
 run, out, gap = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3])
 def step(p: Path) -> int:

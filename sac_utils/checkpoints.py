@@ -191,13 +191,3 @@ def policy_weights(actor: dict, qf: dict, args: dict,
     weights = {"actor": actor, "qf": qf, "config": {f: args[f] for f in MODEL_FIELDS}}
     return weights if log_alpha is None else weights | {"log_alpha": log_alpha.detach().clone()}
 
-
-def snapshot_from_checkpoint(run_dir: Path, out_dir: Path) -> int:
-    """Writes out_dir/step<N>.pt, a snapshot of a stopped run's checkpoint, and returns N: small
-    enough to commit, it lets `sweep.py restart` go on if the checkpoint is lost."""
-    ckpt = read_checkpoint(run_dir / "checkpoint.pt")
-    step = ckpt["global_step"]
-    out_dir.mkdir(parents=True, exist_ok=True)
-    save_tensors(out_dir / f"step{step}.pt", policy_weights(ckpt["actor"], ckpt["qf"],
-                                                            ckpt["args"], ckpt["log_alpha"]))
-    return step

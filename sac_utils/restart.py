@@ -13,7 +13,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from sac_utils.checkpoints import checkpoint_state, rng_states, save_tensors
+from sac_utils.checkpoints import (
+    checkpoint_state,
+    policy_weights,
+    read_checkpoint,
+    rng_states,
+    save_tensors,
+)
 from sac_utils.cli import fail, read_config_json, stored_args
 from sac_utils.files import atomic_write, complete_lines
 from sac_utils.policies import to_linear_layout
@@ -103,3 +109,14 @@ def logged_rows(path: Path, step: int) -> list[dict]:
     if not path.exists():
         return []
     return [r for r in csv.DictReader(complete_lines(path)) if int(r["global_step"]) <= step]
+
+
+def snapshot_from_checkpoint(run_dir: Path, out_dir: Path) -> int:
+    """Writes out_dir/step<N>.pt, a snapshot of a stopped run's checkpoint, and returns N: small
+    enough to commit, it lets `sweep.py restart` go on if the checkpoint is lost."""
+    ckpt = read_checkpoint(run_dir / "checkpoint.pt")
+    step = ckpt["global_step"]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    save_tensors(out_dir / f"step{step}.pt", policy_weights(ckpt["actor"], ckpt["qf"],
+                                                            ckpt["args"], ckpt["log_alpha"]))
+    return step

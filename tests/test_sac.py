@@ -14,7 +14,7 @@ import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from sac_utils.checkpoints import snapshot_from_checkpoint
+from sac_utils.restart import snapshot_from_checkpoint
 
 ROOT = Path(__file__).resolve().parent.parent
 # A short Pendulum run: updates start at step 500, evaluation every 500 steps.
