@@ -119,6 +119,7 @@ from analysis.report import (
     format_step,
     interval_text,
     markdown_table,
+    per_seed_tables,
     seed_cells,
     share_above_zero,
 )
@@ -700,7 +701,8 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
                                   "return", "minus tanh(mu) (bootstrap CI)", "t-interval",
                                   "above zero", "ahead / level / behind",
                                   *(["blow-ups"] if recorded else [])], table)]
-    lines += ends_table(by_task)
+    lines += ["", "Per seed (evaluate.py's summary.md has the same tables):", "",
+              *per_seed_tables(robust.rows.to_dict("records"), robust.actions)]
     over = None
     unbarred = [t for t in by_task if t not in SUCCESS_BARS]
     if unbarred:
@@ -737,25 +739,6 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     lines += robust_sample_efficiency(report, analysis, barred, labels, colors)
     report.section("The robust evaluation: each action minus tanh(mu) from many noisy starts "
                    "(evaluate.py)", *lines)
-
-
-def ends_table(by_task: dict[str, dict[int, RobustStep]]) -> list[str]:
-    """summary.md's count of how each action's episodes ended, over seeds, where every seed's
-    episodes.csv records it (evaluate.py's `end` column)."""
-    rows, reasons = [], set()
-    for task, steps in by_task.items():
-        for step, at in steps.items():
-            for action, ends in at.ends.items():
-                if ends is not None:
-                    rows.append((task, step, action, ends))
-                    reasons |= set(ends)
-    if not rows:
-        return []
-    reasons = sorted(reasons)
-    return ["", "How the episodes ended (evaluate.py's `end`, episodes over seeds):", "",
-            markdown_table(["task", "step", "action", *reasons],
-                           [[task, format_step(step), action, *(ends[r] for r in reasons)]
-                            for task, step, action, ends in rows])]
 
 
 def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOverTasks,
