@@ -3,22 +3,12 @@
     python analyze.py runs/ --out report/
     python analyze.py runs/ --out report/ --robust robust/   # with evaluate.py's campaign
 
-Every run folder (config.json beside eval.csv, at any depth) is grouped by task, (algorithm,
-action) and seed, aligned on the evaluation steps its task's runs share and scored per task.
 The headline is paired: per seed, each evaluation action (the mode, the mean, q_best) minus
-tanh(mu) of the same actor from the same start states. A sac_corrected.py run's tanh(mu)
-evaluation is the standard run of its seed (both scripts make the same training decisions), so
-it stands in for missing sac_standard.py runs and is checked against present ones. Then the
-paper's unpaired rliable statistics: IQM / median / mean / optimality gap, performance
-profiles, sample efficiency, probability of improvement.
-
-Here: the command line and the report's sections. What they read, estimate, draw and write is
-analysis/'s: the data (load -> pair -> align -> paired differences -> normalise; the --robust
-folders; a task or an evaluation action is one entry there), the estimators, the figures and the
-report writer. Top to bottom (docs/analyze.md maps each figure and table to its code): what to
-edit (COLORS, the labels); the shared tools (the few-seeds warnings, the paired difference's rows
-for both headlines, labels and colours); one section per report, in summary.md's order, each
-reading the data and the shared tools, never another section; the pipeline.
+tanh(mu) of the same actor from the same start states (a sac_corrected.py run's tanh(mu)
+evaluation is the standard run of its seed); then the paper's unpaired rliable statistics.
+Here: the command line and one section per report, in summary.md's order, each reading the data
+and the shared tools, never another section; what they read, estimate, draw and write is
+analysis/'s. docs/analyze.md maps each figure and table to its code.
 """
 
 from __future__ import annotations

@@ -1,19 +1,10 @@
 """The data model analyze.py reports on: scores by task, (algorithm, action), seed and step.
 
-Two adapters feed it. The runs' eval.csv (`load_runs`): every run folder (config.json beside
-eval.csv, at any depth) becomes one `Curve` per (algorithm, action), where the action is the
-script's own evaluation action or a paired one of the same actor from the same start states;
-then pair (`standard_from_paired`), align on the steps a task's runs share (`align` -> `Task`),
-take each action minus tanh(mu) per seed (`paired_differences`), normalise and stack what
-rliable aggregates (`build_aggregate`). evaluate.py's per_seed.csv (`load_robust`): per policy
-and action the mean return and the paired difference with its standard error
-(`robust_paired_differences` -> `RobustStep`). Beside them the questions the reports ask of the
-data (the last rounds' averages, whether a round was one episode, the shift over training, the
-robust evaluation's shared step). Nothing here writes a report; the notes each step returns
-(runs skipped, cut, left out) go to summary.md.
-
-What to edit: a task with a success bar is one entry in SUCCESS_BARS, a new evaluation action
-one entry in ACTIONS; every report follows.
+The runs' eval.csv (`load_runs` -> `Curve`s; pair `standard_from_paired`, align `align` ->
+`Task`, `paired_differences`, normalise `build_aggregate`) and evaluate.py's per_seed.csv
+(`load_robust` -> `robust_paired_differences` -> `RobustStep`). Nothing here writes a report;
+the notes each step returns (runs skipped, cut, left out) go to summary.md. A task with a
+success bar is one entry in SUCCESS_BARS, a new evaluation action one entry in ACTIONS.
 """
 
 from __future__ import annotations
