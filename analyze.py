@@ -3,22 +3,12 @@
     python analyze.py runs/ --out report/
     python analyze.py runs/ --out report/ --robust robust/   # with evaluate.py's campaign
 
-Every run folder (config.json beside eval.csv, at any depth) is grouped by task, (algorithm,
-action) and seed, aligned on the evaluation steps its task's runs share and scored per task.
 The headline is paired: per seed, each evaluation action (the mode, the mean, q_best) minus
-tanh(mu) of the same actor from the same start states. A sac_corrected.py run's tanh(mu)
-evaluation is the standard run of its seed (both scripts make the same training decisions), so
-it stands in for missing sac_standard.py runs and is checked against present ones. Then the
-paper's unpaired rliable statistics: IQM / median / mean / optimality gap, performance
-profiles, sample efficiency, probability of improvement.
-
-Here: the command line and the report's sections. What they read, estimate, draw and write is
-analysis/'s: the data (load -> pair -> align -> paired differences -> normalise; the --robust
-folders; a task or an evaluation action is one entry there), the estimators, the figures and the
-report writer. Top to bottom (docs/analyze.md maps each figure and table to its code): what to
-edit (COLORS, the labels); the shared tools (the few-seeds warnings, the paired difference's rows
-for both headlines, labels and colours); one section per report, in summary.md's order, each
-reading the data and the shared tools, never another section; the pipeline.
+tanh(mu) of the same actor from the same start states (a sac_corrected.py run's tanh(mu)
+evaluation is the standard run of its seed); then the paper's unpaired rliable statistics.
+Here: the command line and one section per report, in summary.md's order, each reading the data
+and the shared tools, never another section; what they read, estimate, draw and write is
+analysis/'s. docs/analyze.md maps each figure and table to its code.
 """
 
 from __future__ import annotations
@@ -119,6 +109,7 @@ from analysis.report import (
     format_step,
     interval_text,
     markdown_table,
+    per_seed_tables,
     seed_cells,
     share_above_zero,
 )
@@ -700,7 +691,8 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
                                   "return", "minus tanh(mu) (bootstrap CI)", "t-interval",
                                   "above zero", "ahead / level / behind",
                                   *(["blow-ups"] if recorded else [])], table)]
-    lines += ends_table(by_task)
+    lines += ["", "Per seed (evaluate.py's summary.md has the same tables):", "",
+              *per_seed_tables(robust.rows.to_dict("records"), robust.actions)]
     over = None
     unbarred = [t for t in by_task if t not in SUCCESS_BARS]
     if unbarred:
@@ -737,25 +729,6 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
     lines += robust_sample_efficiency(report, analysis, barred, labels, colors)
     report.section("The robust evaluation: each action minus tanh(mu) from many noisy starts "
                    "(evaluate.py)", *lines)
-
-
-def ends_table(by_task: dict[str, dict[int, RobustStep]]) -> list[str]:
-    """summary.md's count of how each action's episodes ended, over seeds, where every seed's
-    episodes.csv records it (evaluate.py's `end` column)."""
-    rows, reasons = [], set()
-    for task, steps in by_task.items():
-        for step, at in steps.items():
-            for action, ends in at.ends.items():
-                if ends is not None:
-                    rows.append((task, step, action, ends))
-                    reasons |= set(ends)
-    if not rows:
-        return []
-    reasons = sorted(reasons)
-    return ["", "How the episodes ended (evaluate.py's `end`, episodes over seeds):", "",
-            markdown_table(["task", "step", "action", *reasons],
-                           [[task, format_step(step), action, *(ends[r] for r in reasons)]
-                            for task, step, action, ends in rows])]
 
 
 def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOverTasks,

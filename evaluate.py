@@ -23,7 +23,6 @@ import csv
 import io
 import itertools
 import json
-import math
 import os
 import sys
 import time
@@ -37,7 +36,7 @@ import torch.nn as nn
 import tyro
 
 import sac_corrected as sac
-from analysis import estimators
+from analysis import estimators, report
 from sac_utils.cli import broken_rule, check_reset_noise, fail, json_object_or_fail
 from sac_utils.eval_rounds import (
     ACTIONS,
@@ -646,26 +645,50 @@ def summarize_campaign(out: Path) -> None:
     settings, episodes = read_campaign(out)
     per_seed = per_seed_rows(settings, episodes)
     write_rows(out / "per_seed.csv", per_seed)
-    text = campaign_markdown(settings, per_seed)
+    text = campaign_markdown(settings, per_seed, episodes)
     write_text_atomically(out / "summary.md", text)
     print(text, end="")
     print(f"wrote {out / 'summary.md'} and per_seed.csv; across seeds: analyze.py RUNS "
           f"--robust {out}")
 
 
-def _count(ends: dict, row: dict, action: str) -> str:
-    count = ends.get((row["run"], row["step"], action))
-    return "n/r" if count is None else str(count)
+def fall_split(settings: dict, episodes: dict[tuple[str, int, str], list[list[str]]]
+               ) -> list[str]:
+    """Per policy, the first action's paired return differences against tanh(mu) split by how
+    the two episodes from each start ended: is its difference in the starts where one robot fell,
+    or spread over all of them? A part is chosen by the episodes' own outcomes, so "only the
+    action's fell" is a loss by construction."""
+    action = next((a for a in settings["selectors"] if a != estimators.BASELINE), None)
+    column = {c: EPISODES_HEADER.index(c) for c in ("return", "end")}
+    rows = []
+    for run, about in sorted(settings["runs"].items(), key=lambda kv: kv[1]["seed"]):
+        for step in sorted({s for r, s, _ in episodes if r == run}):
+            pairs = list(zip(episodes.get((run, step, action), []),
+                             episodes.get((run, step, estimators.BASELINE), []), strict=False))
+            if not pairs or not all(it[column["end"]] and base[column["end"]]
+                                    for it, base in pairs):
+                continue
+            parts: dict[tuple[bool, bool], list[float]] = {
+                (False, False): [], (True, False): [], (False, True): [], (True, True): []}
+            for it, base in pairs:
+                parts[it[column["end"]] == FELL, base[column["end"]] == FELL].append(
+                    float(it[column["return"]]) - float(base[column["return"]]))
+            rows.append([about["seed"], report.format_step(step), *(
+                f"{len(v)}" + (f", {v[0]:+.2f}" if v else "") if len(v) < 2 else
+                f"{len(v)}, {np.mean(v):+.2f} +- {estimators.standard_error(v):.2f}"
+                for v in parts.values())])
+    if not any(FELL in (r[column["end"]] for r in group) for group in episodes.values()):
+        return []
+    return ["## Where the differences are", "",
+            f"Per policy, {action} minus tanh(mu) split by how the two episodes from each start "
+            "ended; each cell: starts, and the mean difference over them +- the standard error "
+            "of those differences.", "",
+            report.markdown_table(["seed", "step", "neither fell", f"only the {action}'s fell",
+                                   "only tanh(mu)'s fell", "both fell"], rows), ""]
 
 
-def _fell(row: dict) -> str:
-    if row.get("fell_difference_mean") is None:
-        return ""
-    mean, se = row["fell_difference_mean"], row["fell_difference_se"]
-    return f"{mean:+.3f} +- {se:.3f} ({estimators.fall_verdict(mean, se)})"
-
-
-def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
+def campaign_markdown(settings: dict, per_seed: list[dict],
+                      episodes: dict[tuple[str, int, str], list[list[str]]] | None = None) -> str:
     noise = settings["reset_noise"]
     lines = [f"# Evaluation of {len(settings['runs'])} runs from `{settings['source']}`", "",
              f"`{' '.join(settings['command'])}`", "",
@@ -674,45 +697,15 @@ def campaign_markdown(settings: dict, per_seed: list[dict]) -> str:
              f"of every action and every step of a run starts from the same state (reset seeds "
              f"from the run's seed, round {settings['eval_round']}; reset noise on qpos: "
              f"{'the task' + chr(39) + 's own' if noise is None else f'+-{noise}'}). "
-             f"{settings['seconds']:.0f} s of evaluation. Across seeds: analyze.py --robust.", ""]
-    ends = {(r["run"], r["step"], r["selector"]): r["unstable_ends"] for r in per_seed
-            if "unstable_ends" in r}
-    falls = any("fell_difference_mean" in r for r in per_seed)
-    lines += ["## Per seed", "",
-              "Paired difference against tanh(mu) with its standard error over the episodes; "
-              f"verdict: ahead / behind where more than {estimators.VERDICT_SE:g} standard errors "
-              f"from zero, else level; precision: that standard error as a share of tanh(mu)'s "
-              f"mean return (asked: below {PRECISION:.0%})"
-              + ("; unstable ends: the episodes a physics blow-up ended, the action's / tanh(mu)'s "
-                 "(n/r: not recorded)" if ends else "")
-              + ("; fell: the share of its episodes that ended with the robot down minus "
-                 "tanh(mu)'s from the same starts, +- its standard error, more / fewer by the "
-                 "same rule (empty: not recorded)" if falls else "") + ".", "",
-              "| task | seed | step | action | return | tanh(mu) | minus tanh(mu) | SE | verdict | "
-              "precision | better in |" + (" unstable ends |" if ends else "")
-              + (" fell, minus tanh(mu) |" if falls else ""),
-              "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if ends else "")
-              + ("---|" if falls else "")]
-    failed = []
-    for r in per_seed:
-        if "difference_mean" not in r:
-            continue
-        d = r["difference_mean"]
-        share = r["difference_se"] / abs(r["tanh_mu_return_mean"]) \
-            if r["tanh_mu_return_mean"] else math.inf
-        if not share < PRECISION:
-            failed.append(f"seed {r['seed']} step {r['step']} {r['selector']}")
-        lines.append(f"| {r['env_id']} | {r['seed']} | {r['step']} | {r['selector']} | "
-                     f"{r['return_mean']:.1f} | {r['tanh_mu_return_mean']:.1f} | "
-                     f"{'n/a' if math.isnan(d) else f'{d:+.1f}'} | {r['difference_se']:.1f} | "
-                     f"{estimators.verdict(r['difference_mean'], r['difference_se'])} | "
-                     f"{share:.1%} | {r['share_better']:.0%} |"
-                     + (f" {_count(ends, r, r['selector'])} / {_count(ends, r, 'tanh_mu')} |"
-                        if ends else "") + (f" {_fell(r)} |" if falls else ""))
-    lines += ["", f"Precision check: {'every' if not failed else 'not every'} seed's paired "
+             f"{settings['seconds']:.0f} s of evaluation. Across seeds: analyze.py --robust.", "",
+             "## Per seed", "", *report.per_seed_tables(per_seed, settings["selectors"])]
+    failed = [f"seed {r['seed']} step {r['step']} {r['selector']}" for r in per_seed
+              if "difference_se" in r and not (r["tanh_mu_return_mean"] and r["difference_se"]
+                                               / abs(r["tanh_mu_return_mean"]) < PRECISION)]
+    lines += [f"Precision check: {'every' if not failed else 'not every'} seed's paired "
               f"difference has a standard error below {PRECISION:.0%} of tanh(mu)'s mean return"
               + (f"; above it: {', '.join(failed)} (more --episodes would narrow it)."
-                 if failed else "."), ""]
+                 if failed else "."), "", *fall_split(settings, episodes or {})]
     return "\n".join(lines)
 
 

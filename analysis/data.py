@@ -1,24 +1,14 @@
 """The data model analyze.py reports on: scores by task, (algorithm, action), seed and step.
 
-Two adapters feed it. The runs' eval.csv (`load_runs`): every run folder (config.json beside
-eval.csv, at any depth) becomes one `Curve` per (algorithm, action), where the action is the
-script's own evaluation action or a paired one of the same actor from the same start states;
-then pair (`standard_from_paired`), align on the steps a task's runs share (`align` -> `Task`),
-take each action minus tanh(mu) per seed (`paired_differences`), normalise and stack what
-rliable aggregates (`build_aggregate`). evaluate.py's per_seed.csv (`load_robust`): per policy
-and action the mean return and the paired difference with its standard error
-(`robust_paired_differences` -> `RobustStep`). Beside them the questions the reports ask of the
-data (the last rounds' averages, whether a round was one episode, the shift over training, the
-robust evaluation's shared step). Nothing here writes a report; the notes each step returns
-(runs skipped, cut, left out) go to summary.md.
-
-What to edit: a task with a success bar is one entry in SUCCESS_BARS, a new evaluation action
-one entry in ACTIONS; every report follows.
+The runs' eval.csv (`load_runs` -> `Curve`s; pair `standard_from_paired`, align `align` ->
+`Task`, `paired_differences`, normalise `build_aggregate`) and evaluate.py's per_seed.csv
+(`load_robust` -> `robust_paired_differences` -> `RobustStep`). Nothing here writes a report;
+the notes each step returns (runs skipped, cut, left out) go to summary.md. A task with a
+success bar is one entry in SUCCESS_BARS, a new evaluation action one entry in ACTIONS.
 """
 
 from __future__ import annotations
 
-import collections
 import csv
 import dataclasses
 import functools
@@ -656,7 +646,6 @@ ROBUST_PER_SEED_FILE = "per_seed.csv"
 ROBUST_COLUMNS = ("env_id", "seed", "step", "selector", "episodes", "return_mean",
                   "difference_mean", "difference_se")
 ROBUST_UNSTABLE_COLUMN = "unstable_ends"  # episodes a physics blow-up ended; empty: not recorded
-ROBUST_END_PREFIX = "end_"  # end_<why>: episodes that ended so (evaluate.py's `end`)
 
 
 @dataclasses.dataclass
@@ -747,29 +736,23 @@ class RobustStep:
     seeds: np.ndarray  # the seeds, in the order of every array above
     played: dict[str, int]  # each action's episodes over its seeds
     unstable: dict[str, int | None]  # of those, ended by a physics blow-up (None: not recorded)
-    ends: dict[str, collections.Counter | None]  # how they ended (None: not recorded)
     machine: str | None = None  # the CPU its evaluation.json records (None: not recorded)
 
 
 def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]]:
     """task -> step -> RobustStep, from the per-seed rows."""
     by_task: dict[str, dict[int, RobustStep]] = {}
-    reasons = [c for c in robust.rows.columns if c.startswith(ROBUST_END_PREFIX)]
     for (task, step), rows in robust.rows.groupby(["env_id", "step"], sort=False):
         baseline = rows[rows.selector == BASELINE]
         machines = sorted(set(rows.machine.dropna()))
         at = RobustStep({}, {}, {}, {}, baseline.episodes.to_numpy(), baseline.seed.to_numpy(),
-                        {}, {}, {}, " + ".join(machines) if machines else None)
+                        {}, {}, " + ".join(machines) if machines else None)
         for action, seeds in rows.groupby("selector", sort=False):
             at.returns[action] = seeds.return_mean.to_numpy()
             at.played[action] = int(seeds.episodes.sum())
             unstable = seeds.get(ROBUST_UNSTABLE_COLUMN)
             at.unstable[action] = None if unstable is None or unstable.isna().any() \
                 else int(unstable.sum())
-            ends = seeds[reasons]
-            at.ends[action] = None if not reasons or ends.isna().any(axis=None) else \
-                collections.Counter({r.removeprefix(ROBUST_END_PREFIX): int(n)
-                                     for r, n in ends.sum().items() if n > 0})
             if action != BASELINE:
                 at.differences[action] = seeds.difference_mean.to_numpy()
                 at.errors[action] = seeds.difference_se.to_numpy()

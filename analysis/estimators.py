@@ -1,12 +1,8 @@
 """Every estimate analyze.py and evaluate.py make: plain functions over arrays, each estimate
-with its interval, as rliable's library and metrics are.
-
-A paired difference is an action's return minus tanh(mu)'s from the same start state (per
-episode) or the mean of those (per seed). Over seeds: Student's t-interval, Welch's interval
-over tasks, and the percentile bootstrap of a mean with an explicit generator. Per seed: the
-verdict, ahead / level / behind by three standard errors of its paired episodes. Then rliable's
-estimators as the paper uses them: aggregate metrics, performance profiles, curves. An estimate
-from one run has no interval: report.interval_text prints "n/a" for it.
+with its interval, as rliable's library and metrics are. A paired difference is an action's
+return minus tanh(mu)'s from the same start (per episode) or the mean of those (per seed); per
+seed its verdict (three standard errors); over seeds Student's t, over tasks Welch's, and
+rliable's estimators as the paper uses them.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ import csv
 import dataclasses
 import io
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -134,3 +134,99 @@ class Report:
         (self.out / "summary.md").write_text(text)
         print("\n".join(["", *notes, *self.sections]))
         print(f"wrote {len(self.figures) + 2} files to {self.out}")
+
+
+# ---------------------------------------- the per-seed tables: evaluate.py's and analyze.py's
+END_PREFIX = "end_"  # per_seed.csv's end_<why>: the episodes that ended so
+PAIRED_ENDS = ("fell", "time_limit")  # the ends the paired table counts for its first action
+
+
+def se_distance(mean: float, se: float) -> str:
+    """Standard errors from zero, with a third digit within 0.1 of the verdict's line."""
+    z = abs(mean) / se if se > 0 else (math.inf if mean else 0.0)
+    return f"{z:#.3g}" if abs(z - estimators.VERDICT_SE) < 0.1 else f"{z:#.2g}".rstrip(".")
+
+
+def paired_cell(mean: float, se: float, digits: int,
+                judge: Callable[[float, float], str] = estimators.verdict) -> tuple[str, str]:
+    """("+1.2 +- 0.3", "**ahead**, 4.0 SE"): a paired difference and its verdict."""
+    word = judge(mean, se)
+    return (f"{mean:+.{digits}f} +- {se:.{digits}f}",
+            f"{word if word in ('level', 'n/a') else f'**{word}**'}, {se_distance(mean, se)} SE")
+
+
+def _given(row: Mapping[str, object] | None, column: str) -> object | None:
+    """A cell of per_seed.csv, None where it is missing or empty (not recorded)."""
+    value = None if row is None else row.get(column)
+    return None if value is None or value == "" or (
+        isinstance(value, float) and math.isnan(value)) else value
+
+
+def _count(row: Mapping[str, object] | None, column: str) -> str:
+    value = _given(row, column)
+    return "n/r" if value is None else str(int(value))
+
+
+def per_seed_tables(rows: Sequence[Mapping[str, object]], actions: Sequence[str]) -> list[str]:
+    """summary.md's per-seed tables, evaluate.py's and analyze.py's (--robust), from per_seed.csv's
+    rows (one per task, seed, step and action; `actions` in their order). Per task, a row per
+    policy: tanh(mu)'s return and each action minus tanh(mu) from the same starts, with the
+    verdict; where its episodes record how they ended, the first action's falls and time limits
+    against tanh(mu)'s. Then a row per policy and action: how its episodes ended."""
+    baseline, compared = estimators.BASELINE, [a for a in actions if a != estimators.BASELINE]
+    by_task: dict[str, dict[tuple[int, int], dict[str, Mapping]]] = {}
+    for row in rows:
+        by_task.setdefault(str(row["env_id"]), {}).setdefault(
+            (int(row["seed"]), int(row["step"])), {})[str(row["selector"])] = row
+    falls = any(_given(r, END_PREFIX + "fell") is not None for r in rows)
+    lines = [f"Per policy: tanh(mu)'s mean return +- its standard error; each action minus "
+             f"tanh(mu) from the same starts +- the standard error of the paired episodes, ahead "
+             f"/ behind where more than {estimators.VERDICT_SE:g} standard errors from zero, else "
+             "level, and how many from zero" + ("; fell: its episodes and tanh(mu)'s that ended "
+             "with the robot down, and the paired difference of the two shares (per start, 1 "
+             "where its episode fell minus 1 where tanh(mu)'s did), more / fewer by the same "
+             "rule" if falls else "") + "; n/r: not recorded.", ""]
+    for task, policies in by_task.items():
+        recorded = [r for p in policies.values() for r in p.values()]
+        reasons = sorted({c.removeprefix(END_PREFIX) for r in recorded for c in r
+                          if c.startswith(END_PREFIX) and _given(r, c)})  # some episode did
+        unstable = any(_given(r, "unstable_ends") is not None for r in recorded)
+        shown = [a for a in compared if any(a in p for p in policies.values())]
+        ends = [why for why in PAIRED_ENDS if why in reasons and shown]
+        header = ["seed", "step", "tanh(mu)'s return", *(f"{a} - tanh(mu)" for a in shown),
+                  *(f"{why.replace('_', ' ')} ({shown[0]} / tanh(mu))" for why in ends)]
+        table, ended = [], []
+        for (seed, step), by in sorted(policies.items()):
+            base = by.get(baseline)
+            cells = [str(seed), format_step(step), "-" if _given(base, "return_se") is None else
+                     f"{base['return_mean']:.1f} +- {base['return_se']:.1f}"]
+            for action in shown:
+                it = by.get(action)
+                cells.append("-" if _given(it, "difference_se") is None else "{} ({})".format(
+                    *paired_cell(it["difference_mean"], it["difference_se"], 1)))
+            for why in ends:
+                it, column = by.get(shown[0]), END_PREFIX + why
+                cell = f"{_count(it, column)} / {_count(base, column)}"
+                if why == "fell" and _given(it, "fell_difference_se") is not None:
+                    cell += " ({}: {})".format(*paired_cell(
+                        it["fell_difference_mean"], it["fell_difference_se"], 2,
+                        estimators.fall_verdict))
+                cells.append(cell)
+            table.append(cells)
+            for action in (a for a in actions if a in by):
+                it = by[action]
+                fell = "" if _given(it, "fell_difference_se") is None else "{}: {}".format(
+                    *paired_cell(it["fell_difference_mean"], it["fell_difference_se"], 2,
+                                 estimators.fall_verdict))
+                ended.append([str(seed), format_step(step), action,
+                              *(_count(it, END_PREFIX + why) for why in reasons),
+                              *([fell] if "fell" in reasons else []),
+                              *([_count(it, "unstable_ends")] if unstable else [])])
+        lines += [f"{task}:", "", markdown_table(header, table), ""]
+        if reasons or unstable:
+            lines += [f"{task}, how each action's episodes ended (per policy; blow-ups: the "
+                      "episodes a physics blow-up ended):", "", markdown_table(
+                          ["seed", "step", "action", *(r.replace("_", " ") for r in reasons),
+                           *(["fell, minus tanh(mu)"] if "fell" in reasons else []),
+                           *(["blow-ups"] if unstable else [])], ended), ""]
+    return lines

@@ -546,8 +546,8 @@ def test_a_campaign_is_evaluated_per_seed_and_step_and_summarised(campaign, tmp_
         if row["selector"] != "tanh_mu":
             mean, se = float(row["difference_mean"]), float(row["difference_se"])
             verdict = "level" if abs(mean) <= 3 * se else "ahead" if mean > 0 else "behind"
-            assert f"| {row['seed']} | {row['step']} | {row['selector']} |" in summary
-            assert f"| {se:.1f} | {verdict} |" in summary
+            word = verdict if verdict == "level" else f"**{verdict}**"
+            assert f"| {mean:+.1f} +- {se:.1f} ({word}, " in summary
     # The --out folder as the source: the summary again from its CSVs, nothing run.
     before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
     code, printed, err = run(capsys, str(out), "--reps", "200")
@@ -848,7 +848,8 @@ def test_a_campaign_counts_blow_ups_and_summarises_and_resumes_older_folders(
          str(6 - blow_ups[seed])) for seed in (0, 1)
         for step in ("500", "1000") for selector in ("mode", "tanh_mu")}
     summary = (whole / "summary.md").read_text()
-    assert "unstable ends" in summary and f"| {blow_ups[1]} / {blow_ups[1]} |" in summary
+    assert "blow-ups" in summary
+    assert f"| 1 | 1k | mode | {blow_ups[1]} | {6 - blow_ups[1]} | {blow_ups[1]} |" in summary
 
     # A complete folder from before the column: its summary as before, without the counts.
     old = tmp_path / "old"
@@ -860,7 +861,7 @@ def test_a_campaign_counts_blow_ups_and_summarises_and_resumes_older_folders(
     assert old_per_seed == [{k: v for k, v in r.items()
                              if k != "unstable_ends" and not k.startswith("end_")}
                             for r in per_seed]
-    assert "unstable" not in (old / "summary.md").read_text()
+    assert "blow-ups" not in (old / "summary.md").read_text()
 
     # An unfinished folder from before the column, step 500 not evaluated yet: the resume keeps
     # the older rows (physics_unstable empty: not recorded), adds step 500's, one header.
@@ -887,7 +888,8 @@ def test_a_campaign_counts_blow_ups_and_summarises_and_resumes_older_folders(
         == {(str(seed), step, str(blow_ups[seed]) if step == "500" else "")
             for seed in (0, 1) for step in ("500", "1000")}
     summary = (old / "summary.md").read_text()
-    assert "| n/r / n/r |" in summary and f"| {blow_ups[0]} / {blow_ups[0]} |" in summary
+    assert "| 0 | 1k | mode | n/r | n/r | n/r |" in summary
+    assert f"| 0 | 500 | mode | {blow_ups[0]} | {6 - blow_ups[0]} | {blow_ups[0]} |" in summary
 
 
 def test_per_seed_tests_the_paired_share_of_falls_as_it_tests_the_returns():
@@ -923,11 +925,12 @@ def test_per_seed_tests_the_paired_share_of_falls_as_it_tests_the_returns():
     assert "fell_difference_mean" not in got["run", 200, "mode"]
     # where some episode in the folder fell, as end_fell: none of the other task's did
     assert got["other", 100, "mode"]["fell_difference_mean"] == 0.0
-    table = evaluate.campaign_markdown(settings, per_seed)
-    assert "fell, minus tanh(mu) |" in table
-    assert f"| +0.500 +- {mode['fell_difference_se']:.3f} (more) |" in table  # 5.4 SE
-    assert "| +0.000 +- 0.000 (level) |" in table
-    assert sum(line.endswith(" |  |") for line in table.splitlines()) == 2  # step 200's
+    table = evaluate.campaign_markdown(settings, per_seed, episodes)
+    assert "| fell (mode / tanh(mu)) |" in table and "fell, minus tanh(mu) |" in table
+    assert f"| 25 / 10 (+0.50 +- {mode['fell_difference_se']:.2f}: **more**, 5.4 SE) |" in table
+    assert "| 0 | 100 | mean | 20 | 10 | +0.00 +- 0.00: level, 0.0 SE |" in table
+    assert "| 0 | 200 | mode | n/r | n/r |  |" in table  # step 200's ends: not recorded
+    assert "| only the mode's fell |" in table  # the split by how the episodes ended
     no_falls = {k: v for k, v in episodes.items() if k[0] == "other"}
     settings["runs"].pop("run")
     assert "fell" not in evaluate.campaign_markdown(settings,

@@ -188,30 +188,39 @@ def test_robust_summary_reproduces_from_the_committed_episodes(folder: Path,
             f"no report of {folder.parent.name} reads {folder.name} with --robust")
 
 
+def quoted_tables(folder: Path) -> list[list[str]]:
+    """The tables of an evaluation's summary.md that its campaign's README quotes: its header
+    and a row of it there (a repeat's from its third column on, the machine or the starts in
+    place of the step). Each a list of rows, the header first."""
+    repeat = folder.name.startswith(REPEATS)
+    lines = {line.split(" | ", 2)[-1] if repeat else line
+             for line in (folder.parent / "README.md").read_text().splitlines()
+             if not (repeat and line.startswith("| seed | step |"))}
+    tables, rows = [], []
+    for line in [*(folder / "summary.md").read_text().splitlines(), ""]:
+        if line.startswith("|---"):
+            continue
+        if line.startswith("| "):
+            rows.append(line.split(" | ", 2)[2] if repeat else line)
+            continue
+        if rows and rows[0] in lines and lines.intersection(rows[1:]):
+            tables.append(rows)
+        rows = []
+    return tables
+
+
 def table_cases() -> list:
-    """A campaign's table printers with each evaluation they read: fall_split.py's rows (where
-    the differences are) for each robust*/ folder, per_seed_rows.py's (the per-seed table) for
-    each robust*/ folder and each repeat (REPEATS)."""
-    return [pytest.param(folder.parent / script, folder,
-                         id=f"{script.removesuffix('.py')}:{folder.relative_to(RESULTS)}")
-            for script, patterns in (("fall_split.py", ("*/robust*/",)),
-                                     ("per_seed_rows.py", tuple(f"*/{p}*/" for p in EVALUATIONS)))
-            for pattern in patterns for folder in sorted(RESULTS.glob(pattern))
-            if (folder.parent / script).is_file()]
+    return [pytest.param(folder, id=str(folder.relative_to(RESULTS)))
+            for pattern in (f"*/{p}*/" for p in EVALUATIONS)
+            for folder in sorted(RESULTS.glob(pattern)) if quoted_tables(folder)]
 
 
-@pytest.mark.parametrize(("script", "folder"), table_cases())
-def test_readme_tables_are_what_the_evaluations_give(script: Path, folder: Path) -> None:
-    """The script, run on the folder, prints rows the campaign's README holds: its numbers are
-    the script's. A repeat's rows stand beside the same million's, with the machine or the starts
-    in place of the step, so from their third cell on."""
-    result = subprocess.run([sys.executable, str(script), str(folder)],
-                            cwd=ROOT, capture_output=True, text=True)
-    assert result.returncode == 0, result.stderr[-3000:]
-    rows = result.stdout.splitlines()
-    assert rows, f"{script.name} printed nothing for {folder}"
+@pytest.mark.parametrize("folder", table_cases())
+def test_readme_tables_are_what_the_evaluations_give(folder: Path) -> None:
+    """A table of an evaluation's summary.md (report.per_seed_tables, evaluate.fall_split) that
+    its campaign's README quotes is there whole: every row, as evaluate.py wrote it (the
+    README's numbers are the table's)."""
     readme = (folder.parent / "README.md").read_text()
-    for row in rows:
-        if folder.name.startswith(REPEATS):
-            row = row.split(" | ", 2)[2]
-        assert row in readme, f"{folder.parent.name}/README.md lacks the {script.name} row {row!r}"
+    for rows in quoted_tables(folder):
+        for row in rows[1:]:
+            assert row in readme, f"{folder.parent.name}/README.md lacks {folder.name}'s {row!r}"
