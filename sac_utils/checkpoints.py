@@ -190,4 +190,3 @@ def policy_weights(actor: dict, qf: dict, args: dict,
     with log alpha, a snapshot (all that restart_from_snapshot needs)."""
     weights = {"actor": actor, "qf": qf, "config": {f: args[f] for f in MODEL_FIELDS}}
     return weights if log_alpha is None else weights | {"log_alpha": log_alpha.detach().clone()}
-
