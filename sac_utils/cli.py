@@ -169,14 +169,6 @@ def broken_rule(args, rules: tuple[tuple[str, bool, str], ...]) -> str | None:
     return None
 
 
-def check_checkpoint_args(run_dir: Path, ckpt: dict, args) -> None:
-    """A resume's checkpoint must have been made with config.json's arguments."""
-    wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}
-    if {k: v for k, v in ckpt["args"].items() if k in wanted} != wanted:
-        fail(f"{run_dir / 'checkpoint.pt'} was made with other arguments than "
-             f"{run_dir / 'config.json'}; the run folder is inconsistent")
-
-
 def registered_env_id(env_id: str) -> str:
     """The gymnasium id of --env-id, or one line naming close matches ("module:EnvId" imports
     the module first, which registers the env)."""

@@ -19,7 +19,6 @@ import concurrent.futures
 import concurrent.futures.process  # BrokenProcessPool, also with 0 workers
 import ctypes
 import multiprocessing
-import os
 import signal
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -268,11 +267,6 @@ def eval_columns(actions: dict[str, str], shift: bool) -> list[str]:
     columns += [f"{p}share_{c}" for p, a in actions.items() if a == "q_best"
                 for c in Q_BEST_CANDIDATES]
     return columns + (list(SHIFT_COLUMNS) if shift else [])
-
-
-def default_workers() -> int:
-    """The cores that training leaves free: all but one (at least one worker)."""
-    return max(1, len(os.sched_getaffinity(0)) - 1)
 
 
 def _init_worker() -> None:
