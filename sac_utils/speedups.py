@@ -4,7 +4,6 @@ compiled_update takes the gradients of the scripts' own loss functions, so `--co
 `--no-compile` train alike (tests/test_compile.py pins them to each other).
 """
 
-import copy
 import time
 from collections.abc import Callable, Iterable
 
@@ -41,38 +40,6 @@ def compile_at_start(fn: Callable, example: tuple, restore: Iterable = (),
 # and three optimizer steps) runs ~1.5x slower on a CPU than this (docs/speed.md): the same losses,
 # each one's gradient with respect to its own parameters by torch.func, and Adam's step as foreach
 # ops, so that the whole update is one function of tensors and compiles into one graph.
-
-
-class ReLUFromOutput(torch.autograd.Function):
-    """ReLU whose backward multiplies by sign(output): torch.relu's gradient, read from a float
-    tensor rather than from the boolean mask that inductor's CPU code stores ~10x slower."""
-
-    @staticmethod
-    def forward(x: torch.Tensor) -> torch.Tensor:
-        return x.clamp_min(0)
-
-    @staticmethod
-    def setup_context(ctx, inputs, output) -> None:  # the form torch.func.grad needs
-        ctx.save_for_backward(output)
-
-    @staticmethod
-    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
-        return grad * ctx.saved_tensors[0].sign()
-
-
-class FastReLU(nn.Module):
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return ReLUFromOutput.apply(x)
-
-
-def with_fast_relu(module: nn.Module) -> nn.Module:
-    """module with its nn.ReLUs as FastReLUs: a copy holding the module's own tensors."""
-    fast = copy.deepcopy(module, {id(t): t for t in module.state_dict(keep_vars=True).values()})
-    for parent in fast.modules():
-        for name, child in parent.named_children():
-            if isinstance(child, nn.ReLU):
-                setattr(parent, name, FastReLU())
-    return fast
 
 
 class Bound:
@@ -128,7 +95,6 @@ def functional_update(agent: dict, losses: tuple[Callable, Callable, Callable], 
     critic_loss, actor_loss, alpha_loss = losses
     actor, qf, qf_target, log_alpha = (agent[k] for k in ("actor", "qf", "qf_target", "log_alpha"))
     actor_params, qf_params = dict(actor.named_parameters()), dict(qf.named_parameters())
-    actor, qf = with_fast_relu(actor), with_fast_relu(qf)  # run on the originals' tensors
     states = [adam_state(agent[k]) for k in ("actor_optimizer", "q_optimizer", "alpha_optimizer")]
     grad = torch.func.grad_and_value
 
