@@ -9,7 +9,6 @@ import copy
 import functools
 import random
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Literal
 
 import gymnasium as gym
@@ -22,9 +21,7 @@ import humanoid_envs  # noqa: F401  (registers the h1hand-*-v0 tasks)
 from mode_search import mode_action
 
 # Not the algorithm (docs/scripts.md): bad input, the run folder, torch.compile and CUDA graphs.
-from sac_utils import cli, speedups
-from sac_utils.checkpoints import EpisodeRecord
-from sac_utils.run_folder import RunFolder, StopRequest
+from sac_utils import checkpoints, cli, run_folder, speedups
 
 ALGORITHM = "corrected"
 
@@ -128,7 +125,7 @@ def make_env(env_id: str) -> gym.Env:
 
 def make_vector_env(env_id: str) -> gym.vector.VectorEnv:
     """A vector env of one (CleanRL's): it resets in the step that ends an episode."""
-    return gym.vector.SyncVectorEnv([lambda: EpisodeRecord(gym.make(env_id))],
+    return gym.vector.SyncVectorEnv([lambda: checkpoints.EpisodeRecord(gym.make(env_id))],
                                     autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
 
 
@@ -313,14 +310,13 @@ def physics_blow_up(info: dict, episode_end: bool) -> bool:
 
 if __name__ == "__main__":
     args = cli.parse_args(Args, ALGORITHM, eval_actions)
-    stop = StopRequest()  # from the start: a signal during setup also ends in code 3
-    run = RunFolder(args, ALGORITHM, Path(__file__).name, eval_actions(args))
+    stop = run_folder.StopRequest()  # from the start: a signal during setup also ends in code 3
+    run = run_folder.RunFolder(args, ALGORITHM, __file__, eval_actions(args))
     torch.set_num_threads(args.torch_threads)
     random.seed(args.seed)
     np.random.seed(args.seed)  # noqa: NPY002
     torch.manual_seed(args.seed)
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
-    print(f"device: {device}", flush=True)
 
     env = make_env(args.env_id)  # checks the id and the spaces
     cli.check_reset_noise(env, args.env_id, args.eval_reset_noise)
@@ -348,7 +344,6 @@ if __name__ == "__main__":
 
     update = functools.partial(sac_update, actor, qf, agent["qf_target"], log_alpha, optimizers,
                                gamma=args.gamma, tau=args.tau, target_entropy=target_entropy)
-    noise_shape = (2, args.batch_size, action_dim)  # the next action's and the action's
     if args.compile:  # the same losses, their gradients and Adam in one graph: speedups.py
         act = speedups.compile_at_start(act, (torch.zeros((1, obs_dim), device=device),
                                               torch.zeros((1, action_dim), device=device)))
@@ -379,7 +374,7 @@ if __name__ == "__main__":
 
         if global_step >= updates_from:  # --learning-starts (later after a restart)
             batch = rb.sample(args.batch_size, device)
-            losses = update(batch, torch.randn(noise_shape, device=device))
+            losses = update(batch, torch.randn((2, args.batch_size, action_dim), device=device))
 
         if global_step % args.log_interval == 0:
             run.log_train(global_step, losses)
@@ -390,10 +385,8 @@ if __name__ == "__main__":
             run.print_progress(global_step)
         if args.snapshot_interval > 0 and global_step % args.snapshot_interval == 0:
             run.save_snapshot(global_step, actor, qf, log_alpha)
-        if stop.requested or (args.checkpoint_interval > 0
+        if stop.requested or (args.checkpoint_interval > 0  # a stop's checkpoint ends the run
                               and global_step % args.checkpoint_interval == 0):
             run.checkpoint(global_step, agent, rb, action_space, envs, stop.requested)
-            if stop.requested:
-                run.stop(global_step)
 
     run.finish(global_step, actor, qf)

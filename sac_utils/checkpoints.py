@@ -11,10 +11,9 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import torch
-import torch.nn as nn
 import torch.utils._pytree as pytree
 
-from sac_utils.cli import fail
+from sac_utils.cli import RUNTIME_FIELDS, fail
 from sac_utils.files import atomic_write
 
 # What final_model.pt keeps of the arguments, so that it alone rebuilds the actor (evaluate.py).
@@ -80,15 +79,13 @@ class EpisodeRecord(gym.Wrapper):
         return self.env.step(action)
 
     def replay(self) -> np.ndarray:
-        """Rebuilds the episode of `self.record` (a checkpoint's); returns its observation."""
-        seed, rng = self.record["seed"], self.record["rng"]
-        actions = [np.asarray(a) for a in self.record["actions"]]
-        if rng is not None:
-            self.env.unwrapped.np_random.bit_generator.state = rng
-        obs, _ = self.env.reset(seed=seed)
-        for action in actions:
-            obs = self.env.step(action)[0]
-        self.record = {"seed": seed, "rng": rng, "actions": actions}
+        """Rebuilds the episode of `self.record` (a checkpoint's), recorded anew; its last obs."""
+        record = self.record
+        if record["rng"] is not None:
+            self.env.unwrapped.np_random.bit_generator.state = record["rng"]
+        obs, _ = self.reset(seed=record["seed"])
+        for action in record["actions"]:
+            obs = self.step(np.asarray(action))[0]
         return obs
 
 
@@ -97,23 +94,6 @@ def episode_state(record: dict, action_dim: int) -> dict:
     promoted dtype (float64 where random and policy actions mix: each held exactly)."""
     actions = np.array(record["actions"]).reshape(len(record["actions"]), action_dim)
     return {"seed": record["seed"], "rng": record["rng"], "actions": torch.from_numpy(actions)}
-
-
-def replay_episode(envs: gym.vector.VectorEnv, seed: int, ckpt: dict) -> np.ndarray:
-    """The episode so far, replayed; returns the observations the run goes on from."""
-    envs.reset(seed=seed)
-    envs.set_attr("record", [ckpt["rng"]["episode"]])
-    return np.stack(envs.call("replay"))
-
-
-def pending_round_networks(actor: nn.Module, qf: nn.Module,
-                           state: dict) -> tuple[nn.Module, nn.Module]:
-    """CPU copies of the networks as an unfinished round had them (checkpoint_state)."""
-    round_actor, round_qf = copy.deepcopy(actor).cpu(), copy.deepcopy(qf).cpu()
-    round_actor.load_state_dict(state["actor"])
-    if state["qf"] is not None:
-        round_qf.load_state_dict(state["qf"])
-    return round_actor, round_qf
 
 
 def buffer_state(buffer) -> dict:
@@ -147,10 +127,22 @@ def checkpoint_state(args, global_step: int, elapsed: float, progress: dict, age
                                for r in unfinished]}
 
 
+def check_resumable(path: Path, ckpt: dict, args) -> None:
+    """A resume's checkpoint must be of this version, made with config.json's arguments."""
+    if "next_obs" not in ckpt["buffer"]:  # every checkpoint before issue 87, and none since
+        fail(f"{path} was written by an earlier version of this script (before issue 87); resume "
+             "it with the commit that made it (config.json's git_commit)")
+    wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}
+    if {k: v for k, v in ckpt["args"].items() if k in wanted} != wanted:
+        fail(f"{path} was made with other arguments than {path.with_name('config.json')}; the "
+             "run folder is inconsistent")
+
+
 def load_checkpoint(ckpt: dict, agent: dict, buffer, action_space: gym.Space,
-                    device: torch.device) -> tuple[int, float, dict]:
-    """checkpoint_state's, in place into `agent` and the buffer; returns the step, the training
-    time so far and the progress."""
+                    envs: gym.vector.VectorEnv,
+                    device: torch.device) -> tuple[int, np.ndarray, float, dict]:
+    """checkpoint_state's, in place into `agent`, the buffer, the random streams and the episode
+    under way (replayed); returns the step, its observation, the time trained and the progress."""
     for name, obj in agent.items():
         if torch.is_tensor(obj):
             with torch.no_grad():
@@ -163,25 +155,9 @@ def load_checkpoint(ckpt: dict, agent: dict, buffer, action_space: gym.Space,
     load_buffer_state(buffer, ckpt["buffer"])
     action_space.np_random.bit_generator.state = ckpt["rng"]["action_space"]
     set_rng_states(ckpt["rng"], device)
-    return ckpt["global_step"], ckpt["elapsed"], ckpt["progress"]
-
-
-def old_layout(weights: dict) -> bool:
-    """Whether our networks' weights are stored (in, out), as before issue 87 (results/), not
-    nn.Linear's (out, in): told by the first non-square layer's bias length."""
-    for key, weight in weights.items():
-        bias = weights.get(key.removesuffix("weight") + "bias")
-        if key.endswith(".weight") and weight.dim() == 2 and bias is not None \
-                and weight.shape[0] != weight.shape[1]:
-            return weight.shape[1] == bias.shape[-1]
-    return False
-
-
-def check_layout(path: Path, ckpt: dict) -> None:
-    """A checkpoint written before issue 87 resumes only with the commit that wrote it."""
-    if old_layout(ckpt["actor"]) or old_layout(ckpt["qf"]):
-        fail(f"{path} was written by an earlier version of this script (weights stored (in, "
-             "out)); resume it with the commit that made it (config.json's git_commit)")
+    envs.reset(seed=ckpt["args"]["seed"])
+    envs.set_attr("record", [ckpt["rng"]["episode"]])
+    return ckpt["global_step"], np.stack(envs.call("replay")), ckpt["elapsed"], ckpt["progress"]
 
 
 def policy_weights(actor: dict, qf: dict, args: dict,

@@ -63,28 +63,26 @@ def parse_args(args_class: type, algorithm: str, eval_actions: Callable) -> obje
     """A script's Args, checked; with --resume, the run's stored arguments are the defaults and a
     flag that contradicts them is an error."""
     args = tyro.cli(args_class)
-    if args.resume is None:
-        check_args(args, eval_actions)
-        return args
-    run_dir = Path(args.resume)
-    path = run_dir / "config.json"
-    config = read_config_json(run_dir, "give --resume a folder made by sac_standard.py or "
-                              "sac_corrected.py", "restore it from a copy, or start a new run")
-    if config.get("algorithm") != algorithm:
-        fail(f"{run_dir} is a run of {config.get('script')}; resume it with that script")
-    stored = stored_args(args_class, config, skip=RUNTIME_FIELDS)
-    kept = {k: config[k] for k in KEPT_FIELDS if k in config}
-    wrong = [k for k, v in (stored | kept).items() if not same_type(v, getattr(args, k))]
-    if wrong:
-        fail(f"{path} holds values of the wrong type for {wrong}; it was edited or damaged: "
-             "restore it, or start a new run")
-    resumed = tyro.cli(args_class, default=dataclasses.replace(args, **stored, **kept))
-    changed = [k for k, v in stored.items() if getattr(resumed, k) != v]
-    if changed:
-        fail(f"--resume {args.resume}: flags {changed} contradict the run's stored arguments; "
-             "drop them or start a new run")
-    check_args(resumed, eval_actions)
-    return resumed
+    if args.resume is not None:
+        run_dir = Path(args.resume)
+        path = run_dir / "config.json"
+        config = read_config_json(run_dir, "give --resume a folder made by sac_standard.py or "
+                                  "sac_corrected.py", "restore it from a copy, or start a new run")
+        if config.get("algorithm") != algorithm:
+            fail(f"{run_dir} is a run of {config.get('script')}; resume it with that script")
+        stored = stored_args(args_class, config, skip=RUNTIME_FIELDS)
+        kept = {k: config[k] for k in KEPT_FIELDS if k in config}
+        wrong = [k for k, v in (stored | kept).items() if not same_type(v, getattr(args, k))]
+        if wrong:
+            fail(f"{path} holds values of the wrong type for {wrong}; it was edited or damaged: "
+                 "restore it, or start a new run")
+        args = tyro.cli(args_class, default=dataclasses.replace(args, **stored, **kept))
+        changed = [k for k, v in stored.items() if getattr(args, k) != v]
+        if changed:
+            fail(f"--resume {args.resume}: flags {changed} contradict the run's stored arguments; "
+                 "drop them or start a new run")
+    check_args(args, eval_actions)
+    return args
 
 
 def stored_args(args_class: type, config: dict, skip: tuple[str, ...] = ()) -> dict:
@@ -111,6 +109,8 @@ def check_args(args, eval_actions: Callable) -> None:
     from sac_utils.eval_rounds import action_name  # torch: not for sweep.py, which imports cli
 
     finite = math.isfinite
+    at_least_one = [(k, getattr(args, k) >= 1, "at least 1") for k in (
+        "total_timesteps", "buffer_size", "log_interval", "print_interval", "torch_threads")]
     positive = [(k, finite(getattr(args, k)) and getattr(args, k) > 0, "a positive number")
                 for k in ("policy_lr", "q_lr", "alpha_lr", "alpha_init")]
     own_actions = [action_name(a) for a in
@@ -118,8 +118,7 @@ def check_args(args, eval_actions: Callable) -> None:
     actions = [action_name(a) for a in eval_actions(args).values()]
     rules = (
         ("seed", args.seed >= 0, "a non-negative integer"),
-        ("total_timesteps", args.total_timesteps >= 1, "at least 1"),
-        ("buffer_size", args.buffer_size >= 1, "at least 1"),
+        *at_least_one,
         ("batch_size", 1 <= args.batch_size <= args.buffer_size,
          f"between 1 and --buffer-size ({args.buffer_size})"),
         ("gamma", 0 <= args.gamma <= 1, "in [0, 1]"),
@@ -144,11 +143,8 @@ def check_args(args, eval_actions: Callable) -> None:
          f"evaluation actions other than this script's own ({', '.join(own_actions)}), each once"),
         ("eval_workers", args.eval_workers is None or args.eval_workers >= 0,
          "0 (in-process) or more"),
-        ("log_interval", args.log_interval >= 1, "at least 1"),
-        ("print_interval", args.print_interval >= 1, "at least 1"),
         ("checkpoint_interval", args.checkpoint_interval >= 0, "0 (off) or more"),
         ("snapshot_interval", args.snapshot_interval >= 0, "0 (off) or more"),
-        ("torch_threads", args.torch_threads >= 1, "at least 1"),
         ("run_name", args.run_name is None or (args.run_name not in ("", ".", "..")
                                                and "/" not in args.run_name),
          "a folder name without '/'"),
@@ -167,14 +163,6 @@ def broken_rule(args, rules: tuple[tuple[str, bool, str], ...]) -> str | None:
             shown = " ".join(map(str, value)) if isinstance(value, list | tuple) else repr(value)
             return f"--{name.replace('_', '-')} {shown}: must be {allowed}"
     return None
-
-
-def check_checkpoint_args(run_dir: Path, ckpt: dict, args) -> None:
-    """A resume's checkpoint must have been made with config.json's arguments."""
-    wanted = {k: v for k, v in dataclasses.asdict(args).items() if k not in RUNTIME_FIELDS}
-    if {k: v for k, v in ckpt["args"].items() if k in wanted} != wanted:
-        fail(f"{run_dir / 'checkpoint.pt'} was made with other arguments than "
-             f"{run_dir / 'config.json'}; the run folder is inconsistent")
 
 
 def registered_env_id(env_id: str) -> str:

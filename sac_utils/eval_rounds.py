@@ -1,13 +1,11 @@
 """Evaluation rounds as jobs, off the training path (the SAC scripts and evaluate.py).
 
-A `Round` holds all one round needs (CPU copies of the networks, the reset seeds, the evaluation
-actions by eval.csv column prefix); `run_round` steps all its episodes in lockstep, one actor call
-per action per step, finished episodes kept in the batch and masked, so a row's numbers never
+A `Round` holds all one round needs; `run_round` steps each action's episodes in lockstep, one
+actor call per step, finished episodes kept in the batch and masked, so a row's numbers never
 depend on when others ended. Episode k of every action resets with the same seed (paired). An
 episode whose start state repeats an earlier one's under a deterministic action copies its row
-unstepped (BLAS rounds equal rows by position, and chaos amplifies that). `EvalPool` runs rounds
-in worker processes (0: in-process) and hands results back in submission order; a round runs on
-one thread anywhere, so its numbers do not depend on the worker count.
+unstepped (BLAS rounds equal rows by position, and chaos amplifies that). A round runs on one
+thread anywhere, so its numbers do not depend on `EvalPool`'s worker count.
 
 Actions, in (-1, 1)^A before the env's scaling (mode_search.py): "mode" (Corrected SAC),
 "tanh_mu" (the per-dimension median: standard SAC), "mean" (E[tanh(u)]), "q_best" (whichever of
@@ -21,7 +19,6 @@ import concurrent.futures
 import concurrent.futures.process  # BrokenProcessPool, also with 0 workers
 import ctypes
 import multiprocessing
-import os
 import signal
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -163,77 +160,70 @@ def first_with_same_start(envs: list[gym.Env]) -> np.ndarray:
 
 
 def _run_round(round_: Round) -> dict:
-    n, prefixes = len(round_.seeds), list(round_.actions)
-    envs = cached_envs(round_.env_id, n * len(prefixes))
-    episodes = {p: envs[i * n:(i + 1) * n] for i, p in enumerate(prefixes)}
-    renders = cached_envs(round_.env_id, len(round_.videos), render=True)
-    for p, env in zip(round_.videos, renders, strict=True):  # first episodes that are filmed
-        episodes[p] = [env, *episodes[p][1:]]
+    n, result, starts = len(round_.seeds), {}, None
     options = None if round_.reset_noise is None else {"qpos_noise": round_.reset_noise}
-    obs = {p: np.stack([env.reset(seed=s, options=options)[0]
-                        for env, s in zip(episodes[p], round_.seeds, strict=True)])
-           for p in prefixes}
-    # Each episode follows the first with its start state; "sample"'s noise differs per episode.
-    starts = first_with_same_start(episodes[prefixes[0]])
-    same = {p: np.arange(n) if round_.actions[p] == "sample" else starts for p in prefixes}
-    done = {p: np.zeros(n, bool) for p in prefixes}
-    returns = {p: np.zeros(n) for p in prefixes}
-    lengths = {p: np.zeros(n, np.int64) for p in prefixes}
-    # Each episode's success (None: not reported), whether a physics blow-up ended it (h1hand
-    # truncates: not an ordinary short episode) and why it ended.
-    ended: dict[str, list] = {p: [(None, False, "")] * n for p in prefixes}
-    chosen = {p: np.zeros(len(Q_BEST_CANDIDATES), np.int64) for p in prefixes}
     visited: list[tuple[torch.Tensor, torch.Tensor]] = []
-    generators = [torch.Generator().manual_seed(s) for s in round_.seeds]
-    frames: dict[str, list] = {p: [] for p in round_.videos}
-    while not all(d.all() for d in done.values()):
-        for p in prefixes:
-            live = ~done[p]
-            if not live.any():
-                continue
-            obs_t = torch.as_tensor(obs[p], dtype=torch.float32)
+    for p, action in round_.actions.items():  # one action's episodes after another's, same envs
+        episodes = cached_envs(round_.env_id, n)
+        if p in round_.videos:  # its first episode filmed
+            episodes = [cached_envs(round_.env_id, 1, render=True)[0], *episodes[1:]]
+        obs = np.stack([env.reset(seed=s, options=options)[0]
+                        for env, s in zip(episodes, round_.seeds, strict=True)])
+        if starts is None:  # each episode follows the first with its start state
+            starts = first_with_same_start(episodes)
+            result["distinct_episodes"] = len(set(starts.tolist()))
+        same = np.arange(n) if action == "sample" else starts  # its noise differs per episode
+        first = same == np.arange(n)
+        done, returns, lengths = np.zeros(n, bool), np.zeros(n), np.zeros(n, np.int64)
+        # Each episode's success (None: not reported), whether a physics blow-up ended it (h1hand
+        # truncates: not an ordinary short episode) and why it ended.
+        ended = [(None, False, "")] * n
+        chosen = np.zeros(len(Q_BEST_CANDIDATES), np.int64)
+        generators = [torch.Generator().manual_seed(s) for s in round_.seeds]
+        frames = []
+        while not done.all():
+            live = ~done
+            obs_t = torch.as_tensor(obs, dtype=torch.float32)
             mu, log_std = round_.actor(obs_t)
-            y, choice = select_actions(round_.actions[p], mu, log_std, obs_t, round_, generators)
+            y, choice = select_actions(action, mu, log_std, obs_t, round_, generators)
             actions = round_.actor.scale(y).numpy()
             bad = np.flatnonzero(live & ~np.isfinite(actions).all(1))
             if bad.size:
                 k = int(bad[0])
                 raise EvalError(
-                    f"{round_.label}: the evaluation action {action_name(round_.actions[p])!r} "
-                    f"is NaN/inf in episode {k} (reset seed {round_.seeds[k]}); the actor "
-                    "diverged: resume from an earlier checkpoint or lower the learning rates")
+                    f"{round_.label}: the evaluation action {action_name(action)!r} is NaN/inf "
+                    f"in episode {k} (reset seed {round_.seeds[k]}); the actor diverged: resume "
+                    "from an earlier checkpoint or lower the learning rates")
             if choice is not None:
-                chosen[p] += np.bincount(choice.numpy()[live], minlength=len(Q_BEST_CANDIDATES))
+                chosen += np.bincount(choice.numpy()[live], minlength=len(Q_BEST_CANDIDATES))
             if p == round_.shift_of:
                 visited.append((mu[live], log_std[live]))
-            first = same[p] == np.arange(n)
             for k in np.flatnonzero(live & first):
-                env = episodes[p][k]
-                if k == 0 and p in frames:
-                    frames[p].append(env.render())
-                obs[p][k], reward, terminated, truncated, info = env.step(actions[k])
-                returns[p][k] += float(reward)
-                lengths[p][k] += 1
+                if k == 0 and p in round_.videos:
+                    frames.append(episodes[k].render())
+                obs[k], reward, terminated, truncated, info = episodes[k].step(actions[k])
+                returns[k] += float(reward)
+                lengths[k] += 1
                 if terminated or truncated:
-                    done[p][k] = True
-                    ended[p][k] = (info.get("success"), bool(info.get("physics_unstable", False)),
-                                   episode_end(terminated, info))
+                    done[k] = True
+                    ended[k] = (info.get("success"), bool(info.get("physics_unstable", False)),
+                                episode_end(terminated, info))
             # A follower is its first episode again: same rows, same numbers, ending together.
             for k in np.flatnonzero(live & ~first):
-                j = same[p][k]
-                obs[p][k], returns[p][k], lengths[p][k] = obs[p][j], returns[p][j], lengths[p][j]
-                done[p][k], ended[p][k] = done[p][j], ended[p][j]
-    for p, path in round_.videos.items():
-        import imageio  # only for videos
+                j = same[k]
+                obs[k], returns[k], lengths[k], done[k] = obs[j], returns[j], lengths[j], done[j]
+                ended[k] = ended[j]
+        if p in round_.videos:
+            import imageio  # only for videos
 
-        imageio.mimsave(path, frames[p], fps=episodes[p][0].metadata.get("render_fps", 30))
-    result: dict = {"distinct_episodes": len(set(starts.tolist()))}
-    for p in prefixes:
-        successes, unstable, ends = (list(column) for column in zip(*ended[p], strict=True))
-        result[p] = {"returns": returns[p].tolist(), "lengths": lengths[p].tolist(),
+            round_.videos[p].parent.mkdir(parents=True, exist_ok=True)
+            imageio.mimsave(round_.videos[p], frames,
+                            fps=episodes[0].metadata.get("render_fps", 30))
+        successes, unstable, ends = (list(column) for column in zip(*ended, strict=True))
+        result[p] = {"returns": returns.tolist(), "lengths": lengths.tolist(),
                      "successes": successes, "unstable": unstable, "ends": ends}
-        if round_.actions[p] == "q_best":
-            shares = chosen[p] / max(chosen[p].sum(), 1)
+        if action == "q_best":
+            shares = chosen / max(chosen.sum(), 1)
             result[p]["shares"] = dict(zip(Q_BEST_CANDIDATES, shares.tolist(), strict=True))
     if round_.shift_of is not None:
         mu, log_std = (torch.cat(t) for t in zip(*visited, strict=True))
@@ -277,11 +267,6 @@ def eval_columns(actions: dict[str, str], shift: bool) -> list[str]:
     columns += [f"{p}share_{c}" for p, a in actions.items() if a == "q_best"
                 for c in Q_BEST_CANDIDATES]
     return columns + (list(SHIFT_COLUMNS) if shift else [])
-
-
-def default_workers() -> int:
-    """The cores that training leaves free: all but one (at least one worker)."""
-    return max(1, len(os.sched_getaffinity(0)) - 1)
 
 
 def _init_worker() -> None:

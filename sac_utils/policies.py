@@ -15,7 +15,6 @@ import torch
 import torch.nn as nn
 
 import sac_corrected as sac
-from sac_utils.checkpoints import old_layout
 from sac_utils.cli import fail, read_config_json
 
 
@@ -121,6 +120,17 @@ def to_linear_layout(weights: dict) -> dict:
         return weights
     return {k: v.T.contiguous() if k.endswith(".weight") and v.dim() == 2 else v
             for k, v in weights.items()}
+
+
+def old_layout(weights: dict) -> bool:
+    """Whether our networks' weights are stored (in, out), as before issue 87 (results/), not
+    nn.Linear's (out, in): told by the first non-square layer's bias length."""
+    for key, weight in weights.items():
+        bias = weights.get(key.removesuffix("weight") + "bias")
+        if key.endswith(".weight") and weight.dim() == 2 and bias is not None \
+                and weight.shape[0] != weight.shape[1]:
+            return weight.shape[1] == bias.shape[-1]
+    return False
 
 
 def tensors(weights: object) -> bool:

@@ -24,8 +24,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from sac_utils import checkpoints, eval_rounds
 from sac_utils.checkpoints import read_checkpoint, save_tensors
-from sac_utils.cli import INTERRUPTED_EXIT_CODE, check_checkpoint_args, check_finite, fail
-from sac_utils.eval_rounds import Round, shift_measured_at
+from sac_utils.cli import INTERRUPTED_EXIT_CODE, check_finite, fail
 from sac_utils.files import atomic_write, complete_lines, write_json
 
 TRAIN_COLUMNS = ("global_step", "wall_time", "sps", "qf1_loss", "qf2_loss", "qf1_value",
@@ -54,14 +53,14 @@ class StopRequest:
 
 class RunFolder:
     """One run's folder and bookkeeping (a finished run exits on creation, code 0): `open`,
-    `resume`, then the loop's count_step, log_train, evaluate, save_snapshot, checkpoint; `stop`
-    or `finish` ends the run."""
+    `resume`, then the loop's count_step, log_train, evaluate, save_snapshot, checkpoint (a stop's
+    ends the run); `finish`."""
 
     def __init__(self, args, algorithm: str, script: str, eval_actions: dict):
-        self.args, self.algorithm, self.script = args, algorithm, script
+        self.args, self.algorithm, self.script = args, algorithm, Path(script).name
         self.eval_actions = eval_actions
         self.eval_columns = ["global_step", "wall_time", "eval_round", *eval_rounds.eval_columns(
-            eval_actions, shift=shift_measured_at(eval_actions) is not None)]
+            eval_actions, shift=eval_rounds.shift_measured_at(eval_actions) is not None)]
         self.dir = run_dir(args, algorithm)
         if (self.dir / "done.json").exists():
             print(f"{self.dir}: already finished (done.json); nothing to do")
@@ -72,6 +71,7 @@ class RunFolder:
         resumed one (--resume and a checkpoint.pt) has its CSVs cut back to the checkpoint's step;
         then the logs and the evaluation workers open."""
         args, self.device = self.args, device
+        print(f"device: {device}", flush=True)
         lock = lock_run_folder(self.dir)
         path = self.dir / "checkpoint.pt"  # none yet: the run restarts from step 0
         self.ckpt = read_checkpoint(path) if args.resume is not None and path.exists() else None
@@ -79,8 +79,7 @@ class RunFolder:
         self.progress = {"episode_returns": [], "episode_lengths": [], "last_eval": None,
                          "episode_return": 0.0, "episode_length": 0}
         if self.ckpt is not None:
-            check_checkpoint_args(self.dir, self.ckpt, args)
-            checkpoints.check_layout(self.dir / "checkpoint.pt", self.ckpt)
+            checkpoints.check_resumable(path, self.ckpt, args)
             check_csv(self.dir / "eval.csv", self.eval_columns)
             check_csv(self.dir / "train.csv", list(TRAIN_COLUMNS))
         else:
@@ -94,7 +93,8 @@ class RunFolder:
         self.open_logs(global_step)
         self.session_start = self.row_start = time.time()
         self.row_step = global_step
-        workers = eval_rounds.default_workers() if args.eval_workers is None else args.eval_workers
+        free_cores = max(1, len(os.sched_getaffinity(0)) - 1)  # all but training's, at least one
+        workers = free_cores if args.eval_workers is None else args.eval_workers
         self.eval_pool = eval_rounds.EvalPool(workers, self.log_round)
 
     @property
@@ -107,19 +107,20 @@ class RunFolder:
         replayed, the rounds a stop left unfinished resubmitted. Returns the step, the observation
         and the first update's step (later than --learning-starts after a restart's refill)."""
         ckpt = self.ckpt
-        global_step, self.elapsed, self.progress = checkpoints.load_checkpoint(
-            ckpt, agent, buffer, action_space, self.device)
-        self.row_step = global_step
-        obs = checkpoints.replay_episode(envs, self.args.seed, ckpt)
+        global_step, obs, self.elapsed, self.progress = checkpoints.load_checkpoint(
+            ckpt, agent, buffer, action_space, envs, self.device)
         print(f"resuming {self.dir} at step {global_step}", flush=True)
         updates_from = self.progress.get("updates_from", self.args.learning_starts)
         if updates_from > global_step:
             print(f"restarted from a snapshot: acting to refill the replay buffer, updates "
                   f"resume at step {updates_from}", flush=True)
-        for state in ckpt.get("pending_rounds", []):
-            self.eval_pool.submit(self.evaluation_round(
-                state["global_step"], state["wall_time"],
-                *checkpoints.pending_round_networks(agent["actor"], agent["qf"], state)))
+        for state in ckpt.get("pending_rounds", []):  # on the networks' weights of their step
+            round_ = self.evaluation_round(state["global_step"], state["wall_time"],
+                                           agent["actor"], agent["qf"])
+            round_.actor.load_state_dict(state["actor"])
+            if round_.critic is not None:
+                round_.critic.load_state_dict(state["qf"])
+            self.eval_pool.submit(round_)
         self.ckpt = None  # mmapped: let it go
         return global_step, obs, updates_from
 
@@ -132,22 +133,22 @@ class RunFolder:
         self.eval_pool.poll()
 
     def evaluation_round(self, global_step: int, wall_time: float, actor: nn.Module,
-                         qf: nn.Module) -> Round:
+                         qf: nn.Module) -> eval_rounds.Round:
         """The round at this step, on CPU copies of the networks."""
         args, actions = self.args, self.eval_actions
         eval_round = global_step // args.eval_interval
         seeds = eval_rounds.eval_seeds(args.seed, eval_round, args.eval_episodes)
-        return Round(args.env_id, seeds, actions,
-                     copy.deepcopy(actor).cpu(),
-                     copy.deepcopy(qf).cpu() if "q_best" in actions.values() else None,
-                     mode_solver=args.mode_solver, reset_noise=args.eval_reset_noise,
-                     shift_of=shift_measured_at(actions),
-                     videos={"": self.video_path(global_step)} if args.capture_video else {},
-                     label=f"evaluation of seed {args.seed} at step {global_step}",
-                     info={"global_step": global_step, "wall_time": wall_time,
-                           "eval_round": eval_round})
+        video = self.dir / "videos" / f"eval_step{global_step}.mp4"
+        return eval_rounds.Round(
+            args.env_id, seeds, actions, copy.deepcopy(actor).cpu(),
+            copy.deepcopy(qf).cpu() if "q_best" in actions.values() else None,
+            mode_solver=args.mode_solver, reset_noise=args.eval_reset_noise,
+            shift_of=eval_rounds.shift_measured_at(actions),
+            videos={"": video} if args.capture_video else {},
+            label=f"evaluation of seed {args.seed} at step {global_step}",
+            info={"global_step": global_step, "wall_time": wall_time, "eval_round": eval_round})
 
-    def log_round(self, round_: Round, result: dict) -> None:
+    def log_round(self, round_: eval_rounds.Round, result: dict) -> None:
         """A finished round's eval.csv row."""
         row = round_.info | eval_rounds.round_row(result, round_.actions)
         self.write_row("eval", row, round_.videos.get(""))
@@ -196,10 +197,6 @@ class RunFolder:
               + (f"last eval {last[1]:.1f} at step {last[0]:,}" if last else "no eval yet"),
               flush=True)
 
-    def video_path(self, global_step: int) -> Path:
-        (self.dir / "videos").mkdir(exist_ok=True)
-        return self.dir / "videos" / f"eval_step{global_step}.mp4"
-
     def save_snapshot(self, global_step: int, actor: nn.Module, qf: nn.Module,
                       log_alpha: torch.Tensor) -> None:
         """snapshots/step<N>.pt: final_model.pt's content plus log alpha, what a restart needs."""
@@ -209,19 +206,18 @@ class RunFolder:
 
     def checkpoint(self, global_step: int, agent: dict, buffer, action_space: gym.Space,
                    envs: gym.vector.VectorEnv, stopping: bool) -> None:
-        """checkpoint.pt; a stop keeps the running rounds in it, otherwise they finish first."""
+        """checkpoint.pt; the running rounds finish first, except on a stop, which keeps them in
+        it and then ends the run (exit code 3)."""
         unfinished = self.eval_pool.abandon() if stopping else []
         self.eval_pool.drain()
         save_tensors(self.dir / "checkpoint.pt", checkpoints.checkpoint_state(
             self.args, global_step, self.wall_time(), self.progress, agent, buffer,
             action_space, envs.get_attr("record")[0], checkpoints.rng_states(self.device),
             unfinished))
-
-    def stop(self, global_step: int) -> None:
-        """Ends a run stopped by a signal, after its checkpoint: exit code 3."""
-        self.close_logs()
-        print(f"interrupted at step {global_step}; resume with --resume {self.dir}", flush=True)
-        sys.exit(INTERRUPTED_EXIT_CODE)
+        if stopping:
+            self.close_logs()
+            print(f"interrupted at step {global_step}; resume with --resume {self.dir}", flush=True)
+            sys.exit(INTERRUPTED_EXIT_CODE)
 
     def finish(self, global_step: int, actor: nn.Module, qf: nn.Module) -> None:
         """final_model.pt, the logs closed, done.json last (a finished run: sweep.py skips it)."""
@@ -283,17 +279,13 @@ def run_dir(args, algorithm: str) -> Path:
 
 def lock_run_folder(run_dir: Path) -> int:
     """An OS lock on run_dir/lock while this process lives (one writer; never stale: the kernel
-    drops it at any death). A refusal removes what it made. Returns the fd."""
-    made = not run_dir.exists()
+    drops it at any death). Returns the fd."""
     run_dir.mkdir(parents=True, exist_ok=True)
     fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-        if made:
-            (run_dir / "lock").unlink(missing_ok=True)
-            run_dir.rmdir()
         then = "then --resume" if (run_dir / "config.json").exists() else \
             "or choose another --run-name"
         fail(f"{run_dir} is in use by process {holder} (it holds {run_dir / 'lock'}); let it "

@@ -4,7 +4,6 @@ compiled_update takes the gradients of the scripts' own loss functions, so `--co
 `--no-compile` train alike (tests/test_compile.py pins them to each other).
 """
 
-import copy
 import time
 from collections.abc import Callable, Iterable
 
@@ -43,38 +42,6 @@ def compile_at_start(fn: Callable, example: tuple, restore: Iterable = (),
 # ops, so that the whole update is one function of tensors and compiles into one graph.
 
 
-class ReLUFromOutput(torch.autograd.Function):
-    """ReLU whose backward multiplies by sign(output): torch.relu's gradient, read from a float
-    tensor rather than from the boolean mask that inductor's CPU code stores ~10x slower."""
-
-    @staticmethod
-    def forward(x: torch.Tensor) -> torch.Tensor:
-        return x.clamp_min(0)
-
-    @staticmethod
-    def setup_context(ctx, inputs, output) -> None:  # the form torch.func.grad needs
-        ctx.save_for_backward(output)
-
-    @staticmethod
-    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
-        return grad * ctx.saved_tensors[0].sign()
-
-
-class FastReLU(nn.Module):
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return ReLUFromOutput.apply(x)
-
-
-def with_fast_relu(module: nn.Module) -> nn.Module:
-    """module with its nn.ReLUs as FastReLUs: a copy holding the module's own tensors."""
-    fast = copy.deepcopy(module, {id(t): t for t in module.state_dict(keep_vars=True).values()})
-    for parent in fast.modules():
-        for name, child in parent.named_children():
-            if isinstance(child, nn.ReLU):
-                setattr(parent, name, FastReLU())
-    return fast
-
-
 class Bound:
     """A module run on the given parameters (torch.func.functional_call) wherever a loss calls it;
     its other attributes (an Actor's squash, which reads buffers only) are the module's."""
@@ -98,11 +65,9 @@ def adam_state(optimizer: torch.optim.Optimizer) -> dict:
             optimizer.state[p] = {"step": torch.zeros((), device=p.device),
                                   "exp_avg": torch.zeros_like(p),
                                   "exp_avg_sq": torch.zeros_like(p)}
-    states = [optimizer.state[p] for p in group["params"]]
-    return {"params": list(group["params"]), "steps": [s["step"] for s in states],
-            "exp_avgs": [s["exp_avg"] for s in states],
-            "exp_avg_sqs": [s["exp_avg_sq"] for s in states], "lr": group["lr"],
-            "betas": group["betas"], "eps": group["eps"]}
+    return {"params": list(group["params"]), "lr": group["lr"], "betas": group["betas"],
+            "eps": group["eps"], **{f"{k}s": [optimizer.state[p][k] for p in group["params"]]
+                                    for k in ("step", "exp_avg", "exp_avg_sq")}}
 
 
 def adam_step(grads: list[torch.Tensor], state: dict) -> None:
@@ -128,12 +93,9 @@ def functional_update(agent: dict, losses: tuple[Callable, Callable, Callable], 
     """The script's sac_update, computed otherwise: update(batch, noise) -> the same logs. Call
     it after a checkpoint's load (it holds the optimizers' state tensors)."""
     critic_loss, actor_loss, alpha_loss = losses
-    actor, qf, qf_target, log_alpha = (agent[k] for k in ("actor", "qf", "qf_target",
-                                                          "log_alpha"))
+    actor, qf, qf_target, log_alpha = (agent[k] for k in ("actor", "qf", "qf_target", "log_alpha"))
     actor_params, qf_params = dict(actor.named_parameters()), dict(qf.named_parameters())
-    actor, qf = with_fast_relu(actor), with_fast_relu(qf)  # run on the originals' tensors
-    states = [adam_state(agent[k]) for k in ("actor_optimizer", "q_optimizer",
-                                             "alpha_optimizer")]
+    states = [adam_state(agent[k]) for k in ("actor_optimizer", "q_optimizer", "alpha_optimizer")]
     grad = torch.func.grad_and_value
 
     @torch.no_grad()  # torch.func.grad turns gradients on for the losses alone
@@ -162,13 +124,11 @@ def compiled_update(agent: dict, losses: tuple[Callable, Callable, Callable], ga
                     tau: float, target_entropy: float, shapes: tuple[int, int, int],
                     device: torch.device) -> Callable:
     """functional_update, compiled whole at start-up; shapes: (batch, obs, action) sizes."""
-    batch_size, obs_dim, action_dim = shapes
-    zeros = [torch.zeros(s, device=device) for s in ((batch_size, obs_dim),
-             (batch_size, action_dim), (batch_size,), (batch_size, obs_dim), (batch_size,))]
+    b, o, a = shapes
+    batch = tuple(torch.zeros(s, device=device) for s in ((b, o), (b, a), (b,), (b, o), (b,)))
     return compile_at_start(functional_update(agent, losses, gamma, tau, target_entropy),
-                            (tuple(zeros), torch.zeros((2, batch_size, action_dim),
-                                                       device=device)),
-                            agent.values(), "the update")
+                            (batch, torch.zeros((2, b, a), device=device)), agent.values(),
+                            "the update")
 
 
 # CUDA graphs (LeanRL's recipe with torch.cuda.graphs): eager PyTorch launches ~300 small kernels
