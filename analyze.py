@@ -89,7 +89,6 @@ from analysis.estimators import (
 from analysis.figures import (
     PairedCell,
     PairedRow,
-    over_tasks_cell,
     plot_aggregate_metrics,
     plot_dimension_study,
     plot_over_training,
@@ -226,7 +225,8 @@ def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str,
     report.row(section, "all", key, "mean_score_t", step, seeds, *t_values)
     report.row(section, "all", key, "share_above_zero", step, scores.size,
                share_above_zero(scores), math.nan, math.nan)
-    return (over_tasks_cell(scores, boot, t_values, {t: shapes[t] for t in per_task}),
+    markers = [shapes[t] for t in per_task for _ in range(seeds)]  # each task's seeds in turn
+    return (PairedCell(scores.T.ravel(), boot, t_values, markers=markers),
             [len(per_task), seeds, interval_text(*boot, runs=seeds),
              f"[{t_values[1]:.3f}, {t_values[2]:.3f}]", above_zero(scores)])
 
