@@ -58,6 +58,7 @@ from analysis.data import (
     last_rounds_averages,
     load_robust,
     load_runs,
+    logged_at,
     normalize,
     normalizers,
     one_episode_per_seed,
@@ -878,18 +879,12 @@ def report_choice_shares(report: Report, analysis: Analysis) -> None:
 
 
 def choice_shares_of(report: Report, analysis: Analysis, action: str) -> None:
-    """One action's choice shares (q_best's: mode, tanh(mu), mean), where it was evaluated."""
+    """One action's choice shares, where it was evaluated."""
     args, runs, tasks = analysis.args, analysis.runs, analysis.tasks
-    samples = {}
-    for task, data in tasks.items():
-        for group, curves in runs[task].items():
-            if group[1] != action:
-                continue
-            for column in CHOICE_SHARES[action]:
-                values = np.array([c.shares[column][c.steps == data.scored_step][0]
-                                   for c in curves if column in c.shares])
-                if np.isfinite(values).any():
-                    samples[task, group, column] = values[np.isfinite(values)]
+    samples = {(task, group, column): values for task, data in tasks.items()
+               for group, curves in runs[task].items() if group[1] == action
+               for column, values in logged_at(curves, CHOICE_SHARES[action],
+                                               data.scored_step).items()}
     if not samples:
         return
     estimates = seed_mean_estimates({((t, g), c): v for (t, g, c), v in samples.items()},
