@@ -51,20 +51,19 @@ def fall_verdict(mean: float, se: float) -> str:
     return {"ahead": "more", "behind": "fewer"}.get(word, word)
 
 
-def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
+def t_interval(values: np.ndarray) -> tuple[float, float, float]:
     """(mean, low, high) of one value per seed: mean +- t_{n-1} * sd / sqrt(n), which unlike a
     percentile bootstrap widens as the seeds get few. NaN bounds with one seed."""
     values = np.asarray(values, dtype=float)
     mean = float(values.mean())
     if values.size < 2:
         return mean, math.nan, math.nan
-    quantile = scipy.stats.t.ppf(0.5 + confidence / 2, values.size - 1)
+    quantile = scipy.stats.t.ppf(0.5 + CONFIDENCE / 2, values.size - 1)
     half = float(quantile * values.std(ddof=1) / math.sqrt(values.size))
     return mean, mean - half, mean + half
 
 
-def welch_interval(per_task: Sequence[np.ndarray], confidence: float = CONFIDENCE
-                   ) -> tuple[float, float, float]:
+def welch_interval(per_task: Sequence[np.ndarray]) -> tuple[float, float, float]:
     """(mean, low, high) of the mean over tasks of each task's mean over seeds: Welch's interval
     with Satterthwaite's degrees of freedom, the tasks' seeds independent (as rliable's
     stratified bootstrap draws them). NaN bounds when a task has one seed."""
@@ -77,12 +76,12 @@ def welch_interval(per_task: Sequence[np.ndarray], confidence: float = CONFIDENC
         return mean, mean, mean
     df = total**2 / sum(term**2 / (np.size(v) - 1) for term, v in zip(terms, per_task,
                                                                        strict=True))
-    half = scipy.stats.t.ppf(0.5 + confidence / 2, df) * math.sqrt(total) / len(per_task)
+    half = scipy.stats.t.ppf(0.5 + CONFIDENCE / 2, df) * math.sqrt(total) / len(per_task)
     return mean, mean - half, mean + half
 
 
-def bootstrap_mean(values: np.ndarray, reps: int, rng: np.random.RandomState,
-                   confidence: float = CONFIDENCE) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def bootstrap_mean(values: np.ndarray, reps: int, rng: np.random.RandomState
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(mean, low, high) of each column of a (runs,) or (runs, tasks) array: the percentile
     bootstrap, runs resampled within each column. A RandomState(s) draws what rliable's
     get_interval_estimates draws after np.random.seed(s), so the numbers are rliable's."""
@@ -91,7 +90,7 @@ def bootstrap_mean(values: np.ndarray, reps: int, rng: np.random.RandomState,
     matrix = values[:, None] if flat else values
     runs, columns = matrix.shape
     means = matrix[rng.choice(runs, (reps, runs, columns)), np.arange(columns)].mean(axis=1)
-    tail = 100 * (1 - confidence) / 2
+    tail = 100 * (1 - CONFIDENCE) / 2
     low, high = np.percentile(means, [tail, 100 - tail], axis=0)
     point = matrix.mean(axis=0)
     return (point[0], low[0], high[0]) if flat else (point, low, high)

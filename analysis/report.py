@@ -161,6 +161,14 @@ def _count(row: Mapping[str, object] | None, column: str) -> str:
     return "n/r" if value is None else str(int(value))
 
 
+def _fell(row: Mapping[str, object] | None) -> str:
+    """The paired difference in falls and its verdict; "" where not recorded."""
+    if _given(row, "fell_difference_se") is None:
+        return ""
+    return "{}: {}".format(*paired_cell(row["fell_difference_mean"], row["fell_difference_se"], 2,
+                                        estimators.fall_verdict))
+
+
 def per_seed_tables(rows: Sequence[Mapping[str, object]], actions: Sequence[str]) -> list[str]:
     """summary.md's per-seed tables, evaluate.py's and analyze.py's (--robust), from per_seed.csv's
     rows. Per task, a row per policy: tanh(mu)'s return and each action minus tanh(mu), with the
@@ -199,21 +207,15 @@ def per_seed_tables(rows: Sequence[Mapping[str, object]], actions: Sequence[str]
                     *paired_cell(it["difference_mean"], it["difference_se"], 1)))
             for why in ends:
                 it, column = by.get(shown[0]), END_PREFIX + why
-                cell = f"{_count(it, column)} / {_count(base, column)}"
-                if why == "fell" and _given(it, "fell_difference_se") is not None:
-                    cell += " ({}: {})".format(*paired_cell(
-                        it["fell_difference_mean"], it["fell_difference_se"], 2,
-                        estimators.fall_verdict))
-                cells.append(cell)
+                fell = _fell(it) if why == "fell" else ""
+                cells.append(f"{_count(it, column)} / {_count(base, column)}"
+                             + (f" ({fell})" if fell else ""))
             table.append(cells)
             for action in (a for a in actions if a in by):
                 it = by[action]
-                fell = "" if _given(it, "fell_difference_se") is None else "{}: {}".format(
-                    *paired_cell(it["fell_difference_mean"], it["fell_difference_se"], 2,
-                                 estimators.fall_verdict))
                 ended.append([str(seed), format_step(step), action,
                               *(_count(it, END_PREFIX + why) for why in reasons),
-                              *([fell] if "fell" in reasons else []),
+                              *([_fell(it)] if "fell" in reasons else []),
                               *([_count(it, "unstable_ends")] if unstable else [])])
         lines += [f"{task}:", "", markdown_table(header, table), ""]
         if reasons or unstable:
