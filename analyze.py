@@ -3,18 +3,15 @@
     python analyze.py runs/ --out report/
     python analyze.py runs/ --out report/ --robust robust/   # with evaluate.py's campaign
 
-The headline is paired: per seed, each evaluation action (the mode, the mean, q_best) minus
-tanh(mu) of the same actor from the same start states (a sac_corrected.py run's tanh(mu)
-evaluation is the standard run of its seed); then the paper's unpaired rliable statistics.
-Here: the command line and one section per report, in summary.md's order, each reading the data
-and the shared tools, never another section; what they read, estimate, draw and write is
+The headline is paired: per seed, each evaluation action minus tanh(mu) of the same actor from
+the same start states; then the paper's unpaired rliable statistics. Here: the command line and
+one section per report, in summary.md's order; what they read, estimate, draw and write is
 analysis/'s. docs/analyze.md maps each figure and table to its code.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import sys
 from collections.abc import Callable, Sequence
@@ -70,7 +67,7 @@ from analysis.data import (
     resolve_normalization,
     restart_marks,
     robust_paired_differences,
-    robust_shared_step,
+    robust_shared_steps,
     shift_curves,
     standard_from_paired,
 )
@@ -86,6 +83,7 @@ from analysis.estimators import (
     performance_profiles,
     seed_mean_estimates,
     t_interval,
+    verdict,
 )
 from analysis.figures import (
     PairedCell,
@@ -452,9 +450,7 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
     table, one_episode = [], []
     for task, by_group in differences.items():
         step, scale = tasks[task].scored_step, norms[task][1]
-        single = one_episode_per_seed([c for cs in runs[task].values() for c in cs],
-                                      np.array([step]))
-        if single:
+        if one_episode_per_seed([c for cs in runs[task].values() for c in cs], np.array([step])):
             one_episode.append(task)
         for group, diffs in by_group.items():
             values, n = estimates[task, group], diffs.size
@@ -496,8 +492,7 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
         baseline = paired_groups(data, task in analysis.pairing.derived)[0][1]
         reference = (float(data.scored(baseline).mean()), f"at {format_step(step)}")
         rows.append(PairedRow(task, ticks, cells, "return minus tanh(mu)'s", reference))
-    keys = list(dict.fromkeys(g for by_group in differences.values() for g in by_group))
-    names = {g: labels.action_first(g) for g in keys}
+    names = {g: labels.action_first(g) for by_group in differences.values() for g in by_group}
     report.figure(plot_paired(rows + ([over] if over else []), analysis.colors, names,
                               "the training log's evaluation rounds"), "paired_difference")
     report.section("Headline: paired difference, each evaluation action minus tanh(mu) of the "
@@ -554,8 +549,8 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
                 diffs, boot = at.differences[action], estimates[key, action]
                 difference_rows(report, "robust_difference", task, action, step, diffs, boot,
                                 SUCCESS_BARS.get(task))
-                verdicts = " / ".join(str(at.verdicts[action].count(v))
-                                      for v in ("ahead", "level", "behind"))
+                said = [verdict(m, se) for m, se in zip(diffs, at.errors[action], strict=True)]
+                verdicts = " / ".join(str(said.count(v)) for v in ("ahead", "level", "behind"))
                 table.append([*cells, *seed_cells(diffs, boot, 1), above_zero(diffs), verdicts,
                               *blowups])
     return table, estimates
@@ -654,7 +649,7 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
         lines += ["", f"No success bar for {', '.join(unbarred)}: left out of the normalised "
                   "results over tasks."]
     barred = {t: steps for t, steps in by_task.items() if t in SUCCESS_BARS}
-    step = robust_shared_step(barred) if barred else None
+    step = max(robust_shared_steps(barred), default=None)
     if barred and step is None:
         lines += ["", "The tasks' robust evaluations share no step: no result over tasks."]
     elif step is not None:
@@ -722,8 +717,7 @@ def robust_sample_efficiency(report: Report, analysis: Analysis,
     they share. Writes summary.csv's rows; returns summary.md's lines."""
     args = analysis.args
     curves = {t: steps for t, steps in barred.items() if len(steps) >= 2}
-    shared = sorted(functools.reduce(set.intersection, [set(s) for s in curves.values()])) \
-        if curves else []
+    shared = robust_shared_steps(curves)
     if len(shared) < 2:
         return [] if not curves else [
             "", f"No robust sample-efficiency curve: {', '.join(curves)}, evaluated at several "
@@ -1023,22 +1017,16 @@ def report_dimension_study(report: Report, analysis: Analysis) -> None:
     for task, d in study.items():
         for group in d.differences:
             for f, step in d.steps.items():
-                diffs = d.differences[group][f]
-                runs_n = diffs.size
-                point, low, high = estimates[(task, group), f]
-                report.row("dimension", task, group, f"normalised_difference@{f:g}", step,
-                           runs_n, point, low, high)
-                report.row("dimension", task, group, f"raw_difference@{f:g}", step, runs_n,
-                           *(v * d.scale for v in (point, low, high)))
-                t_values = t_interval(diffs)
-                report.row("dimension", task, group, f"normalised_difference_t@{f:g}", step,
-                           runs_n, *(v / d.scale for v in t_values))
-                report.row("dimension", task, group, f"raw_difference_t@{f:g}", step, runs_n,
-                           *t_values)
-                raw, t_cell = seed_cells(diffs, [v * d.scale for v in (point, low, high)], 1)
+                diffs, boot = d.differences[group][f], estimates[(task, group), f]
+                raw, t_values = [v * d.scale for v in boot], t_interval(diffs)
+                for metric, values in (("normalised_difference", boot), ("raw_difference", raw),
+                                       ("normalised_difference_t", [v / d.scale for v in t_values]),
+                                       ("raw_difference_t", t_values)):
+                    report.row("dimension", task, group, f"{metric}@{f:g}", step, diffs.size,
+                               *values)
                 table.append([task, d.action_dim, labels.algorithm(group[0]), group[1],
-                              runs_n, f"{f:g} ({format_step(step)})", raw, t_cell,
-                              seed_cells(diffs / d.scale, (point, low, high))[0],
+                              diffs.size, f"{f:g} ({format_step(step)})",
+                              *seed_cells(diffs, raw, 1), seed_cells(diffs / d.scale, boot)[0],
                               above_zero(diffs)])
         for column, values in d.shift.items():
             report.row("dimension_shift", task, "corrected", column, d.steps[1.0], values.size,

@@ -111,13 +111,6 @@ class Curve:
 Runs = dict[str, dict[Key, list[Curve]]]
 
 
-def optional_columns() -> tuple[str, ...]:
-    """eval.csv's optional columns, from ACTIONS and CHOICE_SHARES as they are now."""
-    return (*(f"{action}_{RETURN_COLUMN}" for action in ACTIONS),
-            *(column for columns in CHOICE_SHARES.values() for column in columns),
-            *SHIFT_COLUMNS, EPISODES_COLUMN)
-
-
 def read_config(path: Path) -> dict:
     """The run's config.json, checked for the keys analyze.py needs."""
     config = files.read_json_object(path, f"fix or remove that run (it needs keys "
@@ -148,7 +141,9 @@ def read_eval_csv(path: Path) -> tuple[dict[str, np.ndarray], bool]:
         raise AnalysisError(
             f"{path} lacks column(s) {missing}; eval.csv needs a header row with at least "
             f"{list(REQUIRED_EVAL_COLUMNS)} (see docs/analyze.md)")
-    optional = optional_columns()
+    optional = (*(f"{action}_{RETURN_COLUMN}" for action in ACTIONS),
+                *(column for columns in CHOICE_SHARES.values() for column in columns),
+                *SHIFT_COLUMNS, EPISODES_COLUMN)
     wanted = [*REQUIRED_EVAL_COLUMNS, *(c for c in optional if c in header)]
     columns = {name: np.empty(len(body)) for name in wanted}
     for i, row in enumerate(body):
@@ -663,7 +658,6 @@ class RobustStep:
     returns: dict[str, np.ndarray]  # mean return over each seed's episodes
     differences: dict[str, np.ndarray]  # all but tanh_mu: mean of (it - tanh_mu) per episode
     errors: dict[str, np.ndarray]  # the standard errors of those paired episodes
-    verdicts: dict[str, list[str]]  # estimators.verdict per seed
     episodes: np.ndarray  # episodes per seed (of tanh_mu, which every seed played)
     seeds: np.ndarray  # the seeds, in the order of every array above
     played: dict[str, int]  # each action's episodes over its seeds
@@ -677,8 +671,8 @@ def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]
     for (task, step), rows in robust.rows.groupby(["env_id", "step"], sort=False):
         baseline = rows[rows.selector == BASELINE]
         machines = sorted(set(rows.machine.dropna()))
-        at = RobustStep({}, {}, {}, {}, baseline.episodes.to_numpy(), baseline.seed.to_numpy(),
-                        {}, {}, " + ".join(machines) if machines else None)
+        at = RobustStep({}, {}, {}, baseline.episodes.to_numpy(), baseline.seed.to_numpy(), {},
+                        {}, " + ".join(machines) if machines else None)
         for action, seeds in rows.groupby("selector", sort=False):
             at.returns[action] = seeds.return_mean.to_numpy()
             at.played[action] = int(seeds.episodes.sum())
@@ -688,17 +682,14 @@ def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]
             if action != BASELINE:
                 at.differences[action] = seeds.difference_mean.to_numpy()
                 at.errors[action] = seeds.difference_se.to_numpy()
-                at.verdicts[action] = [estimators.verdict(m, se) for m, se in
-                                       zip(at.differences[action], at.errors[action],
-                                           strict=True)]
         by_task.setdefault(task, {})[int(step)] = at
     return by_task
 
 
-def robust_shared_step(by_task: dict[str, dict[int, RobustStep]]) -> int | None:
-    """The last step every task's robust evaluation has (normally the final weights)."""
-    shared = functools.reduce(set.intersection, [set(steps) for steps in by_task.values()])
-    return max(shared) if shared else None
+def robust_shared_steps(by_task: dict[str, dict[int, RobustStep]]) -> list[int]:
+    """The steps every task's robust evaluation has, in order; none for no task."""
+    return sorted(functools.reduce(set.intersection, map(set, by_task.values()))) if by_task \
+        else []
 
 
 def blowups_recorded(by_task: dict[str, dict[int, RobustStep]]) -> bool:
