@@ -818,18 +818,17 @@ def report_choice_shares(report: Report, analysis: Analysis) -> None:
 def choice_shares_of(report: Report, analysis: Analysis, action: str) -> None:
     """One action's choice shares, where it was evaluated."""
     args, runs, tasks = analysis.args, analysis.runs, analysis.tasks
-    samples = {(task, group, column): values for task, data in tasks.items()
+    samples = {((task, group), column): values for task, data in tasks.items()
                for group, curves in runs[task].items() if group[1] == action
                for column, values in logged_at(curves, CHOICE_SHARES[action],
                                                data.scored_step).items()}
     if not samples:
         return
-    estimates = seed_mean_estimates({((t, g), c): v for (t, g, c), v in samples.items()},
-                                    args.reps, args.seed)
+    estimates = seed_mean_estimates(samples, args.reps, args.seed)
     prefix = f"{action}_share_"
     candidates = [column.removeprefix(prefix) for column in CHOICE_SHARES[action]]
     table = {}
-    for (task, group, column), values in samples.items():
+    for ((task, group), column), values in samples.items():
         step = tasks[task].scored_step
         estimate = estimates[(task, group), column]
         name = column.removeprefix(prefix)

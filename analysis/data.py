@@ -567,7 +567,7 @@ def build_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
 # ------------------------------------------------------------- robust evaluation (evaluate.py)
 # evaluate.py's campaign folders (--robust): per_seed.csv holds, per policy and action, the mean
 # return and the mean and standard error of the paired difference against tanh(mu) from the
-# same starts. Everything across seeds is computed here.
+# same starts. Everything across seeds is analyze.py's.
 ROBUST_SETTINGS_FILE = "evaluation.json"
 ROBUST_PER_SEED_FILE = "per_seed.csv"
 ROBUST_COLUMNS = ("env_id", "seed", "step", "selector", "episodes", "return_mean",
