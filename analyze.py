@@ -3,18 +3,15 @@
     python analyze.py runs/ --out report/
     python analyze.py runs/ --out report/ --robust robust/   # with evaluate.py's campaign
 
-The headline is paired: per seed, each evaluation action (the mode, the mean, q_best) minus
-tanh(mu) of the same actor from the same start states (a sac_corrected.py run's tanh(mu)
-evaluation is the standard run of its seed); then the paper's unpaired rliable statistics.
-Here: the command line and one section per report, in summary.md's order, each reading the data
-and the shared tools, never another section; what they read, estimate, draw and write is
+The headline is paired: per seed, each evaluation action minus tanh(mu) of the same actor from
+the same start states; then the paper's unpaired rliable statistics. Here: the command line and
+one section per report, in summary.md's order; what they read, estimate, draw and write is
 analysis/'s. docs/analyze.md maps each figure and table to its code.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import sys
 from collections.abc import Callable, Sequence
@@ -58,6 +55,7 @@ from analysis.data import (
     last_rounds_averages,
     load_robust,
     load_runs,
+    logged_at,
     normalize,
     normalizers,
     one_episode_per_seed,
@@ -69,7 +67,7 @@ from analysis.data import (
     resolve_normalization,
     restart_marks,
     robust_paired_differences,
-    robust_shared_step,
+    robust_shared_steps,
     shift_curves,
     standard_from_paired,
 )
@@ -85,11 +83,11 @@ from analysis.estimators import (
     performance_profiles,
     seed_mean_estimates,
     t_interval,
+    verdict,
 )
 from analysis.figures import (
     PairedCell,
     PairedRow,
-    over_tasks_cell,
     plot_aggregate_metrics,
     plot_dimension_study,
     plot_over_training,
@@ -117,16 +115,14 @@ from sac_utils.cli import broken_rule
 
 # ============================================================================== what to edit
 # A task's success bar and a new evaluation action: analysis/data.py (SUCCESS_BARS, ACTIONS).
-# Each (algorithm, action)'s colour, an index in seaborn's colorblind palette, fixed so that
-# colours stay put between reports (an algorithm's actions get distant hues); any other gets a
-# free colour.
+# Each group's colour, an index in seaborn's colorblind palette, fixed so that colours stay put
+# between reports (an algorithm's actions get distant hues); any other gets a free colour.
 COLORS = {(STANDARD, "tanh_mu"): 0, (CORRECTED, "mode"): 1, (CORRECTED, "tanh_mu"): 9,
           (STANDARD, "mode"): 3, (CORRECTED, "mean"): 2, (STANDARD, "mean"): 5,
           (CORRECTED, "q_best"): 4, (STANDARD, "q_best"): 6}
 
 # ----------------------------------------------------------------------------- groups and settings
-# Probability of improvement of the first over the second.
-COMPARISON = ((CORRECTED, "mode"), (STANDARD, BASELINE))
+COMPARISON = ((CORRECTED, "mode"), (STANDARD, BASELINE))  # probability of improvement: x > y
 STANDARD_LABEL = "Standard SAC"
 ALGORITHM_LABELS = {STANDARD: STANDARD_LABEL, CORRECTED: "Corrected SAC"}
 STANDARD_FROM_PAIRED_LABEL = "Standard SAC (tanh(mu), paired)"
@@ -170,8 +166,6 @@ class Args:
 
 # ============================================================================== shared tools
 # ------------------------------------------------------------------------- few seeds
-# Each report's docstring says which estimator (analysis/estimators.py) it uses and why.
-# Student's t-intervals sit beside the bootstrap wherever a mean over few seeds is reported.
 def few_seeds_lines(seeds: Sequence[int]) -> list[str]:
     """summary.md's warning where a mean over seeds has a bootstrap CI from FEW_SEEDS or fewer."""
     return ["", f"With {FEW_SEEDS} seeds or fewer a percentile bootstrap CI is narrower than "
@@ -179,9 +173,8 @@ def few_seeds_lines(seeds: Sequence[int]) -> list[str]:
 
 
 def iqm_note(runs: Sequence[int], tasks: int) -> str:
-    """With few runs per task, what IQM is: rliable's 25% trimmed mean over all runs x tasks
-    keeps the middle ones; and with one task rliable's median (over tasks of each task's mean)
-    is the mean."""
+    """With few runs per task, which runs IQM (a 25% trimmed mean over runs x tasks) keeps, and
+    with one task that the median (over tasks of each task's mean) is the mean."""
     if not runs or max(runs) > FEW_SEEDS:
         return ""
     kept = " or ".join(f"the middle {n * tasks - 2 * int(0.25 * n * tasks)} of {n * tasks}"
@@ -191,13 +184,12 @@ def iqm_note(runs: Sequence[int], tasks: int) -> str:
 
 
 # ------------------------------------------- paired differences: the headline's and the robust's
-# The training log's paired difference (2.) and the robust evaluation's (3.) write through these.
 def difference_rows(report: Report, section: str, task: str, key: Key | str, step: int,
                     diffs: np.ndarray, boot: Sequence[float], scale: float | None = None,
                     suffix: str = "") -> None:
     """summary.csv's rows of one paired difference, one value per seed: the mean with its
-    bootstrap CI (`boot`) and Student's t-interval, in returns and, given the task's scale, in
-    scores; and the share of seeds above zero."""
+    bootstrap CI (`boot`) and t-interval, in returns and (given `scale`) scores; the share of
+    seeds above zero."""
     n, t_values = diffs.size, t_interval(diffs)
     for unit, divisor in (("return", 1.0), ("score", scale)):
         if divisor is not None:
@@ -215,10 +207,8 @@ OVER_TASKS_HEADER = ["tasks", "seeds per task", "difference (bootstrap CI)",
 
 def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str, np.ndarray],
                step: int | str, shapes: dict[str, str], args: Args) -> tuple[PairedCell, list]:
-    """A paired difference over tasks, each task's per-seed values already in scores:
-    difference_over_tasks, summary.csv's rows (the mean with its bootstrap CI and Welch's
-    interval, the share of (task, seed) pairs above zero), the figure's cell and summary.md's
-    row under OVER_TASKS_HEADER."""
+    """A paired difference over tasks (difference_over_tasks of per-seed scores): summary.csv's
+    rows, the figure's cell and summary.md's row under OVER_TASKS_HEADER."""
     scores, boot, t_values = difference_over_tasks(list(per_task.values()), args.reps,
                                                    args.seed)
     seeds = scores.shape[0]
@@ -226,18 +216,17 @@ def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str,
     report.row(section, "all", key, "mean_score_t", step, seeds, *t_values)
     report.row(section, "all", key, "share_above_zero", step, scores.size,
                share_above_zero(scores), math.nan, math.nan)
-    return (over_tasks_cell(scores, boot, t_values, {t: shapes[t] for t in per_task}),
+    markers = [shapes[t] for t in per_task for _ in range(seeds)]  # each task's seeds in turn
+    return (PairedCell(scores.T.ravel(), boot, t_values, markers=markers),
             [len(per_task), seeds, interval_text(*boot, runs=seeds),
              f"[{t_values[1]:.3f}, {t_values[2]:.3f}]", above_zero(scores)])
 
 
-# ----------------------------------------------------- the paper's Figures 6-8, from any scores
-# The training log's final scores (7.-9.) and the robust evaluation's (3.) go through these.
 # ------------------------------------------------------------------------- labels and colours
 @dataclasses.dataclass(frozen=True)
 class GroupLabels:
-    """A group's name in figures and tables, "Corrected SAC (mean eval)"; `standard` says where
-    the standard numbers come from (standard_label)."""
+    """A group's name in figures and tables, "Corrected SAC (mean eval)"; `standard`: from
+    standard_label."""
 
     standard: str = STANDARD_LABEL
 
@@ -273,8 +262,7 @@ def group_colors(groups: list[Key]) -> dict[Key, tuple]:
 
 @dataclasses.dataclass(frozen=True)
 class Analysis:
-    """The data and the flags: what every report section reads (none changes
-    it)."""
+    """The data and the flags: what every report section reads (none changes it)."""
 
     args: Args  # --normalize resolved from auto
     runs: Runs
@@ -287,11 +275,6 @@ class Analysis:
     colors: dict[str, tuple]
     robust: Robust | None = None  # the --robust folders' per-seed rows, if given
 
-    @property
-    def derived(self) -> list[str]:
-        """Tasks whose standard group is the corrected runs' paired tanh(mu) evaluation."""
-        return self.pairing.derived
-
 
 def aggregate_title(agg: Aggregate) -> str:
     """Figures 7 and 8 name what they aggregate: the tasks and the runs per task."""
@@ -300,13 +283,13 @@ def aggregate_title(agg: Aggregate) -> str:
 
 
 # ============================================================================== the reports
-# One section per report, in the order summary.md prints them. Each report_*(report, analysis)
-# computes its estimates, draws its figure and writes its summary.csv rows and summary.md table;
-# it reads `analysis` (the data, analysis/data.py's) and the shared tools, never another section.
+# One section per report, in summary.md's order; each reads `analysis` and the shared tools,
+# never another section.
 
 # --------------------------------------- 1. the header, and where the standard numbers come from
-def found_table(runs: Runs, groups: list[Key]) -> str:
-    """Tasks x groups: how many seeds, and the last step they reached."""
+def found_text(runs_dirs: Sequence[Path], runs: Runs, groups: list[Key]) -> str:
+    """What the folder holds: how many runs, and per task and group how many seeds and the last
+    step they reached."""
     rows = []
     for task, by_group in sorted(runs.items()):
         cells = []
@@ -319,16 +302,11 @@ def found_table(runs: Runs, groups: list[Key]) -> str:
                                              if max(last) > min(last) else "")
             cells.append(f"{counted(len(last), 'seed')}, to step {span}")
         rows.append([task, *cells])
-    return markdown_table(["task", *map(group_name, groups)], rows)
-
-
-def found_text(runs_dirs: Sequence[Path], runs: Runs, groups: list[Key]) -> str:
-    """What the folder holds: how many runs, and found_table."""
     # Run folders, not groups: a corrected folder also stands for the derived standard group.
     n_runs = len({curve.run_dir for by_group in runs.values() for curves in by_group.values()
                   for curve in curves})
     return (f"Found {n_runs} runs under {', '.join(map(str, runs_dirs))}:\n\n"
-            + found_table(runs, groups))
+            + markdown_table(["task", *map(group_name, groups)], rows))
 
 
 def normalization_line(mode: str, norms: dict[str, tuple[float, float]]) -> str:
@@ -359,8 +337,7 @@ def pairing_lines(pairing: Pairing) -> list[str]:
 
 
 def summary_header(analysis: Analysis, chosen: str, found: str) -> list[str]:
-    """summary.md's first lines: the normalisation (and why `auto` chose it), the intervals,
-    the runs found."""
+    """summary.md's first lines: the normalisation (`chosen`: why), the intervals, the runs."""
     args = analysis.args
     return [
         f"# Analysis of {', '.join(map(str, args.runs_dirs))}", "",
@@ -374,8 +351,7 @@ def summary_header(analysis: Analysis, chosen: str, found: str) -> list[str]:
 
 
 def report_standard_provenance(report: Report, analysis: Analysis) -> None:
-    """summary.md's "Where the standard numbers come from": the corrected runs' paired
-    tanh(mu) evaluation standing in for standard runs, or checked against them. No estimator."""
+    """summary.md's "Where the standard numbers come from" (pairing_lines). No estimator."""
     if pairing_lines(analysis.pairing):
         report.section("Where the standard numbers come from", *pairing_lines(analysis.pairing))
 
@@ -383,8 +359,8 @@ def report_standard_provenance(report: Report, analysis: Analysis) -> None:
 # ------------------------------------------------------- 2. the paired difference (headline)
 def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
                       ) -> tuple[list[str], PairedRow | None]:
-    """Over tasks, per evaluation action: the mean normalised paired difference and the share
-    of (task, seed) pairs above zero (over_tasks); summary.md's lines and the figure's panel."""
+    """Over tasks, each evaluation action's normalised paired difference (over_tasks):
+    summary.md's lines and the figure's panel."""
     args, norms = analysis.args, analysis.norms
     name = SCORE_NAMES[args.normalize].lower()
     shapes = task_markers(list(differences))
@@ -408,14 +384,12 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
 
 def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: list[str]
                        ) -> dict[tuple[str, Key], tuple[PairedCell, str]]:
-    """Beside the scored step, each seed's paired difference averaged over its last 20 and 50
-    evaluation rounds: one round of a noisy task is one draw of its noise, and a headline read
-    at one step can be the extreme of its neighbours. `scored`: the scored step's bootstrap
-    estimates, (task, group) -> (mean, low, high). Appends summary.md's table to `lines`;
-    returns the figure's cells of the last LAST_ROUNDS[0] rounds, with their steps.
-    Estimator: as at the scored step (seed_mean_estimates and t_interval), on the averages."""
+    """Each seed's paired difference averaged over its last LAST_ROUNDS evaluation rounds: one
+    round of a noisy task is one draw of its noise. `scored`: the scored step's estimates.
+    Appends summary.md's table to `lines`; returns the figure's cells of the last LAST_ROUNDS[0]
+    rounds, with their steps. Estimator: as at the scored step, on the averages."""
     args, runs, tasks, labels = analysis.args, analysis.runs, analysis.tasks, analysis.labels
-    curves = paired_difference_curves(tasks, analysis.derived)
+    curves = paired_difference_curves(tasks, analysis.pairing.derived)
     averages, windows, notes = last_rounds_averages(tasks, curves)
     report.notes.extend(notes)
     if not averages:
@@ -458,16 +432,14 @@ def paired_last_rounds(report: Report, analysis: Analysis, scored: dict, lines: 
 
 
 def report_paired_difference(report: Report, analysis: Analysis) -> None:
-    """The headline (figure `paired_difference`): each evaluation action (the mode, the mean,
-    q_best) minus tanh(mu) of the same actors from the same start states (paired), per task and
-    over tasks, with the share of seeds where that action is above zero; at the scored step and
-    averaged over the last rounds. Estimator, per task: the mean over seeds of the per-seed
-    differences with the bootstrap CI (seed_mean_estimates: estimators.bootstrap_mean), since the
-    pairing makes each seed one value; beside it Student's t-interval, since with 5 seeds or fewer a
-    percentile bootstrap is too narrow. Over tasks: paired_over_tasks."""
+    """The headline (figure `paired_difference`): each evaluation action minus tanh(mu) of the
+    same actors from the same start states, per task and over tasks, at the scored step and over
+    the last rounds. Estimator, per task: the mean over seeds with the bootstrap CI
+    (seed_mean_estimates), the pairing making each seed one value, and Student's t-interval,
+    since with few seeds a percentile bootstrap is too narrow. Over tasks: paired_over_tasks."""
     args, runs, tasks, norms = analysis.args, analysis.runs, analysis.tasks, analysis.norms
     labels = analysis.labels
-    differences = paired_differences(tasks, analysis.derived)
+    differences = paired_differences(tasks, analysis.pairing.derived)
     if not differences:
         report.notes.append(f"no run carries the paired evaluation ({PAIRED_RETURN_COLUMN}): "
                             "paired differences skipped")
@@ -478,9 +450,7 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
     table, one_episode = [], []
     for task, by_group in differences.items():
         step, scale = tasks[task].scored_step, norms[task][1]
-        single = one_episode_per_seed([c for cs in runs[task].values() for c in cs],
-                                      np.array([step]))
-        if single:
+        if one_episode_per_seed([c for cs in runs[task].values() for c in cs], np.array([step])):
             one_episode.append(task)
         for group, diffs in by_group.items():
             values, n = estimates[task, group], diffs.size
@@ -519,11 +489,10 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
             ticks.append(f"mean of the last {LAST_ROUNDS[0]} rounds\n{spans.pop()}")
             cells |= {(1, g): last_rounds[task, g][0] for g in by_group
                       if (task, g) in last_rounds}
-        baseline = paired_groups(data, task in analysis.derived)[0][1]
+        baseline = paired_groups(data, task in analysis.pairing.derived)[0][1]
         reference = (float(data.scored(baseline).mean()), f"at {format_step(step)}")
         rows.append(PairedRow(task, ticks, cells, "return minus tanh(mu)'s", reference))
-    keys = list(dict.fromkeys(g for by_group in differences.values() for g in by_group))
-    names = {g: labels.action_first(g) for g in keys}
+    names = {g: labels.action_first(g) for by_group in differences.values() for g in by_group}
     report.figure(plot_paired(rows + ([over] if over else []), analysis.colors, names,
                               "the training log's evaluation rounds"), "paired_difference")
     report.section("Headline: paired difference, each evaluation action minus tanh(mu) of the "
@@ -531,11 +500,9 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
 
 
 # --------------------------------------------------- 3. the robust evaluation (evaluate.py)
-# The headline's decisive version: the same paired difference, from evaluate.py's many noisy
-# starts per seed instead of the training log's few evaluation episodes.
 def robust_labels_colors(actions: Sequence[str]) -> tuple[dict[str, str], dict[str, tuple]]:
-    """Each evaluate.py action's name and colour in the figures: those of the group it stands
-    for, tanh(mu) Standard SAC's own evaluation, every other action Corrected SAC's actors."""
+    """Each evaluate.py action's name and colour: those of the group it stands for, tanh(mu)
+    Standard SAC's, every other Corrected SAC's actors'."""
     keys = {a: (STANDARD if a == own_action(STANDARD) else CORRECTED, a) for a in actions}
     colors = group_colors(list(keys.values()))
     return ({a: GroupLabels().action_first(k) for a, k in keys.items()},
@@ -548,24 +515,11 @@ def episodes_span(episodes: np.ndarray) -> str:
     return f"{low}" if low == high else f"{low}-{high}"
 
 
-@dataclasses.dataclass
-class RobustOverTasks:
-    """The tasks at their shared last step, each divided by its success bar: each action's
-    paired difference over tasks (the figure's cell) and its (seeds, tasks) returns."""
-
-    step: int
-    tasks: list[str]
-    seeds: int
-    cells: dict[str, PairedCell]
-    scores: dict[str, np.ndarray]
-
-
 def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[int, RobustStep]]
                     ) -> tuple[list[list], dict]:
-    """Per task, step and action: the mean return over seeds and the mean paired difference
-    against tanh(mu), with its bootstrap CI and t-interval; writes summary.csv's rows, returns
-    summary.md's table rows and the differences' bootstrap estimates keyed ("task|step",
-    action)."""
+    """Per task, step and action: the mean return and paired difference over seeds. Writes
+    summary.csv's rows; returns summary.md's table rows and the differences' bootstrap
+    estimates, keyed ("task|step", action)."""
     args = analysis.args
     differences = {(f"{t}|{s}", a): d for t, steps in by_task.items()
                    for s, at in steps.items() for a, d in at.differences.items()}
@@ -595,22 +549,20 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
                 diffs, boot = at.differences[action], estimates[key, action]
                 difference_rows(report, "robust_difference", task, action, step, diffs, boot,
                                 SUCCESS_BARS.get(task))
-                verdicts = " / ".join(str(at.verdicts[action].count(v))
-                                      for v in ("ahead", "level", "behind"))
+                said = [verdict(m, se) for m, se in zip(diffs, at.errors[action], strict=True)]
+                verdicts = " / ".join(str(said.count(v)) for v in ("ahead", "level", "behind"))
                 table.append([*cells, *seed_cells(diffs, boot, 1), above_zero(diffs), verdicts,
                               *blowups])
     return table, estimates
 
 
 def robust_over_tasks(report: Report, analysis: Analysis,
-                      by_task: dict[str, dict[int, RobustStep]], step: int
-                      ) -> tuple[RobustOverTasks, list[str]]:
+                      barred: dict[str, dict[int, RobustStep]], step: int
+                      ) -> tuple[PairedRow, dict[str, np.ndarray], list[str]]:
     """At the tasks' shared last step, each action's paired difference divided by each task's
-    success bar, over the tasks that have one (difference_over_tasks, as the headline's); then
-    the aggregate metrics of each action's normalised returns. Writes summary.csv's rows;
-    returns the figure's data and summary.md's lines."""
-    args = analysis.args
-    tasks = [t for t in by_task if t in SUCCESS_BARS]
+    success bar (over_tasks, as the headline's). Writes summary.csv's rows; returns the
+    figure's panel, each action's (seeds, tasks) normalised returns and summary.md's lines."""
+    by_task, tasks = barred, list(barred)
     actions = [a for a in by_task[tasks[0]][step].returns
                if all(a in by_task[t][step].returns for t in tasks)]
     seeds = min(by_task[t][step].returns[a].size for t in tasks for a in actions)
@@ -620,22 +572,23 @@ def robust_over_tasks(report: Report, analysis: Analysis,
              "bootstrap CI and Welch's t-interval; the returns' aggregate metrics.", ""]
     scores = {a: np.stack([by_task[t][step].returns[a][:seeds] / SUCCESS_BARS[t]
                            for t in tasks], axis=1) for a in actions}
-    over = RobustOverTasks(step, tasks, seeds, {}, scores)
-    table, shapes = [], task_markers(tasks)
+    cells, table, shapes = {}, [], task_markers(tasks)
     for action in actions:
         if action in by_task[tasks[0]][step].differences:
             per_task = {t: by_task[t][step].differences[action][:seeds] / SUCCESS_BARS[t]
                         for t in tasks}
-            over.cells[action], row = over_tasks(report, "robust_difference", action, per_task,
-                                                 step, shapes, args)
+            cells[0, action], row = over_tasks(report, "robust_difference", action, per_task,
+                                               step, shapes, analysis.args)
             table.append([action, *row])
-    return over, [*lines, markdown_table(["action", *OVER_TASKS_HEADER], table), ""]
+    panel = PairedRow(f"Over {counted(len(tasks), 'task')} at {format_step(step)}, each divided "
+                      "by its success bar", [f"{seeds} seeds per task"], cells,
+                      "difference / success bar", shapes=shapes)
+    return panel, scores, [*lines, markdown_table(["action", *OVER_TASKS_HEADER], table), ""]
 
 
 def robust_ticks(steps: dict[int, RobustStep]) -> list[str]:
-    """A task's ticks, one per step evaluated, in short lines: a campaign's ten steps side by
-    side must not run into each other. The CPU too where the steps were evaluated on more than
-    one kind (one draw of the episodes per kind)."""
+    """A task's ticks, one per step, in short lines (ten side by side must not run into each
+    other); the CPU too where its steps ran on more than one kind (other draws of the episodes)."""
     machines = {at.machine for at in steps.values()}
     return [f"{format_step(s)}\n{episodes_span(at.episodes)} starts\nx {at.episodes.size} seeds"
             + (f"\n{at.machine or 'CPU n/r'}" if len(machines) > 1 else "")
@@ -657,14 +610,11 @@ def robust_settings_lines(robust: Robust) -> list[str]:
 
 
 def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
-    """Figure `robust_evaluation` (only with --robust): the paired difference of the headline
-    from evaluate.py's campaign, many noisy starts per seed and step. Per seed: the mean over its
-    episodes of each action's return minus tanh(mu)'s from the same start; per task and step,
-    the mean over seeds with Student's t-interval (t_interval) and, labelled as such, rliable's
-    bootstrap (seed_mean_estimates: estimators.bootstrap_mean): with 5 seeds or
-    fewer the percentile bootstrap resamples only the few values seen and is too narrow, so the
-    t-interval is the one to read. Over tasks, at their shared last step, divided by each
-    success bar: robust_over_tasks."""
+    """Figures `robust_evaluation` and `robust_per_seed` (only with --robust): the headline's
+    paired difference from evaluate.py's many noisy starts per seed and step. Estimator, per
+    task and step: the mean over seeds of each seed's mean difference, with Student's
+    t-interval and, labelled as such, the bootstrap (seed_mean_estimates), too narrow with few
+    seeds. Over tasks: robust_over_tasks."""
     robust, args = analysis.robust, analysis.args
     if robust is None:
         return
@@ -699,11 +649,11 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
         lines += ["", f"No success bar for {', '.join(unbarred)}: left out of the normalised "
                   "results over tasks."]
     barred = {t: steps for t, steps in by_task.items() if t in SUCCESS_BARS}
-    step = robust_shared_step(barred) if barred else None
+    step = max(robust_shared_steps(barred), default=None)
     if barred and step is None:
         lines += ["", "The tasks' robust evaluations share no step: no result over tasks."]
     elif step is not None:
-        over, over_lines = robust_over_tasks(report, analysis, by_task, step)
+        over, scores, over_lines = robust_over_tasks(report, analysis, barred, step)
         lines += ["", *over_lines]
     labels, colors = robust_labels_colors(robust.actions)
     rows = []
@@ -715,40 +665,35 @@ def report_robust_evaluation(report: Report, analysis: Analysis) -> None:
         last = max(steps)
         reference = (float(steps[last].returns[BASELINE].mean()), f"at {format_step(last)}")
         rows.append(PairedRow(task, ticks, cells, "return minus tanh(mu)'s", reference))
-    if over is not None:
-        rows.append(PairedRow(f"Over {counted(len(over.tasks), 'task')} at "
-                              f"{format_step(over.step)}, each divided by its success bar",
-                              [f"{over.seeds} seeds per task"],
-                              {(0, a): cell for a, cell in over.cells.items()},
-                              "difference / success bar", shapes=task_markers(over.tasks)))
     how = "the robust evaluation: evaluate.py's noisy starts"
-    report.figure(plot_paired(rows, colors, labels, how), "robust_evaluation")
-    report.figure(plot_per_seed(rows[:len(by_task)], colors, labels, how), "robust_per_seed")
+    report.figure(plot_paired(rows + ([over] if over else []), colors, labels, how),
+                  "robust_evaluation")
+    report.figure(plot_per_seed(rows, colors, labels, how), "robust_per_seed")
     if over is not None:
-        lines += report_robust_aggregate(report, analysis, over, labels, colors)
+        lines += report_robust_aggregate(report, analysis, scores, step, list(barred), labels,
+                                         colors)
     lines += robust_sample_efficiency(report, analysis, barred, labels, colors)
     report.section("The robust evaluation: each action minus tanh(mu) from many noisy starts "
                    "(evaluate.py)", *lines)
 
 
-def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOverTasks,
-                            labels: dict, colors: dict) -> list[str]:
+def report_robust_aggregate(report: Report, analysis: Analysis, scores: dict[str, np.ndarray],
+                            step: int, tasks: list[str], labels: dict, colors: dict) -> list[str]:
     """Figures `robust_aggregate_metrics` and `robust_performance_profiles`: Figures 6 and 7
-    of the paper from the robust evaluation, as sections 7 and 8 draw them, one entry per action
-    of the same actors, the returns at the tasks' shared last step divided by each success bar.
-    Writes summary.csv's `robust_aggregate` rows; returns summary.md's lines."""
-    args, name, step = analysis.args, SCORE_NAMES["success-bar"], over.step
-    seeds, tasks = over.seeds, over.tasks
-    point, interval = aggregate_estimates(over.scores, True, args.reps, args.seed)
+    (as sections 7 and 8) of each action's normalised (seeds, tasks) returns. Writes
+    summary.csv's `robust_aggregate` rows; returns summary.md's lines."""
+    args, name = analysis.args, SCORE_NAMES["success-bar"]
+    seeds = next(iter(scores.values())).shape[0]
+    point, interval = aggregate_estimates(scores, True, args.reps, args.seed)
     report.figure(plot_aggregate_metrics(
-        point, interval, over.scores, AGGREGATE_METRICS, colors, name, labels.get,
+        point, interval, scores, AGGREGATE_METRICS, colors, name, labels.get,
         f"The robust evaluation at {format_step(step)}, over {counted(len(tasks), 'task')}"),
         "robust_aggregate_metrics")
     print(f"robust performance profiles ({args.curve_reps:,} reps) ...")
-    taus = profile_thresholds(over.scores)
-    profiles = performance_profiles(over.scores, taus, args.curve_reps, args.seed)
+    taus = profile_thresholds(scores)
+    profiles = performance_profiles(scores, taus, args.curve_reps, args.seed)
     report.figure(plot_performance_profiles(
-        taus, *profiles, over.scores, colors, name, labels.get, f"Robust evaluation at "
+        taus, *profiles, scores, colors, name, labels.get, f"Robust evaluation at "
         f"{format_step(step)}: {', '.join(tasks)}, {seeds} seeds per task"),
         "robust_performance_profiles")
     rows = []
@@ -767,16 +712,12 @@ def report_robust_aggregate(report: Report, analysis: Analysis, over: RobustOver
 def robust_sample_efficiency(report: Report, analysis: Analysis,
                              barred: dict[str, dict[int, RobustStep]], labels: dict,
                              colors: dict) -> list[str]:
-    """Figure `robust_sample_efficiency`: Figure 8 of the paper from the robust evaluation, each
-    action's IQM of the returns divided by each success bar at every step evaluated (snapshots
-    and final weights), over the tasks evaluated at two steps or more, at the steps they all
-    share (a task evaluated at its final weights only cannot join a curve); rliable's
-    get_interval_estimates of iqm_per_step, --curve-reps replications. Writes summary.csv's
-    `robust_sample_efficiency` rows; returns summary.md's lines."""
+    """Figure `robust_sample_efficiency`: Figure 8 (as section 9) of each action's returns
+    divided by each success bar, over the tasks evaluated at two steps or more, at the steps
+    they share. Writes summary.csv's rows; returns summary.md's lines."""
     args = analysis.args
     curves = {t: steps for t, steps in barred.items() if len(steps) >= 2}
-    shared = sorted(functools.reduce(set.intersection, [set(s) for s in curves.values()])) \
-        if curves else []
+    shared = robust_shared_steps(curves)
     if len(shared) < 2:
         return [] if not curves else [
             "", f"No robust sample-efficiency curve: {', '.join(curves)}, evaluated at several "
@@ -815,13 +756,11 @@ OVER_TRAINING_TABLE_STEPS = 11  # rows of summary.md's over-training table; summ
 
 def report_over_training(report: Report, analysis: Analysis) -> None:
     """Figure `over_training`: the paired differences and the measured shift at every shared
-    step, not only the last: how the mode's worth changes as the policy sharpens. Estimator: at
-    every step at once, rliable's get_interval_estimates of metrics.aggregate_mean over the
-    seeds (one task), with --curve-reps replications as for every curve, and Student's
-    t-interval per step beside it (few seeds); the shift is the mean over runs with their range
-    (a description of the runs, not an estimate)."""
+    step: how the mode's worth changes as the policy sharpens. Estimator: mean_curves (rliable's
+    bootstrap of metrics.aggregate_mean at every step, --curve-reps) and the t-interval per step;
+    the shift is the mean over runs with their range (a description, not an estimate)."""
     args, runs, tasks = analysis.args, analysis.runs, analysis.tasks
-    differences = paired_difference_curves(tasks, analysis.derived)
+    differences = paired_difference_curves(tasks, analysis.pairing.derived)
     if not differences:
         return
     print(f"paired differences over training ({args.curve_reps:,} reps) ...")
@@ -869,35 +808,27 @@ def report_over_training(report: Report, analysis: Analysis) -> None:
 
 # ---------------------------------------------------------- 5. q_best's choices (no figure)
 def report_choice_shares(report: Report, analysis: Analysis) -> None:
-    """q_best's choices (no figure): how often the critic picked the mode, tanh(mu) and the
-    mean, at each task's scored step, for each evaluation action that logs its choice_shares.
-    Estimator: the mean over seeds with rliable's bootstrap CI (seed_mean_estimates:
-    estimators.bootstrap_mean), a share per seed being one value per seed."""
+    """q_best's choices (no figure): how often the critic picked each candidate at each task's
+    scored step, for each action of CHOICE_SHARES. Estimator: the mean over seeds with the
+    bootstrap CI (seed_mean_estimates), a share being one value per seed."""
     for action in CHOICE_SHARES:
         choice_shares_of(report, analysis, action)
 
 
 def choice_shares_of(report: Report, analysis: Analysis, action: str) -> None:
-    """One action's choice shares (q_best's: mode, tanh(mu), mean), where it was evaluated."""
+    """One action's choice shares, where it was evaluated."""
     args, runs, tasks = analysis.args, analysis.runs, analysis.tasks
-    samples = {}
-    for task, data in tasks.items():
-        for group, curves in runs[task].items():
-            if group[1] != action:
-                continue
-            for column in CHOICE_SHARES[action]:
-                values = np.array([c.shares[column][c.steps == data.scored_step][0]
-                                   for c in curves if column in c.shares])
-                if np.isfinite(values).any():
-                    samples[task, group, column] = values[np.isfinite(values)]
+    samples = {((task, group), column): values for task, data in tasks.items()
+               for group, curves in runs[task].items() if group[1] == action
+               for column, values in logged_at(curves, CHOICE_SHARES[action],
+                                               data.scored_step).items()}
     if not samples:
         return
-    estimates = seed_mean_estimates({((t, g), c): v for (t, g, c), v in samples.items()},
-                                    args.reps, args.seed)
+    estimates = seed_mean_estimates(samples, args.reps, args.seed)
     prefix = f"{action}_share_"
     candidates = [column.removeprefix(prefix) for column in CHOICE_SHARES[action]]
     table = {}
-    for (task, group, column), values in samples.items():
+    for ((task, group), column), values in samples.items():
         step = tasks[task].scored_step
         estimate = estimates[(task, group), column]
         name = column.removeprefix(prefix)
@@ -916,11 +847,9 @@ def choice_shares_of(report: Report, analysis: Analysis, action: str) -> None:
 
 # ------------------------------------------------- 6. reward curves and final returns (Fig. 5)
 def report_reward_curves(report: Report, analysis: Analysis) -> None:
-    """Figure 5 (`reward_curves`) and the per-task final returns. Estimators: the curves, the
-    mean over seeds at every step with a bootstrap CI (mean_curves, --curve-reps);
-    the final returns, the mean over seeds at the scored step with rliable's bootstrap CI
-    (seed_mean_estimates, --reps), raw returns, so that a task's numbers read in its own units,
-    and normalised beside them."""
+    """Figure 5 (`reward_curves`) and the per-task final returns. Estimators: the curves,
+    mean_curves (the t-interval up to FEW_SEEDS seeds); the final returns, the mean over seeds
+    with the bootstrap CI (seed_mean_estimates), raw and normalised."""
     args, tasks, norms = analysis.args, analysis.tasks, analysis.norms
     groups, colors, labels = analysis.groups, analysis.colors, analysis.labels
     print(f"per-task curves ({args.curve_reps:,} reps) and final returns ({args.reps:,}) ...")
@@ -957,15 +886,13 @@ def report_reward_curves(report: Report, analysis: Analysis) -> None:
 # ------------------------------------------------------------ 7. aggregate metrics (Fig. 6)
 def report_aggregate_metrics(report: Report, analysis: Analysis) -> None:
     """Figure 6 (`aggregate_metrics`) and its table: IQM, median, mean and optimality gap of the
-    normalised final scores over the tasks every algorithm ran. Estimator: rliable's
-    get_interval_estimates of metrics.aggregate_iqm (`iqm`) / _median / _mean / _optimality_gap, its
-    stratified bootstrap resampling runs within each task (the tasks are fixed), as the paper
-    reports them; IQM first, since it is robust to outlying runs yet uses half of them."""
+    normalised final scores over the tasks every algorithm ran. Estimator: aggregate_estimates,
+    rliable's stratified bootstrap (runs resampled within each fixed task), as the paper has it;
+    IQM first, robust to outlying runs yet using half of them."""
     agg, args = analysis.aggregate, analysis.args
     if agg is None:
         return
     score_name = SCORE_NAMES[args.normalize]
-    # the optimality gap's threshold 1 needs normalised scores
     names = AGGREGATE_METRICS if args.normalize != "none" else AGGREGATE_METRICS[:3]
     print(f"aggregate metrics over {len(agg.tasks)} task(s) ({args.reps:,} reps) ...")
     note = iqm_note(sorted({scores.shape[0] for scores in agg.final.values()}), len(agg.tasks))
@@ -989,9 +916,8 @@ def report_aggregate_metrics(report: Report, analysis: Analysis) -> None:
 # ---------------------------------------------------------- 8. performance profiles (Fig. 7)
 def report_performance_profiles(report: Report, analysis: Analysis) -> None:
     """Figure 7 (`performance_profiles`; no table): the share of runs scoring above tau, the
-    whole distribution of the final scores rather than one statistic of it. Estimator: rliable's
-    create_performance_profile, with its stratified-bootstrap CIs (--curve-reps, 2,000 by
-    default as in rliable)."""
+    whole distribution of the final scores. Estimator: performance_profiles (rliable's, with
+    its stratified-bootstrap CIs, --curve-reps)."""
     agg, args = analysis.aggregate, analysis.args
     if agg is None:
         return
@@ -1006,9 +932,8 @@ def report_performance_profiles(report: Report, analysis: Analysis) -> None:
 # ------------------------------------------------------------ 9. sample efficiency (Fig. 8)
 def report_sample_efficiency(report: Report, analysis: Analysis) -> None:
     """Figure 8 (`sample_efficiency`; no table): the aggregate IQM against steps, or fractions
-    of each task's budget (build_aggregate chose the frames). Estimator: rliable's
-    get_interval_estimates of metrics.aggregate_iqm at every frame at once (iqm_per_step), the
-    paper's robust aggregate, with --curve-reps replications as for every curve."""
+    of each task's budget (build_aggregate's frames). Estimator: interval_estimates of
+    iqm_per_step (metrics.aggregate_iqm at every frame at once), --curve-reps."""
     agg, args = analysis.aggregate, analysis.args
     if agg is None:
         return
@@ -1029,14 +954,10 @@ def report_sample_efficiency(report: Report, analysis: Analysis) -> None:
 
 
 # -------------------------------------------------------- 10. probability of improvement
-
-
 def report_probability_of_improvement(report: Report, analysis: Analysis) -> None:
-    """Figure `probability_of_improvement` and its paragraph: P(corrected > standard), the
-    chance that a run of one beats a run of the other on a task drawn at random. Estimator:
-    rliable's get_interval_estimates of metrics.probability_of_improvement (Mann-Whitney per
-    task, averaged over tasks), as the paper reports it; it compares every run with every run,
-    so it ignores the pairing, which the paired difference uses."""
+    """Figure `probability_of_improvement` and its paragraph: P(corrected > standard) on a task
+    drawn at random. Estimator: interval_estimates of metrics.probability_of_improvement
+    (Mann-Whitney per task, averaged over tasks), as the paper has it; it ignores the pairing."""
     agg, args, labels = analysis.aggregate, analysis.args, analysis.labels
     if agg is None:
         return
@@ -1071,13 +992,11 @@ def report_probability_of_improvement(report: Report, analysis: Analysis) -> Non
 # ---------------------------------------------------------------------- 11. the dimension study
 def report_dimension_study(report: Report, analysis: Analysis) -> None:
     """Beyond the paper (figure `dimension_study`): what each evaluation action is worth as the
-    action dimension grows, one task per dimension (build_study: a `Dimension` per task).
-    Estimator: the mean over seeds with rliable's bootstrap CI (seed_mean_estimates) of each
-    task's per-seed paired difference, normalised by the range of its tanh(mu) returns so that
-    tasks of different reward scales share an axis, and of the measured shift; beside it
-    Student's t-interval of the raw difference (few seeds). Tasks are not pooled: each point is
-    a different task."""
-    study, notes = build_study(analysis.runs, analysis.tasks, analysis.derived)
+    action dimension grows, one task per dimension (build_study). Estimator: the mean over seeds
+    with the bootstrap CI (seed_mean_estimates) of each paired difference, normalised by the
+    range of the task's tanh(mu) returns, and of the measured shift; the t-interval of the raw
+    difference beside it. Tasks are not pooled: each point is a different task."""
+    study, notes = build_study(analysis.runs, analysis.tasks, analysis.pairing.derived)
     report.notes.extend(notes)
     args, labels = analysis.args, analysis.labels
     dims = sorted({d.action_dim for d in study.values()})
@@ -1097,22 +1016,16 @@ def report_dimension_study(report: Report, analysis: Analysis) -> None:
     for task, d in study.items():
         for group in d.differences:
             for f, step in d.steps.items():
-                diffs = d.differences[group][f]
-                runs_n = diffs.size
-                point, low, high = estimates[(task, group), f]
-                report.row("dimension", task, group, f"normalised_difference@{f:g}", step,
-                           runs_n, point, low, high)
-                report.row("dimension", task, group, f"raw_difference@{f:g}", step, runs_n,
-                           *(v * d.scale for v in (point, low, high)))
-                t_values = t_interval(diffs)
-                report.row("dimension", task, group, f"normalised_difference_t@{f:g}", step,
-                           runs_n, *(v / d.scale for v in t_values))
-                report.row("dimension", task, group, f"raw_difference_t@{f:g}", step, runs_n,
-                           *t_values)
-                raw, t_cell = seed_cells(diffs, [v * d.scale for v in (point, low, high)], 1)
+                diffs, boot = d.differences[group][f], estimates[(task, group), f]
+                raw, t_values = [v * d.scale for v in boot], t_interval(diffs)
+                for metric, values in (("normalised_difference", boot), ("raw_difference", raw),
+                                       ("normalised_difference_t", [v / d.scale for v in t_values]),
+                                       ("raw_difference_t", t_values)):
+                    report.row("dimension", task, group, f"{metric}@{f:g}", step, diffs.size,
+                               *values)
                 table.append([task, d.action_dim, labels.algorithm(group[0]), group[1],
-                              runs_n, f"{f:g} ({format_step(step)})", raw, t_cell,
-                              seed_cells(diffs / d.scale, (point, low, high))[0],
+                              diffs.size, f"{f:g} ({format_step(step)})",
+                              *seed_cells(diffs, raw, 1), seed_cells(diffs / d.scale, boot)[0],
                               above_zero(diffs)])
         for column, values in d.shift.items():
             report.row("dimension_shift", task, "corrected", column, d.steps[1.0], values.size,
@@ -1142,7 +1055,6 @@ def report_dimension_study(report: Report, analysis: Analysis) -> None:
 
 
 # ============================================================================== the pipeline
-# The report's sections, in the order summary.md prints them (its figures too).
 REPORT_SECTIONS: tuple[Callable[[Report, Analysis], None], ...] = (
     report_standard_provenance,
     report_paired_difference,
@@ -1176,8 +1088,8 @@ def validate(args: Args) -> None:
 
 
 def analyze(args: Args) -> Report:
-    """The whole analysis: the data (load, pair, align, normalise) once, then each report
-    section of REPORT_SECTIONS in turn, then summary.md and summary.csv."""
+    """The data (load, pair, align, normalise) once, then REPORT_SECTIONS in summary.md's order,
+    then summary.md and summary.csv."""
     validate(args)
     runs, notes = load_runs(args.runs_dirs)
     robust = load_robust(args.robust) if args.robust else None

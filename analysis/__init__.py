@@ -1,5 +1,3 @@
-"""analyze.py's modules, one concern each: data (run folders' eval.csv and evaluate.py's
-per_seed.csv to arrays), estimators (every interval, bootstrap, aggregate and verdict; evaluate.py
-uses them too), figures (every figure), report (summary.csv, summary.md and their cells).
-docs/analyze.md maps each figure and table to the function that makes it.
+"""analyze.py's modules, one concern each: data (the run folders and evaluate.py's per_seed.csv
+to arrays), estimators (every estimate), figures (every figure), report (what the reports write).
 """

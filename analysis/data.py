@@ -1,10 +1,6 @@
-"""The data model analyze.py reports on: scores by task, (algorithm, action), seed and step.
-
-The runs' eval.csv (`load_runs` -> `Curve`s; pair `standard_from_paired`, align `align` ->
-`Task`, `paired_differences`, normalise `build_aggregate`) and evaluate.py's per_seed.csv
-(`load_robust` -> `robust_paired_differences` -> `RobustStep`). Nothing here writes a report;
-the notes each step returns (runs skipped, cut, left out) go to summary.md. A task with a
-success bar is one entry in SUCCESS_BARS, a new evaluation action one entry in ACTIONS.
+"""The data model analyze.py reports on: scores by task, (algorithm, action), seed and step,
+from the runs' eval.csv (`load_runs`) and evaluate.py's per_seed.csv (`load_robust`). Nothing
+here writes a report; the notes each step returns (runs skipped, cut, left out) go to summary.md.
 """
 
 from __future__ import annotations
@@ -29,9 +25,8 @@ class AnalysisError(Exception):
 
 
 # ============================================================================== what to edit
-# A task with a success bar: one entry here. HumanoidBench's success bars, the return at which a
-# task counts as solved; under the default normalisation a score of 1.0 means "reached the bar",
-# and the reward curves draw the bar. A task without one is scored min-max (analyze.py --normalize).
+# HumanoidBench's success bars, the return at which a task counts as solved (a score of 1.0 under
+# the default normalisation). A task without one is scored min-max (analyze.py --normalize).
 SUCCESS_BARS = {
     "h1hand-stand-v0": 800.0,
     "h1hand-powerlift-v0": 800.0,
@@ -45,19 +40,16 @@ STANDARD, CORRECTED = "standard", "corrected"
 OWN_ACTIONS = {CORRECTED: "mode", STANDARD: "tanh_mu"}
 # An evaluation action: a block of eval.csv columns NAME_return_mean, ... of the same actor
 # from the same start states (sac_corrected.py always logs tanh_mu_; --eval-selectors adds
-# mean_, q_best_ and, for sac_standard.py, mode_) -> its name in figures and tables. A new one
-# is one entry here; every report follows.
+# mean_, q_best_ and, for sac_standard.py, mode_) -> its name in figures and tables.
 ACTIONS = {"tanh_mu": "tanh(mu)", "mode": "mode", "mean": "mean", "q_best": "q_best"}
-# The baseline every other action is compared with: sac_corrected.py always logs it.
 BASELINE = estimators.BASELINE
 # Optional: how often an action's critic picked each candidate (shares summing to 1).
 CHOICE_SHARES = {"q_best": ("q_best_share_mode", "q_best_share_tanh_mu", "q_best_share_mean")}
-# A group of evaluations: the runs of an algorithm, evaluated with an action.
-Key = tuple[str, str]
+Key = tuple[str, str]  # a group of evaluations: (algorithm, action)
 
 
 def own_action(algorithm: str) -> str:
-    """The action an algorithm's runs evaluate with on their own; another algorithm's name."""
+    """The action an algorithm's runs evaluate with on their own; an unknown one's, its name."""
     return OWN_ACTIONS.get(algorithm, algorithm)
 
 
@@ -67,7 +59,7 @@ def is_own(key: Key) -> bool:
 
 
 def eval_suffix(key: Key) -> str:
-    """What a group's name adds to its algorithm's: "" for its own action, " (mean eval)"."""
+    """"" for its own action, " (mean eval)"."""
     return "" if is_own(key) else f" ({ACTIONS.get(key[1], key[1])} eval)"
 
 
@@ -77,8 +69,7 @@ def group_name(key: Key) -> str:
 
 
 # ------------------------------------------------------------------------- the run-folder format
-# The run-folder format read here (docs/scripts.md, "The run folder", documents it, also for users
-# who bring logs from elsewhere). Everything else in a run folder is ignored.
+# docs/scripts.md, "The run folder", documents it. Everything else in a run folder is ignored.
 CONFIG_FILE = "config.json"
 EVAL_FILE = "eval.csv"
 REQUIRED_CONFIG_KEYS = ("env_id", "seed", "algorithm")
@@ -90,8 +81,7 @@ PAIRED_RETURN_COLUMN = f"{BASELINE}_{RETURN_COLUMN}"
 SHIFT_COLUMNS = ("mode_shift_abs_mean", "mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
 # Over training: the shift per action dimension, which tasks of any dimension share an axis on.
 OVER_TRAINING_SHIFT_COLUMNS = ("mode_shift_abs_mean", "sigma_mean", "bimodal_fraction")
-# Optional: how many distinct episodes an evaluation round held. A task that resets without
-# noise plays one episode however many the round asks for, which the figures must say.
+# Optional: distinct episodes per evaluation round (one where the task resets without noise).
 EPISODES_COLUMN = "distinct_episodes"
 
 # A standard run and the paired evaluation of the corrected run of the same seed agree when
@@ -100,7 +90,6 @@ EPISODES_COLUMN = "distinct_episodes"
 AGREEMENT_RTOL = 1e-9
 
 # ============================================================================== the data
-# Run folders in, arrays out: load -> pair -> align -> paired differences -> normalise.
 # ------------------------------------------------------------------------------------- load
 @dataclasses.dataclass
 class Curve:
@@ -111,8 +100,8 @@ class Curve:
     steps: np.ndarray
     returns: np.ndarray
     action_dim: int | None = None  # config.json's, where it has one
-    shift: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # SHIFT_COLUMNS
-    shares: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # CHOICE_SHARES
+    # eval.csv's SHIFT_COLUMNS (the run's own curve), its action's CHOICE_SHARES (a paired one)
+    logged: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     budget: int | None = None  # config.json's total_timesteps, where it has one
     episodes: np.ndarray | None = None  # EPISODES_COLUMN per step, where the run logged it
     restarts: tuple[int, ...] = ()  # steps where the run restarted from a snapshot
@@ -122,14 +111,6 @@ class Curve:
 Runs = dict[str, dict[Key, list[Curve]]]
 
 
-def optional_columns() -> tuple[str, ...]:
-    """eval.csv's optional columns: each evaluation action's return and choice shares, the
-    shift statistics, the distinct episodes."""
-    return (*(f"{action}_{RETURN_COLUMN}" for action in ACTIONS),
-            *(column for columns in CHOICE_SHARES.values() for column in columns),
-            *SHIFT_COLUMNS, EPISODES_COLUMN)
-
-
 def read_config(path: Path) -> dict:
     """The run's config.json, checked for the keys analyze.py needs."""
     config = files.read_json_object(path, f"fix or remove that run (it needs keys "
@@ -137,8 +118,7 @@ def read_config(path: Path) -> dict:
     missing = [key for key in REQUIRED_CONFIG_KEYS if key not in config]
     if missing:
         raise AnalysisError(
-            f"{path} lacks key(s) {missing}; every config.json needs {list(REQUIRED_CONFIG_KEYS)}"
-        )
+            f"{path} lacks key(s) {missing}; every config.json needs {list(REQUIRED_CONFIG_KEYS)}")
     if not isinstance(config["seed"], int) or isinstance(config["seed"], bool):
         raise AnalysisError(f"{path}: seed must be an integer, got {config['seed']!r}")
     for key in ("env_id", "algorithm"):
@@ -148,11 +128,8 @@ def read_config(path: Path) -> dict:
 
 
 def read_eval_csv(path: Path) -> tuple[dict[str, np.ndarray], bool]:
-    """The columns analyze.py uses, as arrays, and whether an incomplete last line was dropped.
-
-    A run killed mid-write leaves a last line without its line end: it is dropped and every
-    complete row is kept.
-    """
+    """The columns analyze.py uses, as arrays, and whether an incomplete last line (a run
+    killed mid-write) was dropped."""
     lines = path.read_text(encoding="utf-8", errors="replace").splitlines(keepends=True)
     partial = bool(lines) and not lines[-1].endswith(("\n", "\r"))
     rows = [row for row in csv.reader(lines[:-1] if partial else lines) if row]
@@ -163,17 +140,17 @@ def read_eval_csv(path: Path) -> tuple[dict[str, np.ndarray], bool]:
     if missing:
         raise AnalysisError(
             f"{path} lacks column(s) {missing}; eval.csv needs a header row with at least "
-            f"{list(REQUIRED_EVAL_COLUMNS)} (see docs/analyze.md)"
-        )
-    optional = optional_columns()
+            f"{list(REQUIRED_EVAL_COLUMNS)} (see docs/analyze.md)")
+    optional = (*(f"{action}_{RETURN_COLUMN}" for action in ACTIONS),
+                *(column for columns in CHOICE_SHARES.values() for column in columns),
+                *SHIFT_COLUMNS, EPISODES_COLUMN)
     wanted = [*REQUIRED_EVAL_COLUMNS, *(c for c in optional if c in header)]
     columns = {name: np.empty(len(body)) for name in wanted}
     for i, row in enumerate(body):
         if len(row) != len(header):
             raise AnalysisError(
                 f"{path}, row {i + 2}: {len(row)} fields where the header has {len(header)}; "
-                "fix or delete that row"
-            )
+                "fix or delete that row")
         for name in wanted:
             columns[name][i] = _parse_number(row[header.index(name)], path, i + 2, name,
                                              name in optional)
@@ -201,8 +178,7 @@ def _check_columns(columns: dict[str, np.ndarray], path: Path) -> None:
         row = int(np.argmax(np.diff(steps) <= 0)) + 3
         raise AnalysisError(
             f"{path}, row {row}: {STEP_COLUMN} does not increase (a resumed run whose log "
-            "was not truncated?); keep one row per evaluation step"
-        )
+            "was not truncated?); keep one row per evaluation step")
 
 
 def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
@@ -221,7 +197,10 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
             notes.append(f"{run_dir}: no {EVAL_FILE} yet; skipped")
             continue
         config = read_config(config_path)
-        restarts = config_restarts(config)
+        # config.json's "restarts" (`sweep.py restart`): where the run's curve stops being its own
+        restarts = config.get("restarts")
+        restarts = [r for r in restarts if isinstance(r, dict)] if isinstance(restarts, list) \
+            else []
         notes += [f"{run_dir}: restarted from {r.get('snapshot')} at step {r.get('step')} (its "
                   f"checkpoint lost; the replay buffer refilled for {r.get('refill')} steps): "
                   "from there a new sample, not the lost run's future" for r in restarts]
@@ -229,8 +208,7 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
         if partial:
             notes.append(
                 f"{run_dir / EVAL_FILE}: incomplete last line (killed mid-write?); "
-                "read up to the last complete row"
-            )
+                "read up to the last complete row")
         if columns[STEP_COLUMN].size == 0:
             notes.append(f"{run_dir}: no complete evaluation row yet; skipped")
             continue
@@ -240,22 +218,20 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
             else None
         budget = config.get("total_timesteps")
         budget = budget if isinstance(budget, int) and budget > 0 else None
-        shift = {c: columns[c] for c in SHIFT_COLUMNS if c in columns}
-        episodes = columns.get(EPISODES_COLUMN)
+        curve = functools.partial(
+            Curve, run_dir, seed, steps, action_dim=action_dim, budget=budget,
+            episodes=columns.get(EPISODES_COLUMN),
+            restarts=tuple(r["step"] for r in restarts if isinstance(r.get("step"), int)))
         own = (algorithm, own_action(algorithm))
-        restarted = tuple(r["step"] for r in restarts if isinstance(r.get("step"), int))
-        _add_curve(runs, task, own, Curve(run_dir, seed, steps, columns[RETURN_COLUMN],
-                                          action_dim, shift, budget=budget, episodes=episodes,
-                                          restarts=restarted))
+        _add_curve(runs, task, own, curve(columns[RETURN_COLUMN], logged={
+            c: columns[c] for c in SHIFT_COLUMNS if c in columns}))
         for action in ACTIONS:
             paired = columns.get(f"{action}_{RETURN_COLUMN}")
             if paired is None or action == own[1]:
                 continue
             if np.isfinite(paired).all():
-                shares = {c: columns[c] for c in CHOICE_SHARES.get(action, ()) if c in columns}
-                curve = Curve(run_dir, seed, steps, paired, action_dim, shares=shares,
-                              budget=budget, episodes=episodes, restarts=restarted)
-                _add_curve(runs, task, (algorithm, action), curve)
+                _add_curve(runs, task, (algorithm, action), curve(paired, logged={
+                    c: columns[c] for c in CHOICE_SHARES.get(action, ()) if c in columns}))
             else:
                 notes.append(f"{run_dir}: {action}_{RETURN_COLUMN} has empty cells; "
                              f"its paired {action} eval left out")
@@ -264,19 +240,11 @@ def load_runs(roots: Sequence[Path]) -> tuple[Runs, list[str]]:
             f"no runs found under {', '.join(map(str, roots))}: a run is a folder holding "
             f"{CONFIG_FILE} (keys "
             f"{list(REQUIRED_CONFIG_KEYS)}) and {EVAL_FILE} (columns "
-            f"{list(REQUIRED_EVAL_COLUMNS)}); see docs/analyze.md"
-        )
+            f"{list(REQUIRED_EVAL_COLUMNS)}); see docs/analyze.md")
     for groups in runs.values():
         for curves in groups.values():
             curves.sort(key=lambda curve: curve.seed)
     return runs, notes
-
-
-def config_restarts(config: dict) -> list[dict]:
-    """config.json's "restarts", one record per restart from a snapshot (written by `sweep.py
-    restart` when a run's checkpoint was lost): where the run's curve stops being its own."""
-    restarts = config.get("restarts")
-    return [r for r in restarts if isinstance(r, dict)] if isinstance(restarts, list) else []
 
 
 def restart_marks(runs: Runs) -> dict[str, list[tuple[int, int]]]:
@@ -293,8 +261,7 @@ def _add_curve(runs: Runs, task: str, key: Key, curve: Curve) -> None:
     if twin is not None:
         raise AnalysisError(
             f"two runs of {task}, {group_name(key)}, seed {curve.seed}: {twin.run_dir} and "
-            f"{curve.run_dir}; move one out of the folder"
-        )
+            f"{curve.run_dir}; move one out of the folder")
     curves.append(curve)
 
 
@@ -389,13 +356,13 @@ def align(runs: Runs, at_step: int | None) -> tuple[dict[str, Task], list[str]]:
         if steps.size == 0:
             raise AnalysisError(
                 f"the runs of {task} share no evaluation step (different eval intervals or "
-                "step ranges); analyse runs logged on a common step grid"
-            )
+                "step ranges); analyse runs logged on a common step grid")
         scored_step = _scored_step(task, curves, steps, at_step)
         notes += _alignment_notes(task, curves, steps, scored_step)
         tasks[task] = Task(
             steps=steps,
-            returns={g: np.stack([returns_at(c, steps) for c in cs]) for g, cs in groups.items()},
+            returns={g: np.stack([c.returns[np.searchsorted(c.steps, steps)] for c in cs])
+                     for g, cs in groups.items()},
             seeds={g: [c.seed for c in cs] for g, cs in groups.items()},
             scored_step=scored_step,
             budget=task_budget(curves, steps),
@@ -419,8 +386,7 @@ def _scored_step(task: str, curves: list[Curve], steps: np.ndarray, at_step: int
         raise AnalysisError(
             f"--at-step {at_step}: not every run of {task} was evaluated at that step"
             f"{example if lacking else ''}; steps all its runs share: "
-            f"{format_step(steps[0])} .. {format_step(steps[-1])}, {steps.size} in all"
-        )
+            f"{format_step(steps[0])} .. {format_step(steps[-1])}, {steps.size} in all")
     return at_step
 
 
@@ -436,79 +402,53 @@ def _alignment_notes(
             f"{task}: its runs share steps up to {format_step(steps[-1])} (shortest run: "
             f"{shortest.run_dir}, to {format_step(shortest.steps[-1])}); curves and scores stop "
             "there. Cut: "
-            + ", ".join(f"{d} (reached {format_step(last)})" for d, last in cut.items())
-        )
+            + ", ".join(f"{d} (reached {format_step(last)})" for d, last in cut.items()))
     unshared = {c.run_dir for c in curves
                 if np.setdiff1d(c.steps[c.steps <= steps[-1]], steps).size}
     if unshared:
         notes.append(
             f"{task}: evaluation steps differ between runs ({len(unshared)} run(s) have steps "
-            f"others lack); curves and scores use the {steps.size} steps all runs share"
-        )
+            f"others lack); curves and scores use the {steps.size} steps all runs share")
     if scored_step != steps[-1]:
         notes.append(f"{task}: final scores taken at --at-step {format_step(scored_step)}")
     return notes
 
 
-def returns_at(curve: Curve, steps: np.ndarray) -> np.ndarray:
-    return curve.returns[np.searchsorted(curve.steps, steps)]
-
-
 # ----------------------------------------------------------------------- paired differences
-# Each evaluation action minus tanh(mu) of the same actors, per seed: the paired difference
-# report, over training and the dimension study read these arrays.
-def baseline_of(keys: Sequence[Key], algorithm: str, derived: bool) -> Key | None:
-    """The group holding the tanh(mu) evaluation of an algorithm's actors, if the task has one."""
-    if (algorithm, BASELINE) in keys:
-        return (algorithm, BASELINE)
-    if algorithm == CORRECTED and derived and (STANDARD, BASELINE) in keys:
-        return (STANDARD, BASELINE)  # the standard group is the corrected runs' paired evaluation
-    return None
-
-
 def paired_groups(data: Task, derived: bool) -> list[tuple[Key, Key]]:
     """(group of some evaluation action, group of tanh(mu) of the same actors) pairs present in
-    a task: the corrected runs' mode, each run's mean, q_best and (standard runs) mode."""
+    a task; `derived`: its standard group is the corrected runs' paired evaluation."""
     pairs = []
     for key in sorted(data.returns, key=group_rank):
-        baseline = baseline_of(list(data.returns), key[0], derived)
-        if baseline is not None and key[1] != BASELINE:
+        baseline = (key[0], BASELINE)
+        if key[0] == CORRECTED and derived and baseline not in data.returns:
+            baseline = (STANDARD, BASELINE)
+        if baseline in data.returns and key[1] != BASELINE:
             pairs.append((key, baseline))
     return pairs
 
 
-def paired_values(data: Task, group: Key, baseline: Key, steps: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """(group, baseline) returns at `steps`, (seeds, steps) each, on the seeds both have: a run
-    made without some evaluation action has no partner there."""
-    seeds = sorted(set(data.seeds[group]) & set(data.seeds[baseline]))
-    rows = [[data.seeds[g].index(seed) for seed in seeds] for g in (group, baseline)]
-    return data.at(group, steps)[rows[0]], data.at(baseline, steps)[rows[1]]
+def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
+                             ) -> dict[str, dict[Key, np.ndarray]]:
+    """task -> group -> per-seed difference (group minus tanh(mu) of the same actors) at every
+    shared step, (seeds, steps), on the seeds both have (a run made without some evaluation
+    action has no partner there)."""
+    curves: dict[str, dict[Key, np.ndarray]] = {}
+    for task, data in tasks.items():
+        for group, baseline in paired_groups(data, task in derived):
+            seeds = sorted(set(data.seeds[group]) & set(data.seeds[baseline]))
+            own, paired = ([data.seeds[g].index(seed) for seed in seeds] for g in (group, baseline))
+            curves.setdefault(task, {})[group] = estimators.paired_difference(
+                data.returns[group][own], data.returns[baseline][paired])
+    return curves
 
 
 def paired_differences(tasks: dict[str, Task], derived: Sequence[str] = ()
-                       ) -> dict[str, dict[str, np.ndarray]]:
-    """task -> group -> per-seed (that group's eval minus tanh(mu) eval of the same actors) at
-    the scored step; the group is the algorithm itself for its own action (the corrected mode)."""
-    differences: dict[str, dict[str, np.ndarray]] = {}
-    for task, data in tasks.items():
-        for group, baseline in paired_groups(data, task in derived):
-            own, paired = paired_values(data, group, baseline, np.array([data.scored_step]))
-            differences.setdefault(task, {})[group] = estimators.paired_difference(own[:, 0],
-                                                                              paired[:, 0])
-    return differences
-
-
-def paired_difference_curves(tasks: dict[str, Task], derived: Sequence[str] = ()
-                             ) -> dict[str, dict[str, np.ndarray]]:
-    """task -> group -> per-seed difference (group minus tanh(mu) of the same actors) at every
-    shared step, (seeds, steps): the headline's paired difference over the whole of training."""
-    curves: dict[str, dict[str, np.ndarray]] = {}
-    for task, data in tasks.items():
-        for group, baseline in paired_groups(data, task in derived):
-            own, paired = paired_values(data, group, baseline, data.steps)
-            curves.setdefault(task, {})[group] = estimators.paired_difference(own, paired)
-    return curves
+                       ) -> dict[str, dict[Key, np.ndarray]]:
+    """paired_difference_curves at each task's scored step: task -> group -> one per seed."""
+    return {task: {g: diffs[:, np.searchsorted(tasks[task].steps, tasks[task].scored_step)]
+                   for g, diffs in by_group.items()}
+            for task, by_group in paired_difference_curves(tasks, derived).items()}
 
 
 # Each seed's paired difference averaged over its last evaluation rounds, since one round of a
@@ -544,12 +484,9 @@ def last_rounds_averages(tasks: dict[str, Task], curves: dict[str, dict[str, np.
 def one_episode_per_seed(curves: Sequence[Curve], steps: np.ndarray) -> bool:
     """Whether every run logged one distinct episode (eval.csv's distinct_episodes) at each of
     `steps`, which all of them share: its return there is one draw of the episode's noise."""
-    for curve in curves:
-        if curve.episodes is None:
-            return False
-        if not np.all(curve.episodes[np.searchsorted(curve.steps, steps)] == 1):
-            return False
-    return bool(curves)
+    return bool(curves) and all(
+        c.episodes is not None and np.all(c.episodes[np.searchsorted(c.steps, steps)] == 1)
+        for c in curves)
 
 
 def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.ndarray]]:
@@ -559,8 +496,8 @@ def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.n
     for task, data in tasks.items():
         curves = runs[task].get((CORRECTED, own_action(CORRECTED)), [])
         for column in OVER_TRAINING_SHIFT_COLUMNS:
-            rows = [c.shift[column][np.searchsorted(c.steps, data.steps)] for c in curves
-                    if column in c.shift]
+            rows = [c.logged[column][np.searchsorted(c.steps, data.steps)] for c in curves
+                    if column in c.logged]
             rows = [row for row in rows if np.isfinite(row).all()]
             if rows:
                 shifts.setdefault(task, {})[column] = np.stack(rows)
@@ -568,19 +505,13 @@ def shift_curves(runs: Runs, tasks: dict[str, Task]) -> dict[str, dict[str, np.n
 
 
 # ---------------------------------------------------------------------- the dimension study
-# Beyond the paper: per task, its action dimension, each evaluation action's paired difference
-# at fractions of training and the shift measured at the final step.
-# Measured at the states the mode policy visited (sac_corrected.py's eval.csv).
 DIMENSION_SHIFT_COLUMNS = ("mode_shift_abs_sum", "sigma_mean", "bimodal_fraction")
-# Paired differences at these fractions of each task's shared steps.
-TRAINING_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
+TRAINING_FRACTIONS = (0.25, 0.5, 0.75, 1.0)  # of each task's scored step
 
 
 @dataclasses.dataclass
 class Dimension:
-    """One task of the dimension study: its action dimension, the per-seed paired difference of
-    each evaluation action (minus tanh(mu)) at fractions of training, and the shift measured at
-    its final step."""
+    """One task of the dimension study (beyond the paper)."""
 
     action_dim: int
     scale: float  # the range of the task's tanh(mu) returns in the folder
@@ -596,22 +527,21 @@ def training_fraction_steps(steps: np.ndarray, scored_step: int) -> dict[float, 
              for f in TRAINING_FRACTIONS}
     return {**picks, 1.0: scored_step}
 
-def shift_at(curves: list[Curve], step: int) -> dict[str, np.ndarray]:
-    """Each DIMENSION_SHIFT_COLUMN at `step`, one value per run that logged it (empty cells
+def logged_at(curves: list[Curve], columns: Sequence[str], step: int) -> dict[str, np.ndarray]:
+    """Each of `columns` (Curve.logged) at `step`, one value per run that logged it (empty cells
     left out)."""
-    shift = {}
-    for column in DIMENSION_SHIFT_COLUMNS:
-        values = np.array([c.shift[column][c.steps == step][0]
-                           for c in curves if column in c.shift])
+    logged = {}
+    for column in columns:
+        values = np.array([c.logged[column][c.steps == step][0]
+                           for c in curves if column in c.logged])
         if np.isfinite(values).any():
-            shift[column] = values[np.isfinite(values)]
-    return shift
+            logged[column] = values[np.isfinite(values)]
+    return logged
 
 def build_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
                 ) -> tuple[dict[str, Dimension], list[str]]:
-    """Each evaluation action's paired difference and the measured shift per task, keyed by
-    action dimension, and notes on the tasks left out."""
-    study, notes = {}, []
+    """Each task's Dimension, and notes on the tasks left out."""
+    study, notes, curves = {}, [], paired_difference_curves(tasks, derived)
     for task, data in tasks.items():
         pairs = paired_groups(data, task in derived)
         if not pairs:
@@ -625,22 +555,19 @@ def build_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
         baselines = np.concatenate([data.returns[b].ravel() for b in {b for _, b in pairs}])
         scale = float(baselines.max() - baselines.min()) or 1.0
         steps = training_fraction_steps(data.steps, data.scored_step)
-        differences = {}
-        for group, baseline in pairs:
-            own, paired = paired_values(data, group, baseline, np.array(list(steps.values())))
-            differences[group] = dict(zip(steps, estimators.paired_difference(own, paired).T,
-                                          strict=True))
+        differences = {group: {f: curves[task][group][:, np.searchsorted(data.steps, step)]
+                               for f, step in steps.items()} for group, _ in pairs}
         shift = {}
         for key in sorted(((a, own_action(a)) for a in algorithms), key=group_rank):
-            shift = shift or shift_at(runs[task][key], data.scored_step)
+            shift = shift or logged_at(runs[task][key], DIMENSION_SHIFT_COLUMNS,
+                                       data.scored_step)
         study[task] = Dimension(dims.pop(), scale, steps, differences, shift)
     return study, notes
 
 # ------------------------------------------------------------- robust evaluation (evaluate.py)
-# evaluate.py's campaign folders (--robust): every policy (a run's final weights or a snapshot)
-# played each action from the same many noisy starts, and its per_seed.csv holds, per policy and
-# action, the mean return over the episodes and the mean and standard error of the paired
-# difference against tanh(mu) from the same starts. Everything across seeds is computed here.
+# evaluate.py's campaign folders (--robust): per_seed.csv holds, per policy and action, the mean
+# return and the mean and standard error of the paired difference against tanh(mu) from the
+# same starts. Everything across seeds is analyze.py's.
 ROBUST_SETTINGS_FILE = "evaluation.json"
 ROBUST_PER_SEED_FILE = "per_seed.csv"
 ROBUST_COLUMNS = ("env_id", "seed", "step", "selector", "episodes", "return_mean",
@@ -731,7 +658,6 @@ class RobustStep:
     returns: dict[str, np.ndarray]  # mean return over each seed's episodes
     differences: dict[str, np.ndarray]  # all but tanh_mu: mean of (it - tanh_mu) per episode
     errors: dict[str, np.ndarray]  # the standard errors of those paired episodes
-    verdicts: dict[str, list[str]]  # estimators.verdict per seed
     episodes: np.ndarray  # episodes per seed (of tanh_mu, which every seed played)
     seeds: np.ndarray  # the seeds, in the order of every array above
     played: dict[str, int]  # each action's episodes over its seeds
@@ -745,8 +671,8 @@ def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]
     for (task, step), rows in robust.rows.groupby(["env_id", "step"], sort=False):
         baseline = rows[rows.selector == BASELINE]
         machines = sorted(set(rows.machine.dropna()))
-        at = RobustStep({}, {}, {}, {}, baseline.episodes.to_numpy(), baseline.seed.to_numpy(),
-                        {}, {}, " + ".join(machines) if machines else None)
+        at = RobustStep({}, {}, {}, baseline.episodes.to_numpy(), baseline.seed.to_numpy(), {},
+                        {}, " + ".join(machines) if machines else None)
         for action, seeds in rows.groupby("selector", sort=False):
             at.returns[action] = seeds.return_mean.to_numpy()
             at.played[action] = int(seeds.episodes.sum())
@@ -756,22 +682,18 @@ def robust_paired_differences(robust: Robust) -> dict[str, dict[int, RobustStep]
             if action != BASELINE:
                 at.differences[action] = seeds.difference_mean.to_numpy()
                 at.errors[action] = seeds.difference_se.to_numpy()
-                at.verdicts[action] = [estimators.verdict(m, se) for m, se in
-                                       zip(at.differences[action], at.errors[action],
-                                           strict=True)]
         by_task.setdefault(task, {})[int(step)] = at
     return by_task
 
 
-def robust_shared_step(by_task: dict[str, dict[int, RobustStep]]) -> int | None:
-    """The last step every task's robust evaluation has (normally the final weights)."""
-    shared = functools.reduce(set.intersection, [set(steps) for steps in by_task.values()])
-    return max(shared) if shared else None
+def robust_shared_steps(by_task: dict[str, dict[int, RobustStep]]) -> list[int]:
+    """The steps every task's robust evaluation has, in order; none for no task."""
+    return sorted(functools.reduce(set.intersection, map(set, by_task.values()))) if by_task \
+        else []
 
 
 def blowups_recorded(by_task: dict[str, dict[int, RobustStep]]) -> bool:
-    """Whether any policy's episodes record physics blow-ups (evaluate.py since it wrote
-    physics_unstable)."""
+    """Whether any policy's episodes record physics blow-ups."""
     return any(ends is not None for steps in by_task.values() for at in steps.values()
                for ends in at.unstable.values())
 
@@ -795,8 +717,7 @@ def normalizers(tasks: dict[str, Task], mode: str) -> dict[str, tuple[float, flo
             raise AnalysisError(
                 f"{len(tasks)} tasks found ({', '.join(tasks)}) but --normalize none: raw "
                 "returns of different tasks cannot be aggregated. Use --normalize success-bar "
-                "or --normalize min-max, or point analyze.py at a folder with one task"
-            )
+                "or --normalize min-max, or point analyze.py at a folder with one task")
         return {task: (0.0, 1.0) for task in tasks}
     if mode == "success-bar":
         unknown = [task for task in tasks if task not in SUCCESS_BARS]
@@ -804,8 +725,7 @@ def normalizers(tasks: dict[str, Task], mode: str) -> dict[str, tuple[float, flo
             raise AnalysisError(
                 f"no success bar known for {', '.join(unknown)} (known: "
                 f"{', '.join(SUCCESS_BARS)}); use --normalize min-max"
-                + (" or --normalize none" if len(tasks) == 1 else "")
-            )
+                + (" or --normalize none" if len(tasks) == 1 else ""))
         return {task: (0.0, SUCCESS_BARS[task]) for task in tasks}
     bounds = {}
     for task, data in tasks.items():
@@ -816,8 +736,7 @@ def normalizers(tasks: dict[str, Task], mode: str) -> dict[str, tuple[float, flo
 
 
 def normalize(returns: np.ndarray, norm: tuple[float, float]) -> np.ndarray:
-    offset, scale = norm
-    return (returns - offset) / scale
+    return (returns - norm[0]) / norm[1]
 
 
 @dataclasses.dataclass
@@ -855,8 +774,7 @@ def build_aggregate(
         if any(tasks[t].returns[g].shape[0] > runs[g] for t in common):
             notes.append(
                 f"{group_name(g)}: tasks have different numbers of seeds; the aggregate uses the "
-                f"{runs[g]} lowest seeds of each task"
-            )
+                f"{runs[g]} lowest seeds of each task")
     final = {
         g: np.stack([normalize(tasks[t].scored(g)[: runs[g]], norms[t]) for t in common], axis=1)
         for g in members
@@ -880,10 +798,8 @@ def build_aggregate(
 
 def fraction_frames(tasks: dict[str, Task], curve_points: int
                     ) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
-    """Tasks with different budgets or no evaluation step in common: the sample-efficiency
-    curve's x is the fraction of each task's budget, over the range every task covers; a task
-    contributes its last evaluation at or before each fraction. Returns the fractions, each
-    task's steps at them, and summary.md's note saying so."""
+    """The sample-efficiency curve's x where tasks have different budgets or share no step:
+    fractions of each budget, each task's steps at them, and summary.md's note saying so."""
     first = max(data.steps[0] / data.budget for data in tasks.values())
     last = min(data.steps[-1] / data.budget for data in tasks.values())
     budgets = ", ".join(f"{t} {format_step(data.budget)}" for t, data in tasks.items())

@@ -1,8 +1,5 @@
-"""Every estimate analyze.py and evaluate.py make: plain functions over arrays, each estimate
-with its interval, as rliable's library and metrics are. A paired difference is an action's
-return minus tanh(mu)'s from the same start (per episode) or the mean of those (per seed); per
-seed its verdict (three standard errors); over seeds Student's t, over tasks Welch's, and
-rliable's estimators as the paper uses them.
+"""Every estimate analyze.py and evaluate.py make, each with its interval: plain functions over
+arrays, as rliable's library and metrics are.
 """
 
 from __future__ import annotations
@@ -25,8 +22,7 @@ FEW_SEEDS = 5
 
 
 def paired_difference(returns: np.ndarray, baseline: np.ndarray) -> np.ndarray:
-    """Returns minus the baseline's, element by element: the same start state, or the same
-    seed's actor."""
+    """Returns minus the baseline's, element by element (the same start, or the same actor)."""
     returns, baseline = np.asarray(returns, dtype=float), np.asarray(baseline, dtype=float)
     if returns.shape != baseline.shape:
         raise ValueError(f"unpaired: {returns.shape} values against {baseline.shape}")
@@ -40,9 +36,8 @@ def standard_error(values: np.ndarray) -> float:
 
 
 def verdict(mean: float, se: float) -> str:
-    """A seed's paired difference (the mean over its episodes, with their standard error):
-    "ahead" or "behind" when more than VERDICT_SE standard errors from zero, else "level";
-    "n/a" without a standard error (one episode)."""
+    """A seed's paired difference (mean over its episodes, their standard error): "ahead" or
+    "behind" beyond VERDICT_SE standard errors from zero, else "level"; "n/a" for one episode."""
     if math.isnan(se):
         return "n/a"
     if abs(mean) <= VERDICT_SE * se:
@@ -51,32 +46,27 @@ def verdict(mean: float, se: float) -> str:
 
 
 def fall_verdict(mean: float, se: float) -> str:
-    """verdict() for a paired difference in the share of episodes that fell, where more is
-    worse: "more" or "fewer" beyond VERDICT_SE standard errors, else "level"."""
+    """verdict() for a paired difference in the share of episodes that fell: "more", "fewer"."""
     word = verdict(mean, se)
     return {"ahead": "more", "behind": "fewer"}.get(word, word)
 
 
-def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
-    """(mean, low, high) of one value per seed: mean +- t_{n-1} * sd / sqrt(n).
-
-    Unlike a percentile bootstrap, Student's interval widens as the seeds get few, which is what
-    five seeds allow. NaN bounds with one seed, where no spread is seen.
-    """
+def t_interval(values: np.ndarray) -> tuple[float, float, float]:
+    """(mean, low, high) of one value per seed: mean +- t_{n-1} * sd / sqrt(n), which unlike a
+    percentile bootstrap widens as the seeds get few. NaN bounds with one seed."""
     values = np.asarray(values, dtype=float)
     mean = float(values.mean())
     if values.size < 2:
         return mean, math.nan, math.nan
-    quantile = scipy.stats.t.ppf(0.5 + confidence / 2, values.size - 1)
+    quantile = scipy.stats.t.ppf(0.5 + CONFIDENCE / 2, values.size - 1)
     half = float(quantile * values.std(ddof=1) / math.sqrt(values.size))
     return mean, mean - half, mean + half
 
 
-def welch_interval(per_task: Sequence[np.ndarray], confidence: float = CONFIDENCE
-                   ) -> tuple[float, float, float]:
+def welch_interval(per_task: Sequence[np.ndarray]) -> tuple[float, float, float]:
     """(mean, low, high) of the mean over tasks of each task's mean over seeds: Welch's interval
-    with Satterthwaite's degrees of freedom, each task's seeds independent of the others' (as
-    rliable's stratified bootstrap draws them). NaN bounds when a task has one seed."""
+    with Satterthwaite's degrees of freedom, the tasks' seeds independent (as rliable's
+    stratified bootstrap draws them). NaN bounds when a task has one seed."""
     mean = float(np.mean([np.mean(v) for v in per_task]))
     if any(np.size(v) < 2 for v in per_task):
         return mean, math.nan, math.nan
@@ -86,24 +76,21 @@ def welch_interval(per_task: Sequence[np.ndarray], confidence: float = CONFIDENC
         return mean, mean, mean
     df = total**2 / sum(term**2 / (np.size(v) - 1) for term, v in zip(terms, per_task,
                                                                        strict=True))
-    half = scipy.stats.t.ppf(0.5 + confidence / 2, df) * math.sqrt(total) / len(per_task)
+    half = scipy.stats.t.ppf(0.5 + CONFIDENCE / 2, df) * math.sqrt(total) / len(per_task)
     return mean, mean - half, mean + half
 
 
-def bootstrap_mean(values: np.ndarray, reps: int, rng: np.random.RandomState,
-                   confidence: float = CONFIDENCE) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def bootstrap_mean(values: np.ndarray, reps: int, rng: np.random.RandomState
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(mean, low, high) of each column of a (runs,) or (runs, tasks) array: the percentile
-    bootstrap, runs resampled within each column, `reps` replications.
-
-    A legacy RandomState seeded s draws what rliable's get_interval_estimates draws after
-    np.random.seed(s) (rliable ignores its random_state), so the numbers are rliable's. With
-    one run the interval collapses onto the point: report.interval_text(..., runs=1) says so."""
+    bootstrap, runs resampled within each column. A RandomState(s) draws what rliable's
+    get_interval_estimates draws after np.random.seed(s), so the numbers are rliable's."""
     values = np.asarray(values, dtype=float)
     flat = values.ndim == 1
     matrix = values[:, None] if flat else values
     runs, columns = matrix.shape
     means = matrix[rng.choice(runs, (reps, runs, columns)), np.arange(columns)].mean(axis=1)
-    tail = 100 * (1 - confidence) / 2
+    tail = 100 * (1 - CONFIDENCE) / 2
     low, high = np.percentile(means, [tail, 100 - tail], axis=0)
     point = matrix.mean(axis=0)
     return (point[0], low[0], high[0]) if flat else (point, low, high)
@@ -111,14 +98,9 @@ def bootstrap_mean(values: np.ndarray, reps: int, rng: np.random.RandomState,
 
 def seed_mean_estimates(samples: dict[tuple, np.ndarray], reps: int, seed: int
                         ) -> dict[tuple, tuple[float, float, float]]:
-    """(task, group) -> (mean, low, high) of one value per seed: bootstrap_mean, each batch
-    drawn from RandomState(seed), as rliable's get_interval_estimates draws after
-    np.random.seed(seed).
-
-    The tasks of a group with equal seed counts share one bootstrap: it resamples each task's
-    seeds independently, so each task's interval is distributed as in a bootstrap of its own,
-    at a fraction of the cost.
-    """
+    """(task, group) -> (mean, low, high) of one value per seed: bootstrap_mean from
+    RandomState(seed). The tasks of a group with equal seed counts share one bootstrap, which
+    resamples each task's seeds independently: each interval is distributed as on its own."""
     batches: dict[tuple, list] = {}
     for (task, group), values in samples.items():
         batches.setdefault((group, values.size), []).append(task)
@@ -132,10 +114,8 @@ def seed_mean_estimates(samples: dict[tuple, np.ndarray], reps: int, seed: int
 
 
 # ---------------------------------------------------------------------- rliable's estimators
-# rliable's API as the paper uses it, seeded so that a folder and --seed give the same numbers.
-# Where a copy stands in for rliable's own (bootstrap_mean, iqm, iqm_per_step) it is for speed
-# only: bench/bench_analyze.py --copies times both, and tests pin them equal.
-
+# Seeded so that a folder and --seed give the same numbers. A copy of rliable's own (bootstrap_mean,
+# iqm, iqm_per_step) is for speed only: bench/bench_analyze.py --copies times both, tests pin them.
 def seed_bootstrap(seed: int) -> None:
     """rliable's bootstraps draw from NumPy's legacy global generator (random_state is ignored)."""
     np.random.seed(seed)  # noqa: NPY002
@@ -147,17 +127,15 @@ def interval_estimates(
     """rliable's stratified-bootstrap point and interval estimates, reproducible by `seed`."""
     seed_bootstrap(seed)
     return rly.get_interval_estimates(
-        score_dict, func, reps=reps, confidence_interval_size=CONFIDENCE
-    )
+        score_dict, func, reps=reps, confidence_interval_size=CONFIDENCE)
 
 
 def difference_over_tasks(per_task: Sequence[np.ndarray], reps: int, seed: int
                           ) -> tuple[np.ndarray, tuple[float, float, float],
                                      tuple[float, float, float]]:
-    """A paired difference over tasks, each task's per-seed values already divided by its
-    scale: the (seeds, tasks) matrix (the lowest seeds, where tasks have more), the mean over
-    tasks of the mean over seeds with rliable's stratified bootstrap CI (seeds resampled within
-    each task: the tasks are fixed, only the seeds are drawn) and Welch's t-interval beside it."""
+    """A paired difference over tasks, each task's per-seed values already scaled: the (seeds,
+    tasks) matrix (the lowest seeds, where tasks have more), the mean over tasks with rliable's
+    stratified bootstrap CI (seeds resampled within each fixed task) and Welch's interval."""
     seeds = min(values.size for values in per_task)
     matrix = np.stack([values[:seeds] for values in per_task], axis=1)
     point, interval = interval_estimates({"": matrix}, metrics.aggregate_mean, reps, seed)
@@ -167,11 +145,10 @@ def difference_over_tasks(per_task: Sequence[np.ndarray], reps: int, seed: int
 
 AGGREGATE_METRICS = ("IQM", "Median", "Mean", "Optimality Gap")
 
+
 def iqm(scores: np.ndarray) -> np.float64:
-    """metrics.aggregate_iqm, scipy's 25% trimmed mean over all runs and tasks, as its own lines:
-    the same partition and mean, so the same bits (tests/test_analyze.py), without scipy's
-    per-call checks (~0.3 ms, most of a 20,000-replication bootstrap's time;
-    bench/bench_analyze.py --copies)."""
+    """metrics.aggregate_iqm (scipy's 25% trimmed mean): the same partition and mean, the same
+    bits, without scipy's per-call checks (~0.3 ms, most of a bootstrap's time)."""
     flat = scores.ravel()
     if np.isnan(flat).any():  # scipy's default nan_policy, "propagate"
         return np.float64(np.nan)
@@ -181,20 +158,13 @@ def iqm(scores: np.ndarray) -> np.float64:
 
 def aggregate_metrics(scores: np.ndarray, gap: bool = True) -> np.ndarray:
     """IQM, median, mean (and optimality gap) of a (runs x tasks) score matrix."""
-    values = [
-        iqm(scores),
-        metrics.aggregate_median(scores),
-        metrics.aggregate_mean(scores),
-    ]
+    values = [iqm(scores), metrics.aggregate_median(scores), metrics.aggregate_mean(scores)]
     return np.array(values + [metrics.aggregate_optimality_gap(scores)] * gap)
 
 
 def iqm_per_step(scores: np.ndarray) -> np.ndarray:
-    """metrics.aggregate_iqm at each step of a (runs x tasks x steps) score array.
-
-    aggregate_iqm is scipy's 25% trimmed mean over all runs and tasks; one call along the step
-    axis gives the same numbers as a call per step, 6x (21 steps) to 15x (51) faster.
-    """
+    """metrics.aggregate_iqm at each step of a (runs x tasks x steps) score array: one trimmed
+    mean along the step axis, the same numbers as a call per step, 6x (21 steps) to 15x faster."""
     return scipy.stats.trim_mean(scores.reshape(-1, scores.shape[-1]), 0.25, axis=0)
 
 
@@ -207,16 +177,14 @@ def aggregate_estimates(scores: dict, gap: bool, reps: int, seed: int
 
 def performance_profiles(scores: dict, taus: np.ndarray, reps: int, seed: int
                          ) -> tuple[dict, dict]:
-    """rliable's create_performance_profile of each group's (runs, tasks) scores with its
-    stratified-bootstrap CIs, reproducible by `seed`."""
+    """rliable's create_performance_profile with its bootstrap CIs, reproducible by `seed`."""
     seed_bootstrap(seed)
     return rly.create_performance_profile(scores, taus, reps=reps)
 
 
 def mean_curves(curves: dict, reps: int, seed: int, t_up_to: int = 0) -> dict:
     """group -> (mean, (low, high)) over seeds at every step of its (seeds, steps) values: with
-    `t_up_to` seeds or fewer Student's t-interval (a percentile bootstrap of five values is too
-    narrow), else rliable's bootstrap of metrics.aggregate_mean, every step at once."""
+    `t_up_to` seeds or fewer the t-interval, else rliable's bootstrap of metrics.aggregate_mean."""
     estimates = {g: (v.mean(0), np.array([t_interval(v[:, i])[1:] for i in range(v.shape[1])]).T)
                  for g, v in curves.items() if v.shape[0] <= t_up_to}
     scores = {g: v[:, None, :] for g, v in curves.items() if g not in estimates}

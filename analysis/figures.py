@@ -1,7 +1,5 @@
-"""Every figure analyze.py draws: the paper's Figures 5-8 as rliable draws them, the headline
-paired-difference figure (`plot_paired`, the training log's and the robust evaluation's alike),
-the over-training figure and the dimension study's. Plain functions from arrays, labels and
-colours to a figure; the numbers come from analyze.py's report sections, which save them."""
+"""Every figure analyze.py draws: plain functions from arrays, labels and colours to a figure;
+the numbers come from analyze.py's report sections, which save them."""
 
 from __future__ import annotations
 
@@ -30,11 +28,25 @@ def steps_axis(max_step: float) -> tuple[float, str]:
 
 
 # ------------------------------------------------------- the paper's figures (rliable's plots)
-# Figures 6-8, drawn from the paper's protocol (7.-9.) and from the robust evaluation (3.).
+CURVE_STYLE = {"labelsize": "large", "ticklabelsize": "large", "legend": True,
+               "legendsize": "large"}  # Figures 7 and 8's text and legend
+
+
+def by_label(values: dict, labels: Callable[[object], str]) -> dict:
+    """rliable's plots key each group by its label."""
+    return {labels(g): v for g, v in values.items()}
+
+
+def curve_axes(title: str, scores: dict) -> tuple[plt.Figure, plt.Axes]:
+    """Figures 7 and 8's axes, titled with `title` and band_line."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.set_title(f"{title}\n{band_line(scores, 'bands')}", fontsize="medium")
+    return fig, ax
+
+
 def band_line(scores: dict[object, np.ndarray], band: str) -> str:
-    """A figure's line on what its `band` shows: rliable's stratified-bootstrap CIs, over how
-    many runs of how many tasks, and, from FEW_SEEDS runs or fewer, that they only resample the
-    few values seen."""
+    """A figure's line on what its `band` shows: stratified-bootstrap CIs over how many runs and
+    tasks, and, from FEW_SEEDS runs or fewer, that they are too narrow."""
     runs = sorted({values.shape[0] for values in scores.values()})
     tasks = next(iter(scores.values())).shape[1]
     line = (f"{band}: {estimators.CONFIDENCE:.0%} stratified-bootstrap CIs (rliable), "
@@ -46,8 +58,7 @@ def band_line(scores: dict[object, np.ndarray], band: str) -> str:
 def plot_aggregate_metrics(point: dict, interval: dict, scores: dict, names: Sequence[str],
                            colors: dict, xlabel: str, labels: Callable[[str], str],
                            note: str = "") -> plt.Figure:
-    """Figure 6: aggregate metrics of `scores` with their stratified-bootstrap CIs (rliable's
-    own plot), and `note` and what the bars are under it."""
+    """Figure 6: aggregate metrics with their CIs (rliable's plot), `note` and band_line below."""
     note = "\n".join(filter(None, [note, band_line(scores, "bars")]))
     # rliable's defaults (4 ticks at xx-large on 3.4-inch panels, its x label a fixed share of
     # the height below) make tick labels collide with each other and, with two groups, with the
@@ -55,18 +66,10 @@ def plot_aggregate_metrics(point: dict, interval: dict, scores: dict, names: Seq
     # in inches.
     height = max(0.55 * len(point), 2.2)
     fig, axes = plot_utils.plot_interval_estimates(
-        {labels(g): v for g, v in point.items()},
-        {labels(g): v for g, v in interval.items()},
-        metric_names=list(names),
-        algorithms=[labels(g) for g in point],
-        colors={labels(g): colors[g] for g in point},
-        xlabel=xlabel,
-        row_height=height / len(point),
-        xlabel_y_coordinate=-0.6 / height,
-        max_ticks=4,
-        subfigure_width=4.0,
-        wspace=0.2,
-    )
+        by_label(point, labels), by_label(interval, labels), metric_names=list(names),
+        algorithms=[labels(g) for g in point], colors={labels(g): colors[g] for g in point},
+        xlabel=xlabel, row_height=height / len(point), xlabel_y_coordinate=-0.6 / height,
+        max_ticks=4, subfigure_width=4.0, wspace=0.2)
     for ax in np.atleast_1d(axes):
         ax.tick_params(axis="x", labelsize="x-large")
     if note:
@@ -76,9 +79,8 @@ def plot_aggregate_metrics(point: dict, interval: dict, scores: dict, names: Seq
 
 
 def profile_thresholds(final: dict[str, np.ndarray]) -> np.ndarray:
-    """The profile's 101 values of tau: the scores' own range (from 0 where all are positive),
-    not the bar's, since scores that are a fraction of the bar would otherwise crowd the left of
-    the axis."""
+    """The profile's 101 values of tau over the scores' own range (from 0 where all are
+    positive), not the bar's: scores a fraction of the bar would crowd the axis's left."""
     everything = np.concatenate([s.ravel() for s in final.values()])
     low, high = min(everything.min(), 0.0), everything.max()
     return np.linspace(low, high + (0.05 * (high - low) or 0.05), 101)
@@ -88,62 +90,40 @@ def plot_performance_profiles(taus: np.ndarray, profiles: dict, cis: dict, score
                               colors: dict, xlabel: str, labels: Callable[[str], str], title: str
                               ) -> plt.Figure:
     """Figure 7: performance profiles (share of runs scoring above tau) of `scores` with CIs."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    ax.set_title(f"{title}\n{band_line(scores, 'bands')}", fontsize="medium")
+    fig, ax = curve_axes(title, scores)
     plot_utils.plot_performance_profiles(
-        {labels(g): v for g, v in profiles.items()},
-        taus,
-        performance_profile_cis={labels(g): v for g, v in cis.items()},
-        colors={labels(g): colors[g] for g in profiles},
-        xlabel=rf"{xlabel} ($\tau$)",
-        ax=ax,
-        legend=True,
-        legendsize="large",
-        labelsize="large",
-        ticklabelsize="large",
-    )
+        by_label(profiles, labels), taus, performance_profile_cis=by_label(cis, labels),
+        colors={labels(g): colors[g] for g in profiles}, xlabel=rf"{xlabel} ($\tau$)", ax=ax,
+        **CURVE_STYLE)
     return fig
 
 
 def plot_sample_efficiency(frames: np.ndarray, point: dict, interval: dict, scores: dict,
                            colors: dict, ylabel: str, labels: Callable[[str], str], title: str,
                            by_fraction: bool = False) -> plt.Figure:
-    """Figure 8: aggregate IQM of `scores` against environment steps (or fractions of each
-    task's budget) with CIs."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    ax.set_title(f"{title}\n{band_line(scores, 'bands')}", fontsize="medium")
+    """Figure 8: aggregate IQM against steps (or fractions of each task's budget) with CIs."""
+    fig, ax = curve_axes(title, scores)
     unit, xlabel = steps_axis(frames[-1])
     if by_fraction:
         unit, xlabel = 1.0, "Fraction of each task's budget (total_timesteps)"
     plot_utils.plot_sample_efficiency_curve(
-        frames / unit,
-        {labels(g): v for g, v in point.items()},
-        {labels(g): v for g, v in interval.items()},
-        colors={labels(g): colors[g] for g in point},
-        xlabel=xlabel,
-        ylabel=ylabel,
-        ax=ax,
-        labelsize="large",
-        ticklabelsize="large",
-        legend=True,
-        legendsize="large",
-        marker=".",
-    )
+        frames / unit, by_label(point, labels), by_label(interval, labels),
+        colors={labels(g): colors[g] for g in point}, xlabel=xlabel, ylabel=ylabel, ax=ax,
+        marker=".", **CURVE_STYLE)
     return fig
 
 
 # ------------------------------------------------ the headline figure (paired differences)
 @dataclasses.dataclass
 class PairedCell:
-    """One series' paired difference at one x of the headline figure: per seed the value (and,
-    from the robust evaluation, its standard error), the mean over seeds' bootstrap and t
-    (mean, low, high), and per value a marker where they come from several tasks."""
+    """One series' paired difference at one x of plot_paired: per seed the value (and its
+    standard error, from the robust evaluation); (mean, low, high) of the bootstrap and t."""
 
     values: np.ndarray
     boot: Sequence[float]
     t: Sequence[float]
     errors: np.ndarray | None = None
-    markers: Sequence[str] | None = None
+    markers: Sequence[str] | None = None  # per value, its task's, where from several tasks
     seeds: Sequence[int] | None = None  # the seeds of `values`, for plot_per_seed
 
 
@@ -160,10 +140,9 @@ class PairedRow:
 
 
 def draw_seed_summary(ax, x: float, width: float, cell: PairedCell, color: tuple) -> None:
-    """Within x +- width: the seeds (dots, left; whiskers: +-VERDICT_SE standard errors of each
-    seed's paired episodes, where given), their mean (tick) with its t-interval (whisker) and,
-    right, the bootstrap CI (bar). Dots beyond the axis's range sit on its edge as triangles,
-    the farthest one's value written beside it."""
+    """Within x +- width: the seeds (dots, left; whiskers: +-VERDICT_SE standard errors, where
+    given), their mean (tick) with its t-interval and, right, the bootstrap CI (bar). Dots
+    beyond the axis sit on its edge as triangles, the farthest one's value written."""
     values, errors, boot, t_values = cell.values, cell.errors, cell.boot, cell.t
     xs = x - 0.6 * width + np.linspace(-0.15, 0.15, values.size) * width
     low, high = ax.get_ylim()
@@ -192,21 +171,12 @@ def draw_seed_summary(ax, x: float, width: float, cell: PairedCell, color: tuple
                     t_values[0]]], color=color, lw=1.5, capsize=3, zorder=4)
 
 
-def over_tasks_cell(matrix: np.ndarray, boot: Sequence[float], t_values: Sequence[float],
-                    shapes: dict[str, str]) -> PairedCell:
-    """The cell of a (seeds, tasks) matrix, its tasks in `shapes`' order, each task's seeds
-    drawn with that task's marker."""
-    return PairedCell(matrix.T.ravel(), boot, t_values,
-                      markers=[m for m in shapes.values() for _ in range(matrix.shape[0])])
-
-
 def task_markers(tasks: Sequence[str]) -> dict[str, str]:
     return dict(zip(tasks, "osD^vP*X", strict=False))
 
 
 def summary_range(cells: Sequence[PairedCell]) -> tuple[float, float]:
-    """A y-range that holds the estimates' intervals, zero and the middle 90% of the seeds'
-    dots: one seed's outlier does not set it."""
+    """A y-range holding the intervals, zero and the middle 90% of the dots (not an outlier)."""
     bounds = [v for c in cells for v in (*c.boot, *c.t) if np.isfinite(v)] + [0.0]
     dots = np.concatenate([c.values for c in cells])
     low = min(min(bounds), np.percentile(dots, 5))
@@ -223,8 +193,7 @@ def series_slots(rows: Sequence[PairedRow]) -> tuple[list, float, dict]:
 
 
 def frame_panel(ax: plt.Axes, row: PairedRow) -> None:
-    """A task panel's ticks, title, labels, zero line and, where given, a right axis in % of
-    tanh(mu)'s return (row.reference: value, where it was measured)."""
+    """A task panel's ticks, title, labels, zero line and a right axis in % of row.reference."""
     ax.set_xticks(range(len(row.ticks)), row.ticks, fontsize="small")
     ax.set_xlim(-0.5, len(row.ticks) - 0.5)
     ax.set_title(row.title, fontsize="medium")
@@ -240,10 +209,8 @@ def frame_panel(ax: plt.Axes, row: PairedRow) -> None:
 
 
 def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str) -> plt.Figure:
-    """The headline figure of both the training log and the robust evaluation: a panel per task
-    (and one over tasks), in each every series' paired difference against tanh(mu) at each x,
-    the seeds beside their mean's t-interval and bootstrap CI (draw_seed_summary); a task's
-    right axis in % of tanh(mu)'s return. `how`: the protocol, under the title."""
+    """The headline figure, the training log's and the robust evaluation's: a panel per row, in
+    each every series' paired difference at each x (draw_seed_summary). `how`: the protocol."""
     series, slot, offsets = series_slots(rows)
     fig, axes = plt.subplots(len(rows), 1, figsize=(8, 3.1 * len(rows) + 1.0), squeeze=False,
                              layout="constrained")
@@ -269,10 +236,9 @@ def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str)
 
 def plot_per_seed(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str
                   ) -> plt.Figure:
-    """The robust evaluation's verdicts, seed by seed: plot_paired's task panels with only the
-    seeds, each with +-VERDICT_SE standard errors of its paired episodes, on an axis scaled to
-    them (with few seeds the mean's t-interval is many times wider and hides them). A marker
-    per seed, filled where estimators.verdict says ahead or behind, hollow where level."""
+    """The robust evaluation's verdicts: plot_paired's task panels with only the seeds, +-
+    VERDICT_SE standard errors each, on an axis scaled to them (the mean's t-interval would
+    hide them); filled where estimators.verdict says ahead or behind, hollow where level."""
     series, slot, offsets = series_slots(rows)
     every = sorted({int(seed) for row in rows for c in row.cells.values() for seed in c.seeds})
     shapes = dict(zip(every, "osD^vP*Xph", strict=False))
@@ -307,9 +273,8 @@ ROLLING_ROUNDS = 10
 
 def mark_restarts(ax: plt.Axes, marks: Sequence[tuple[int, int]], unit: float,
                   named: bool = True) -> None:
-    """A dashed vertical line where a run restarted from a snapshot (its checkpoint lost): past
-    it the curve is a new sample from that step, not the lost run's future. `named`: the seed
-    written beside each line and one legend entry."""
+    """A dashed line where a run restarted from a snapshot: past it the curve is a new sample,
+    not the lost run's future. `named`: the seeds beside each line, and a legend entry."""
     seeds_at: dict[int, list[int]] = {}  # runs restarted at one step share a line and a label
     for seed, step in marks:
         seeds_at.setdefault(step, []).append(seed)
@@ -325,12 +290,10 @@ def mark_restarts(ax: plt.Axes, marks: Sequence[tuple[int, int]], unit: float,
 def plot_over_training(steps: dict[str, np.ndarray], differences: dict, estimates: dict,
                        shifts: dict, shift_columns: Sequence[str], colors: dict, names: dict,
                        restarts: dict[str, list[tuple[int, int]]] | None = None) -> plt.Figure:
-    """A row per task, over its shared `steps`. Left: each evaluation action minus tanh(mu)
-    over training; with many rounds each round's mean over seeds (thin) and its rolling mean
-    (thick), with few the mean, its 95% CI and each seed. Right, each on its own axes: the
-    measured shift, sigma and the two-mode share (mean over the corrected runs, band: their
-    range), `shift_columns` in that order; `restarts`: task -> (seed, step) of each run's restart
-    from a snapshot, marked on every panel."""
+    """A row per task. Left: each evaluation action minus tanh(mu) over training; with many
+    rounds each round's mean over seeds (thin) and its rolling mean (thick), with few the mean,
+    its CI and each seed. Right: the `shift_columns` (mean over the corrected runs, band: their
+    range); `restarts`: task -> (seed, step), marked on every panel."""
     shown = [t for t in steps if t in differences or t in shifts]
     titles = ("|mode - tanh(mu)|\nmean over dimensions", "sigma\nmean over dimensions",
               "two-mode share: dimensions\nwith 2 sigma^2 > 1")
@@ -389,26 +352,22 @@ def plot_over_training(steps: dict[str, np.ndarray], differences: dict, estimate
     return fig
 
 
-# A success bar further above the returns than this factor would squash them into the floor of
-# the reward-curve axes: it is then named in the title instead of drawn.
 SUCCESS_BAR_DRAWN_WITHIN = 1.5
 
 
 def success_bar_drawn(bar: float, top: float) -> bool:
-    """Whether a task's success bar is drawn on its reward-curve axes: only where it is within
-    SUCCESS_BAR_DRAWN_WITHIN of the returns' top, so that returns a fraction of it keep the
-    axes; otherwise the title names it."""
+    """Whether a task's success bar is drawn on its reward curves: only within
+    SUCCESS_BAR_DRAWN_WITHIN of the returns' top, which a higher bar would squash into the
+    floor; otherwise the title names it."""
     return top > 0 and bar <= SUCCESS_BAR_DRAWN_WITHIN * top
 
 
 def plot_reward_curves(steps: dict[str, np.ndarray], curves: dict, colors: dict,
                        labels: Callable, styles: dict, bars: dict[str, float], heading: str,
                        restarts: dict[str, list[tuple[int, int]]] | None = None) -> plt.Figure:
-    """Figure 5: per task (over its shared `steps`), each group's mean evaluation return with
-    its 95% interval over seeds, `curves`: task -> group -> (mean, (low, high)), in legend
-    order; `styles`: (task, group) -> line style, ":" for one episode per evaluation; `bars`:
-    the tasks' success bars; `heading` above the panels; `restarts`: task -> (seed, step) of
-    each run's restart from a snapshot, marked."""
+    """Figure 5: per task, each group's mean evaluation return with its interval, `curves`: task
+    -> group -> (mean, (low, high)), in legend order; `styles`: (task, group) -> line style;
+    `bars`: success bars; `restarts` as plot_over_training's."""
     ncols = math.ceil(math.sqrt(len(steps)))
     nrows = math.ceil(len(steps) / ncols)
     # At least 9 inches wide, so that the legend below fits in a few rows beside one panel.
@@ -452,7 +411,7 @@ def plot_reward_curves(steps: dict[str, np.ndarray], curves: dict, colors: dict,
 
 def plot_probability_of_improvement(probability: float, ci: np.ndarray, x: object, y: object,
                                     color: tuple, labels: Callable) -> plt.Figure:
-    """Probability that a run of x beats a run of y on a random task (rliable's own plot)."""
+    """P(a run of x beats a run of y) on a random task (rliable's plot)."""
     fig, ax = plt.subplots(figsize=(6, 1.4))
     pair = f"{labels(x)};{labels(y)}"
     plot_utils.plot_probability_of_improvement(
@@ -468,12 +427,10 @@ def plot_probability_of_improvement(probability: float, ci: np.ndarray, x: objec
     return fig
 
 
-
 # ------------------------------------------------------------------ the dimension study
-
 def dimension_positions(study: dict[str, Dimension]) -> dict[str, float]:
-    """Each task's x on the log dimension axis: its action dimension, tasks that share one
-    spread a little around it so that their CIs do not hide each other."""
+    """Each task's x on the log dimension axis: its action dimension, tasks sharing one spread
+    a little so that their CIs do not hide each other."""
     positions = {}
     for dim in {d.action_dim for d in study.values()}:
         same = [t for t, d in study.items() if d.action_dim == dim]
@@ -487,22 +444,15 @@ def _errorbar(ax, x: float, estimate: tuple[float, float, float], **style) -> No
     ax.errorbar(x, point, yerr=[[point - low], [high - point]], capsize=3, **style)
 
 
-def study_actions(study: dict[str, Dimension], order: Sequence[str]) -> list[str]:
-    """The evaluation actions compared with tanh(mu) in the study, in `order` (mode, mean,
-    q_best), then any other."""
-    found = {g[1] for d in study.values() for g in d.differences}
-    known = [a for a in order if a in found]
-    return known + sorted(found - set(known))
-
-
 def plot_dimension_study(study: dict[str, Dimension], estimates: dict, colors: list,
                          labels, order: Sequence[str]) -> plt.Figure:
-    """Per evaluation action, a row: its paired difference against the action dimension and
-    against training; last row: the measured shift beside mode_search's theory curve, and
-    sigma / bimodal share against the dimension."""
+    """Per evaluation action (in `order`, then any other), a row: its paired difference against
+    the action dimension and against training; last row: the measured shift beside
+    mode_search's theory, and sigma / bimodal share against the dimension."""
     from mode_search import SPREADS, summed_shift_by_dimension  # torch: only for this figure
 
-    actions = study_actions(study, order)
+    found = {g[1] for d in study.values() for g in d.differences}
+    actions = [a for a in order if a in found] + sorted(found - set(order))
     fig, axes = plt.subplots(len(actions) + 1, 2, figsize=(13, 4.75 * (len(actions) + 1)),
                              squeeze=False)
     (ax_shift, ax_sigma) = axes[-1]
@@ -566,8 +516,7 @@ def plot_dimension_study(study: dict[str, Dimension], estimates: dict, colors: l
 
 def _plot_difference(ax_dim, ax_progress, x: float, d: Dimension, estimates: dict,
                      key: tuple[str, str], color, marker: str, label: str) -> None:
-    """One (task, evaluation action): final step with CI and earlier fractions hollow against
-    the dimension; the mean with its CI band against the fraction of training."""
+    """One (task, evaluation action): against the dimension and against training."""
     fractions = sorted(d.steps)
     _errorbar(ax_dim, x, estimates[key, 1.0], fmt=marker, color=color, ms=7, label=label)
     for f in fractions[:-1]:  # earlier in training: hollow, fainter the earlier

@@ -1,5 +1,5 @@
 """What analyze.py's reports are made of: summary.csv rows, summary.md sections and tables,
-figures and notes, and the cells and numbers they print (steps, intervals, seeds)."""
+figures' files and notes, and the cells they print."""
 
 from __future__ import annotations
 
@@ -44,9 +44,8 @@ def format_step(step: int | float) -> str:
 def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
                ) -> tuple[str, str]:
     """summary.md's cells for the mean of one value per seed: (mean with its bootstrap CI,
-    t-interval). Two seeds' bootstrap CI says less than the values themselves, so the first
-    cell gives those ("two seeds: a to b"); their t-interval (one degree of freedom) stays,
-    since the rule that decides a task reads it. One seed has neither."""
+    t-interval). Two seeds' bootstrap CI says less than the two values, so the first cell gives
+    those ("two seeds: a to b"). One seed has neither."""
     point = estimate[0]
     if values.size == 1:
         return f"{point:.{digits}f} (one seed)", "-"
@@ -58,27 +57,22 @@ def seed_cells(values: np.ndarray, estimate: Sequence[float], digits: int = 3
     return interval_text(*estimate, digits=digits), t_cell
 
 
-def positives(values: np.ndarray) -> int:
-    """How many of the values are above zero: a count of signs that decides nothing (the
-    verdicts are estimators.verdict's and the t-interval's)."""
-    return int((values > 0).sum())
-
-
 def share_above_zero(values: np.ndarray) -> float:
-    """summary.csv's share_above_zero: the fraction of the values above zero."""
-    return positives(values) / values.size
+    """summary.csv's share of the values above zero: a count of signs that decides nothing (the
+    verdicts are estimators.verdict's and the t-interval's)."""
+    return int((values > 0).sum()) / values.size
 
 
 def above_zero(values: np.ndarray) -> str:
     """summary.md's 'above zero' cell, "k of n"."""
-    return f"{positives(values)} of {values.size}"
+    return f"{int((values > 0).sum())} of {values.size}"
 
 
 def save_palette_png(image: Image.Image, path: Path,
                      method: Image.Quantize = Image.Quantize.MEDIANCUT) -> None:
-    """A 256-colour PNG: plots have few distinct colours, so it is about 40% of the RGB file with
-    no difference to see (git keeps every version a campaign commits). Median cut keeps the
-    plots' faint grid lines; octree, the renders' small saturated objects."""
+    """A 256-colour PNG, about 40% of the RGB file with no difference to see (git keeps every
+    version a campaign commits). Median cut keeps the plots' faint grid lines; octree, the
+    renders' small saturated objects."""
     image.convert("RGB").quantize(256, method=method, dither=Image.Dither.NONE).save(
         path, optimize=True)
 
@@ -167,12 +161,19 @@ def _count(row: Mapping[str, object] | None, column: str) -> str:
     return "n/r" if value is None else str(int(value))
 
 
+def _fell(row: Mapping[str, object] | None) -> str:
+    """The paired difference in falls and its verdict; "" where not recorded."""
+    if _given(row, "fell_difference_se") is None:
+        return ""
+    return "{}: {}".format(*paired_cell(row["fell_difference_mean"], row["fell_difference_se"], 2,
+                                        estimators.fall_verdict))
+
+
 def per_seed_tables(rows: Sequence[Mapping[str, object]], actions: Sequence[str]) -> list[str]:
     """summary.md's per-seed tables, evaluate.py's and analyze.py's (--robust), from per_seed.csv's
-    rows (one per task, seed, step and action; `actions` in their order). Per task, a row per
-    policy: tanh(mu)'s return and each action minus tanh(mu) from the same starts, with the
-    verdict; where its episodes record how they ended, the first action's falls and time limits
-    against tanh(mu)'s. Then a row per policy and action: how its episodes ended."""
+    rows. Per task, a row per policy: tanh(mu)'s return and each action minus tanh(mu), with the
+    verdict, and the first action's falls and time limits against tanh(mu)'s where recorded;
+    then a row per policy and action: how its episodes ended."""
     baseline, compared = estimators.BASELINE, [a for a in actions if a != estimators.BASELINE]
     by_task: dict[str, dict[tuple[int, int], dict[str, Mapping]]] = {}
     for row in rows:
@@ -206,21 +207,15 @@ def per_seed_tables(rows: Sequence[Mapping[str, object]], actions: Sequence[str]
                     *paired_cell(it["difference_mean"], it["difference_se"], 1)))
             for why in ends:
                 it, column = by.get(shown[0]), END_PREFIX + why
-                cell = f"{_count(it, column)} / {_count(base, column)}"
-                if why == "fell" and _given(it, "fell_difference_se") is not None:
-                    cell += " ({}: {})".format(*paired_cell(
-                        it["fell_difference_mean"], it["fell_difference_se"], 2,
-                        estimators.fall_verdict))
-                cells.append(cell)
+                fell = _fell(it) if why == "fell" else ""
+                cells.append(f"{_count(it, column)} / {_count(base, column)}"
+                             + (f" ({fell})" if fell else ""))
             table.append(cells)
             for action in (a for a in actions if a in by):
                 it = by[action]
-                fell = "" if _given(it, "fell_difference_se") is None else "{}: {}".format(
-                    *paired_cell(it["fell_difference_mean"], it["fell_difference_se"], 2,
-                                 estimators.fall_verdict))
                 ended.append([str(seed), format_step(step), action,
                               *(_count(it, END_PREFIX + why) for why in reasons),
-                              *([fell] if "fell" in reasons else []),
+                              *([_fell(it)] if "fell" in reasons else []),
                               *([_count(it, "unstable_ends")] if unstable else [])])
         lines += [f"{task}:", "", markdown_table(header, table), ""]
         if reasons or unstable:
