@@ -76,4 +76,8 @@ PY
   (cd $CHECKOUT && .venv/bin/python analyze.py $R/runs --out $R/report \
     $(python3 -c "import json; print(' '.join(json.load(open('$R/reports.json'))['report']['args']))") \
     > /tmp/$task-report.log 2>&1) && echo "$task report rebuilt" || echo "$task report FAILED: /tmp/$task-report.log"
+  # a campaign's own figures beside published curves (cube-hb-scene's) redraw from the same CSVs
+  for figure in $CHECKOUT/$R/beside_*.py; do
+    [ -e "$figure" ] && (cd $CHECKOUT && .venv/bin/python $figure) || true
+  done
 done

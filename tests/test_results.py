@@ -224,3 +224,19 @@ def test_readme_tables_are_what_the_evaluations_give(folder: Path) -> None:
     for rows in quoted_tables(folder):
         for row in rows[1:]:
             assert row in readme, f"{folder.parent.name}/README.md lacks {folder.name}'s {row!r}"
+
+
+def test_cube_hb_scene_figure_draws_from_the_committed_runs(tmp_path: Path) -> None:
+    """results/cube-hb-scene's figure beside HumanoidBench draws from what is committed, and
+    the published points it plots are cube-10M README's table, digit for digit."""
+    folder = RESULTS / "cube-hb-scene"
+    readme = (RESULTS / "cube-10M" / "README.md").read_text()
+    with (folder / "humanoidbench-sac-cube.csv").open(newline="") as file:
+        for row in csv.DictReader(file):
+            seeds = " / ".join(row[f"seed_{k}"] for k in range(3))
+            assert f"| {int(row['step']) // 1_000_000}M | {seeds} |" in readme, row
+    out = tmp_path / "beside.png"
+    result = subprocess.run([sys.executable, str(folder / "beside_humanoidbench.py"), str(out)],
+                            cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert out.stat().st_size > 10_000
