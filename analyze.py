@@ -701,7 +701,8 @@ def report_robust_aggregate(report: Report, analysis: Analysis, scores: dict[str
         for i, metric in enumerate(AGGREGATE_METRICS):
             report.row("robust_aggregate", "all", action, metric, step, seeds,
                        point[action][i], *interval[action][:, i])
-        rows.append([action, *(interval_text(point[action][i], *interval[action][:, i])
+        rows.append([action, *(interval_text(point[action][i], *interval[action][:, i],
+                                             runs=seeds)
                                for i in range(len(AGGREGATE_METRICS)))])
     lines = [markdown_table(["action", *AGGREGATE_METRICS], rows)]
     if note := iqm_note([seeds], len(tasks)):

@@ -1407,3 +1407,15 @@ def test_robust_tells_seeds_ahead_level_behind_and_how_episodes_ended(tmp_path):
     assert "| 0 | 1M | mode | 1 | 3 | +0.25 +- 0.25: level, 1.0 SE | 0 |" in text
     assert "| 0 | 1M | tanh_mu | 0 | 4 |  | 0 |" in text
     assert "| fell (mode / tanh(mu)) | time limit (mode / tanh(mu)) |" in text
+
+
+def test_robust_aggregate_from_one_seed_prints_no_interval(tmp_path):
+    """A bootstrap over one run resamples that run alone: the robust aggregate table says n/a,
+    as the main tables do."""
+    write_robust_folder(tmp_path / "robust", ROBUST_TASKS, seeds=1)
+    out = tmp_path / "out"
+    assert run_analysis(write_small_runs(tmp_path / "runs"), out, "--robust",
+                        str(tmp_path / "robust")) == 0
+    text = (out / "summary.md").read_text()
+    table = [line for line in text.splitlines() if line.startswith("| tanh_mu |")][-1]
+    assert table.count("(n/a)") == 4, table
