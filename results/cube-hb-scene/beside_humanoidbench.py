@@ -77,7 +77,7 @@ def main(out: Path) -> None:
                  " HumanoidBench's\n"
                  "lines: training log (10 episodes / 100k); markers: 300 noisy starts, mean"
                  " +- 1 SE\n(filled: HB scene; open: cube-10M); triangles: HumanoidBench's"
-                 " published curves", fontsize="medium")
+                 " published curves at each million", fontsize="medium")
     ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(0, 0.93))
     ax.grid(alpha=0.3)
     fig.tight_layout()
