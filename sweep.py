@@ -155,6 +155,9 @@ class Args:
     steps_per_second: float | None = None
     """with --dry-run: one run's env steps per second, for the run-hours left (measured speeds
     per env id: docs/sweep.md)"""
+    env_steps_per_second: tuple[str, ...] = ()
+    """with --dry-run: one run's speed per env id, ENV_ID=STEPS_PER_SECOND (e.g. Hopper-v5=137
+    Humanoid-v5=66), for a grid whose tasks differ; --steps-per-second covers those not named"""
     gpu_node_steps_per_second: float | None = None
     """with --dry-run: env steps per second of one GPU node's runs together, for the node-hours
     left (measured: docs/sweep.md)"""
@@ -256,6 +259,7 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     if not seeds:
         raise SweepError("no seeds: pass --seeds 0 1 2 (or --preset paper)")
     check_ranges(args)
+    env_speeds(args, env_ids)
     if args.mps and args.launcher != "local":
         raise SweepError("--mps is for --launcher local (on Slurm, the cluster decides how jobs "
                          "share a GPU); drop --mps")
@@ -300,6 +304,32 @@ def check_ranges(args: Args) -> None:
     )
     if message := broken_rule(args, rules):
         raise SweepError(message)
+
+
+def env_speeds(args: Args, env_ids: list[str]) -> dict[str, float]:
+    """--env-steps-per-second as {env id: steps/s}, --steps-per-second for the env ids it does
+    not name; empty when neither is given."""
+    speeds = {}
+    for entry in args.env_steps_per_second:
+        env_id, _, value = entry.partition("=")
+        try:
+            speed = float(value)
+        except ValueError:
+            speed = math.nan
+        if not (math.isfinite(speed) and speed > 0):
+            raise SweepError(f"--env-steps-per-second {entry}: must be ENV_ID=STEPS_PER_SECOND "
+                             "with a positive number, e.g. Hopper-v5=137")
+        if env_id not in env_ids:
+            raise SweepError(f"--env-steps-per-second {entry}: {env_id} is not in the grid "
+                             f"({' '.join(env_ids)})")
+        speeds[env_id] = speed
+    if not (speeds or args.steps_per_second):
+        return {}
+    missing = [env_id for env_id in env_ids if env_id not in speeds]
+    if missing and not args.steps_per_second:
+        raise SweepError(f"--env-steps-per-second gives no speed for {' '.join(missing)}: name "
+                         "them too (ENV_ID=STEPS_PER_SECOND) or add --steps-per-second for them")
+    return {env_id: speeds.get(env_id, args.steps_per_second) for env_id in env_ids}
 
 
 def with_preset_args(preset_args: tuple[str, ...], run_args: tuple[str, ...]) -> tuple[str, ...]:
@@ -537,23 +567,27 @@ def print_plan(runs: list[Run], states: dict[Run, str], args: Args,
         print(f"preset {args.preset}: {PRESETS[args.preset].why}")
     if args.preset and PRESETS[args.preset].run_args:
         print(f"each run also gets: {shlex.join(runs[0].extra_args)}")
-    total = steps_left = longest = 0
+    speeds = env_speeds(args, list(dict.fromkeys(run.env_id for run in runs)))
+    total = steps_left = 0
+    hours = []  # each run's hours left, at its env id's speed
     for run in runs:
         given = given_total_timesteps(run.extra_args)
         budget = int(given) if given else script_default_total_timesteps(run.script)
         left = 0 if states[run] == "done" else budget - (last_eval_step(run.run_dir) or 0)
-        total, steps_left, longest = total + budget, steps_left + left, max(longest, left)
+        total, steps_left = total + budget, steps_left + left
+        hours.append(left / speeds[run.env_id] / 3600 if speeds else 0)
         print(f"  {run.name:<60} {states[run]:<12} {action_for(states[run])}")
     print(f"compute: {len(runs)} runs, {total:,} env steps in all, {steps_left:,} still to run")
-    if args.steps_per_second:
-        hours = steps_left / args.steps_per_second / 3600
-        print(f"at {args.steps_per_second:g} steps/s per run: {hours:,.1f} run-hours (the "
-              f"longest run {longest / args.steps_per_second / 3600:,.1f} h)")
+    if speeds:
+        at = (f"{args.steps_per_second:g}" if not args.env_steps_per_second else
+              ", ".join(f"{env_id} {speed:g}" for env_id, speed in speeds.items()))
+        print(f"at {at} steps/s per run: {sum(hours):,.1f} run-hours (the longest run "
+              f"{max(hours):,.1f} h)")
     if args.gpu_node_steps_per_second:
         hours = steps_left / args.gpu_node_steps_per_second / 3600
         print(f"on one GPU node at {args.gpu_node_steps_per_second:,g} steps/s in all: "
               f"{hours:,.1f} h ({hours / 24:,.1f} days)")
-    if not (args.steps_per_second or args.gpu_node_steps_per_second):
+    if not (speeds or args.gpu_node_steps_per_second):
         print("for the time it takes, give --steps-per-second (one run) or "
               "--gpu-node-steps-per-second; measured speeds: docs/sweep.md")
 

@@ -291,6 +291,20 @@ def test_dry_run_counts_the_steps_left_and_takes_its_speeds_from_the_user(tmp_pa
     # 13.5M steps at 250 steps/s per run: 15 run-hours, a whole run 4 h.
     out = sweep(*grid, "--steps-per-second", "250", "--", *budget).stdout
     assert "at 250 steps/s per run: 15.0 run-hours (the longest run 4.0 h)" in out
+    # Per env id: Pendulum's 6.3M steps left at 500 steps/s (3.5 h) and Hopper's 7.2M at 250
+    # (8 h), its runs the longest (4 h each).
+    out = sweep(*grid, "--env-steps-per-second", "Pendulum-v1=500", "Hopper-v5=250", "--",
+                *budget).stdout
+    assert ("at Pendulum-v1 500, Hopper-v5 250 steps/s per run: 11.5 run-hours (the longest "
+            "run 4.0 h)") in out
+    # --steps-per-second covers the env ids not named; with neither, it says what is missing.
+    out = sweep(*grid, "--steps-per-second", "250", "--env-steps-per-second", "Pendulum-v1=500",
+                "--", *budget).stdout
+    assert "at Pendulum-v1 500, Hopper-v5 250 steps/s per run: 11.5 run-hours" in out
+    result = sweep(*grid, "--env-steps-per-second", "Pendulum-v1=500", "--", *budget,
+                   check=False)
+    assert result.returncode != 0 and ("--env-steps-per-second gives no speed for Hopper-v5: "
+                                       "name them too") in result.stderr
     assert [p.name for p in tmp_path.iterdir()] == [started.name]
 
 

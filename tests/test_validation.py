@@ -181,6 +181,12 @@ def test_analyze_flag_ranges(flags, message, tmp_path):
     (["--max-parallel", "0"], "--max-parallel 0: must be at least 1"),
     (["--signal-delay-s", "99999"], "--signal-delay-s 99999: must be at least 1 and below"),
     (["--max-requeues", "-1"], "--max-requeues -1: must be 0 or more"),
+    (["--env-steps-per-second", "Pendulum-v1"],
+     "--env-steps-per-second Pendulum-v1: must be ENV_ID=STEPS_PER_SECOND with a positive"),
+    (["--env-steps-per-second", "Pendulum-v1=-5"],
+     "--env-steps-per-second Pendulum-v1=-5: must be ENV_ID=STEPS_PER_SECOND"),
+    (["--env-steps-per-second", "Hopper-v5=100"],
+     "--env-steps-per-second Hopper-v5=100: Hopper-v5 is not in the grid (Pendulum-v1)"),
 ])
 def test_sweep_flag_ranges(flags, message, tmp_path):
     args = ["--env-ids", "Pendulum-v1", "--seeds", "0", *flags] if "--seeds" not in flags \
