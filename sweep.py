@@ -259,7 +259,7 @@ def build_grid(args: Args, extra_args: tuple[str, ...]) -> list[Run]:
     if not seeds:
         raise SweepError("no seeds: pass --seeds 0 1 2 (or --preset paper)")
     check_ranges(args)
-    env_speeds(args, env_ids)
+    env_speeds(args, env_ids)  # its errors before anything is written
     if args.mps and args.launcher != "local":
         raise SweepError("--mps is for --launcher local (on Slurm, the cluster decides how jobs "
                          "share a GPU); drop --mps")
@@ -569,20 +569,20 @@ def print_plan(runs: list[Run], states: dict[Run, str], args: Args,
         print(f"each run also gets: {shlex.join(runs[0].extra_args)}")
     speeds = env_speeds(args, list(dict.fromkeys(run.env_id for run in runs)))
     total = steps_left = 0
-    hours = []  # each run's hours left, at its env id's speed
+    run_hours = []  # each run's hours left, at its env id's speed
     for run in runs:
         given = given_total_timesteps(run.extra_args)
         budget = int(given) if given else script_default_total_timesteps(run.script)
         left = 0 if states[run] == "done" else budget - (last_eval_step(run.run_dir) or 0)
         total, steps_left = total + budget, steps_left + left
-        hours.append(left / speeds[run.env_id] / 3600 if speeds else 0)
+        run_hours.append(left / speeds[run.env_id] / 3600 if speeds else 0)
         print(f"  {run.name:<60} {states[run]:<12} {action_for(states[run])}")
     print(f"compute: {len(runs)} runs, {total:,} env steps in all, {steps_left:,} still to run")
     if speeds:
         at = (f"{args.steps_per_second:g}" if not args.env_steps_per_second else
               ", ".join(f"{env_id} {speed:g}" for env_id, speed in speeds.items()))
-        print(f"at {at} steps/s per run: {sum(hours):,.1f} run-hours (the longest run "
-              f"{max(hours):,.1f} h)")
+        print(f"at {at} steps/s per run: {sum(run_hours):,.1f} run-hours (the longest run "
+              f"{max(run_hours):,.1f} h)")
     if args.gpu_node_steps_per_second:
         hours = steps_left / args.gpu_node_steps_per_second / 3600
         print(f"on one GPU node at {args.gpu_node_steps_per_second:,g} steps/s in all: "
