@@ -45,7 +45,7 @@ def batch_size(preset: Preset) -> int:
     flags = list(preset.run_args)
     if "--batch-size" in flags:
         return int(flags[flags.index("--batch-size") + 1])
-    return bench_sac.Args.batch_size
+    return bench_sac.sac_standard.Args.batch_size
 
 
 def steps_per_second(env_id: str, batch: int, loop_steps: int, repeats: int) -> float:
