@@ -240,3 +240,88 @@ def test_cube_hb_scene_figure_draws_from_the_committed_runs(tmp_path: Path) -> N
                             cwd=ROOT, capture_output=True, text=True)
     assert result.returncode == 0, result.stderr[-3000:]
     assert out.stat().st_size > 10_000
+
+
+def beside_published():
+    """results/classic-1M/beside_published.py as a module (it is run as a file)."""
+    import importlib.util
+    path = RESULTS / "classic-1M" / "beside_published.py"
+    spec = importlib.util.spec_from_file_location("beside_published", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_classic_published_figures_are_the_readmes_digit_for_digit() -> None:
+    """published-sacs.csv, which the table and figure beside ours read, is the README's table of
+    published SACs (Spinning Up's spread: half its plotted +-1 std band, published-sacs.md)."""
+    folder = RESULTS / "classic-1M"
+    readme = (folder / "README.md").read_text()
+    sources = (folder / "published-sacs.md").read_text()
+    columns = ("CleanRL", "RL Zoo", "Tianshou", "Spinning Up")
+    with (folder / "published-sacs.csv").open(newline="") as file:
+        rows = list(csv.DictReader(file))
+    assert {r["source"] for r in rows} == set(columns)
+    for row in rows:
+        line = next(x for x in readme.splitlines() if x.startswith(f"| {row['task']} | "))
+        cell = line.strip("|").split("|")[1 + columns.index(row["source"])].strip()
+        if row["source"] == "Spinning Up":
+            assert cell == f"~{row['value']}", (row, cell)
+            band = next(x for x in sources.splitlines()
+                        if x.startswith(f"| {row['task']} | v3 | 10 | {row['value']} ["))
+            low, high = (float(v) for v in band.split("[")[1].split("]")[0].split(","))
+            assert abs((high - low) / 2 - float(row["spread"])) <= 1, (row, band)
+        else:
+            assert cell.startswith(f"{row['value']} +- {row['spread']}"), (row, cell)
+            assert ("at 2M" in cell) == (row["step"] == "2000000"), (row, cell)
+
+
+def test_classic_beside_published_reads_ours_with_the_t_interval(tmp_path: Path,
+                                                                  capsys) -> None:
+    """On a synthetic campaign: our mean and t-interval per task, placed against the published
+    values at 1M, and a figure; a missing folder is one line and exit 2."""
+    import scipy.stats
+
+    from tests.test_analyze import write_run
+    module = beside_published()
+    steps = np.arange(0, 1_000_001, 100_000)
+    ours = {"Hopper-v5": [1000.0, 1100.0, 1300.0], "HalfCheetah-v5": [9000.0, 10000.0, 11000.0],
+            "Walker2d-v5": [4000.0, 4200.0, 4500.0], "Ant-v5": [6500.0, 6600.0, 6800.0],
+            "Humanoid-v5": [5000.0, 5300.0, 5400.0]}
+    rows = []
+    for env_id, finals in ours.items():
+        for seed, final in enumerate(finals):
+            curve = final * steps / steps[-1]
+            run = write_run(tmp_path / "runs", env_id, "corrected", seed, steps, curve + 5, curve)
+            for selector, value in (("mode", final + 5), ("tanh_mu", final)):
+                rows.append({"env_id": env_id, "run": run.name, "seed": seed, "step": 1_000_000,
+                             "selector": selector, "episodes": 300, "return_mean": value,
+                             "difference_mean": 5.0 if selector == "mode" else "",
+                             "difference_se": 1.0 if selector == "mode" else ""})
+    robust = tmp_path / "robust-1M"
+    robust.mkdir()
+    (robust / "evaluation.json").write_text("{}")
+    with (robust / "per_seed.csv").open("w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    out = tmp_path / "beside.png"
+    assert module.main(["--runs", str(tmp_path / "runs"), "--robust", str(robust),
+                        "--out", str(out)]) == 0
+    table = capsys.readouterr().out
+    lines = {line.split("|")[1].strip(): line for line in table.splitlines()[2:7]}
+    for env_id, finals in ours.items():
+        values = np.array(finals)
+        half = scipy.stats.t.ppf(0.975, 2) * values.std(ddof=1) / np.sqrt(3)
+        expected = f"{values.mean():.0f} [{values.mean() - half:.0f}, " \
+                   f"{values.mean() + half:.0f}], 3 x 300"
+        assert expected in lines[env_id.split("-")[0]], (expected, lines)
+    assert "**below every one** (2310-3542)" in lines["Hopper"]  # interval 754-1513
+    assert "within (9535-12139)" in lines["HalfCheetah"]
+    assert "above every one" in lines["Ant"]  # 6254-7013, over the highest (5850)
+    assert "6232 +- 280 at 2M (none at 1M)" in lines["Humanoid"]
+    assert "within (4996-5489)" in lines["Humanoid"]  # RL Zoo's 2M figure is not in the range
+    assert out.stat().st_size > 10_000
+    assert module.main(["--runs", str(tmp_path / "none"), "--robust", str(robust)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.count("\n") == 0 and "none is not a folder" in error
