@@ -619,12 +619,15 @@ def per_seed_rows(settings: dict, episodes: dict[tuple[str, int, str], list[list
                     "difference_se": estimators.standard_error(diffs),
                     "share_better": float(np.mean(diffs > 0))}
         key, pair = (run, step, action), ends.get((run, step, "tanh_mu"))
-        if action != "tanh_mu" and FELL in reasons and ends[key] is not None and pair is not None:
+        for why in report.SHARE_ENDS:
+            if action == "tanh_mu" or why not in reasons or ends[key] is None or pair is None:
+                continue
             # "The mode's episodes end with the robot down more often", tested as the returns are:
-            # per start, 1 where the action's episode fell minus 1 where tanh(mu)'s did.
-            fell = estimators.paired_difference(np.array(ends[key]) == FELL, np.array(pair) == FELL)
-            row |= {"fell_difference_mean": fell.mean(),
-                    "fell_difference_se": estimators.standard_error(fell)}
+            # per start, 1 where the action's episode ended so minus 1 where tanh(mu)'s did.
+            share = estimators.paired_difference(np.array(ends[key]) == why,
+                                                 np.array(pair) == why)
+            row |= {f"{why}_difference_mean": share.mean(),
+                    f"{why}_difference_se": estimators.standard_error(share)}
         if any_unstable:
             row["unstable_ends"] = None if flags[key] is None else sum(map(int, flags[key]))
         counts = None if ends[key] is None else collections.Counter(ends[key])

@@ -132,7 +132,11 @@ class Report:
 
 # ---------------------------------------- the per-seed tables: evaluate.py's and analyze.py's
 END_PREFIX = "end_"  # per_seed.csv's end_<why>: the episodes that ended so
-PAIRED_ENDS = ("fell", "time_limit")  # the ends the paired table counts for its first action
+PAIRED_ENDS = ("fell", "terminated", "time_limit")  # the paired table's, for its first action
+# Ends whose paired share evaluate.py tests as the returns are (per_seed.csv's
+# <why>_difference_mean and _se): the h1hand robot down, and gymnasium's termination (Hopper,
+# Walker2d, Ant and Humanoid end early only when the body leaves its healthy range).
+SHARE_ENDS = ("fell", "terminated")
 
 
 def se_distance(mean: float, se: float) -> str:
@@ -161,12 +165,13 @@ def _count(row: Mapping[str, object] | None, column: str) -> str:
     return "n/r" if value is None else str(int(value))
 
 
-def _fell(row: Mapping[str, object] | None) -> str:
-    """The paired difference in falls and its verdict; "" where not recorded."""
-    if _given(row, "fell_difference_se") is None:
+def _share(row: Mapping[str, object] | None, why: str) -> str:
+    """The paired difference in the share of episodes that ended `why` (a SHARE_ENDS) and its
+    verdict; "" where not recorded."""
+    if _given(row, f"{why}_difference_se") is None:
         return ""
-    return "{}: {}".format(*paired_cell(row["fell_difference_mean"], row["fell_difference_se"], 2,
-                                        estimators.fall_verdict))
+    return "{}: {}".format(*paired_cell(row[f"{why}_difference_mean"],
+                                        row[f"{why}_difference_se"], 2, estimators.fall_verdict))
 
 
 def per_seed_tables(rows: Sequence[Mapping[str, object]], actions: Sequence[str]) -> list[str]:
@@ -180,13 +185,17 @@ def per_seed_tables(rows: Sequence[Mapping[str, object]], actions: Sequence[str]
         by_task.setdefault(str(row["env_id"]), {}).setdefault(
             (int(row["seed"]), int(row["step"])), {})[str(row["selector"])] = row
     falls = any(_given(r, END_PREFIX + "fell") is not None for r in rows)
+    terminations = any(_given(r, END_PREFIX + "terminated") is not None for r in rows)
     lines = [f"Per policy: tanh(mu)'s mean return +- its standard error; each action minus "
              f"tanh(mu) from the same starts +- the standard error of the paired episodes, ahead "
              f"/ behind where more than {estimators.VERDICT_SE:g} standard errors from zero, else "
              "level, and how many from zero" + ("; fell: its episodes and tanh(mu)'s that ended "
              "with the robot down, and the paired difference of the two shares (per start, 1 "
              "where its episode fell minus 1 where tanh(mu)'s did), more / fewer by the same "
-             "rule" if falls else "") + "; n/r: not recorded.", ""]
+             "rule" if falls else "") + ("; terminated: its episodes and tanh(mu)'s that the "
+             "task ended early (gymnasium's locomotion tasks: the body left its healthy range), "
+             "and the paired difference of the two shares, more / fewer by the same rule"
+             if terminations else "") + "; n/r: not recorded.", ""]
     for task, policies in by_task.items():
         recorded = [r for p in policies.values() for r in p.values()]
         reasons = sorted({c.removeprefix(END_PREFIX) for r in recorded for c in r
@@ -207,21 +216,21 @@ def per_seed_tables(rows: Sequence[Mapping[str, object]], actions: Sequence[str]
                     *paired_cell(it["difference_mean"], it["difference_se"], 1)))
             for why in ends:
                 it, column = by.get(shown[0]), END_PREFIX + why
-                fell = _fell(it) if why == "fell" else ""
+                share = _share(it, why) if why in SHARE_ENDS else ""
                 cells.append(f"{_count(it, column)} / {_count(base, column)}"
-                             + (f" ({fell})" if fell else ""))
+                             + (f" ({share})" if share else ""))
             table.append(cells)
             for action in (a for a in actions if a in by):
                 it = by[action]
                 ended.append([str(seed), format_step(step), action,
                               *(_count(it, END_PREFIX + why) for why in reasons),
-                              *([_fell(it)] if "fell" in reasons else []),
+                              *(_share(it, why) for why in SHARE_ENDS if why in reasons),
                               *([_count(it, "unstable_ends")] if unstable else [])])
         lines += [f"{task}:", "", markdown_table(header, table), ""]
         if reasons or unstable:
             lines += [f"{task}, how each action's episodes ended (per policy; blow-ups: the "
                       "episodes a physics blow-up ended):", "", markdown_table(
                           ["seed", "step", "action", *(r.replace("_", " ") for r in reasons),
-                           *(["fell, minus tanh(mu)"] if "fell" in reasons else []),
+                           *(f"{why}, minus tanh(mu)" for why in SHARE_ENDS if why in reasons),
                            *(["blow-ups"] if unstable else [])], ended), ""]
     return lines

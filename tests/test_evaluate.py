@@ -849,7 +849,9 @@ def test_a_campaign_counts_blow_ups_and_summarises_and_resumes_older_folders(
         for step in ("500", "1000") for selector in ("mode", "tanh_mu")}
     summary = (whole / "summary.md").read_text()
     assert "blow-ups" in summary
-    assert f"| 1 | 1k | mode | {blow_ups[1]} | {6 - blow_ups[1]} | {blow_ups[1]} |" in summary
+    # the toy task's early ends are gymnasium's "terminated", their paired share tested too
+    assert f"| 1 | 1k | mode | {blow_ups[1]} | {6 - blow_ups[1]} | +0.00 +- 0.00: level, 0.0 SE " \
+           f"| {blow_ups[1]} |" in summary
 
     # A complete folder from before the column: its summary as before, without the counts.
     old = tmp_path / "old"
@@ -859,7 +861,8 @@ def test_a_campaign_counts_blow_ups_and_summarises_and_resumes_older_folders(
     assert code == 0, err
     old_per_seed = read_rows(old / "per_seed.csv")
     assert old_per_seed == [{k: v for k, v in r.items()
-                             if k != "unstable_ends" and not k.startswith("end_")}
+                             if k != "unstable_ends"
+                             and not k.startswith(("end_", "terminated_difference"))}
                             for r in per_seed]
     assert "blow-ups" not in (old / "summary.md").read_text()
 
@@ -888,8 +891,9 @@ def test_a_campaign_counts_blow_ups_and_summarises_and_resumes_older_folders(
         == {(str(seed), step, str(blow_ups[seed]) if step == "500" else "")
             for seed in (0, 1) for step in ("500", "1000")}
     summary = (old / "summary.md").read_text()
-    assert "| 0 | 1k | mode | n/r | n/r | n/r |" in summary
-    assert f"| 0 | 500 | mode | {blow_ups[0]} | {6 - blow_ups[0]} | {blow_ups[0]} |" in summary
+    assert "| 0 | 1k | mode | n/r | n/r |  | n/r |" in summary
+    assert f"| 0 | 500 | mode | {blow_ups[0]} | {6 - blow_ups[0]} | +0.00 +- 0.00: level, 0.0 SE" \
+           f" | {blow_ups[0]} |" in summary
 
 
 def test_per_seed_tests_the_paired_share_of_falls_as_it_tests_the_returns():
@@ -935,3 +939,32 @@ def test_per_seed_tests_the_paired_share_of_falls_as_it_tests_the_returns():
     settings["runs"].pop("run")
     assert "fell" not in evaluate.campaign_markdown(settings,
                                                     evaluate.per_seed_rows(settings, no_falls))
+
+
+def test_a_gymnasium_termination_is_tested_paired_as_a_fall_is():
+    """Hopper, Walker2d, Ant and Humanoid end early ("terminated") only when the body leaves its
+    healthy range: per_seed.csv tests the paired share of such ends as it does the h1hand falls,
+    and summary.md counts them beside the time limits."""
+    ends = {"tanh_mu": [0, 0, 0, 0, 1, 0] * 5, "mode": [1, 1, 0, 1, 1, 0] * 5}
+    episodes = {("run", 100, action): [
+        ["100", action, str(i), str(1000 + i), str(float(i % 5)), "10", "", "0",
+         "terminated" if e else "time_limit"] for i, e in enumerate(flags)]
+        for action, flags in ends.items()}
+    settings = {"runs": {"run": {"env_id": "Hopper-v5", "seed": 0}},
+                "selectors": ["mode", "tanh_mu"], "source": "runs", "command": ["evaluate.py"],
+                "episodes": 30, "eval_round": 0, "reset_noise": None, "seconds": 1.0}
+    per_seed = evaluate.per_seed_rows(settings, episodes)
+    got = {r["selector"]: r for r in per_seed}
+    paired = np.array(ends["mode"], dtype=float) - ends["tanh_mu"]
+    assert got["mode"]["terminated_difference_mean"] == pytest.approx(0.5)
+    assert got["mode"]["terminated_difference_se"] == pytest.approx(
+        paired.std(ddof=1) / np.sqrt(30))
+    assert got["mode"]["end_terminated"] == 20 and got["tanh_mu"]["end_terminated"] == 5
+    assert got["mode"]["end_time_limit"] == 10
+    assert "fell_difference_mean" not in got["mode"]
+    assert "terminated_difference_mean" not in got["tanh_mu"]
+    table = evaluate.campaign_markdown(settings, per_seed, episodes)
+    se = got["mode"]["terminated_difference_se"]
+    assert f"| 20 / 5 (+0.50 +- {se:.2f}: **more**, {0.5 / se:.2g} SE) | 10 / 25 |" in table
+    assert "| terminated (mode / tanh(mu)) | time limit (mode / tanh(mu)) |" in table
+    assert "terminated, minus tanh(mu) |" in table and "body left its healthy range" in table
