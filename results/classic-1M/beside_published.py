@@ -61,16 +61,18 @@ def task_name(env_id: str) -> str:
 def ours(robust: data.Robust, step: int = STEP) -> pd.DataFrame:
     """Per task: our seeds' tanh(mu) returns at `step` (each seed's mean over its episodes), their
     mean and Student's 95% interval over seeds."""
-    rows = robust.rows[(robust.rows.selector == data.BASELINE) & (robust.rows.step == step)]
-    if rows.empty:
+    out = []
+    for env_id, steps in data.robust_paired_differences(robust).items():
+        if step not in steps:
+            continue
+        at = steps[step]
+        mean, low, high = estimators.t_interval(at.returns[data.BASELINE])
+        out.append({"task": task_name(env_id), "env_id": env_id, "seeds": len(at.seeds),
+                    "episodes": int(at.episodes.min()), "mean": mean, "low": low,
+                    "high": high})
+    if not out:
         raise BesideError(f"no tanh_mu rows at step {step:,} in the robust folder(s); evaluate "
                           f"the {step:,}-step snapshots with --selectors ... tanh_mu")
-    out = []
-    for env_id, seeds in rows.groupby("env_id", sort=False):
-        mean, low, high = estimators.t_interval(seeds.return_mean.to_numpy())
-        out.append({"task": task_name(env_id), "env_id": env_id, "seeds": len(seeds),
-                    "episodes": int(seeds.episodes.min()), "mean": mean, "low": low,
-                    "high": high})
     return pd.DataFrame(out)
 
 
@@ -174,9 +176,9 @@ def main(argv: list[str] | None = None) -> int:
             if not folder.is_dir():
                 raise BesideError(f"{folder} is not a folder: pass --runs and --robust, or "
                                   "commit the campaign's runs/ and robust-1M/ first")
-        our = ours(data.load_robust([args.robust]))
-        print(table(our, published()))
-        figure(args.runs, our, published(), args.out)
+        our, peers = ours(data.load_robust([args.robust])), published()
+        print(table(our, peers))
+        figure(args.runs, our, peers, args.out)
     except (BesideError, data.AnalysisError) as error:
         print(f"beside_published.py: {error}", file=sys.stderr)
         return 2
