@@ -335,7 +335,6 @@ def episode_rows(results: dict, seeds: list[int]) -> Iterator[list]:
 CAMPAIGN_FILE = "evaluation.json"
 # Asked of each seed: the paired difference's standard error below this share of tanh(mu)'s.
 PRECISION = 0.10
-FELL = "fell"  # the h1hand tasks' end with the robot down (eval_rounds.episode_end)
 
 
 @dataclass
@@ -658,11 +657,16 @@ def summarize_campaign(out: Path) -> None:
 def fall_split(settings: dict, episodes: dict[tuple[str, int, str], list[list[str]]]
                ) -> list[str]:
     """Per policy, the first action's paired return differences against tanh(mu) split by how
-    the two episodes from each start ended: is its difference in the starts where one robot fell,
+    the two episodes from each start ended: is its difference in the starts where one episode
+    ended early (an h1hand robot fell; a gymnasium body left its healthy range, "terminated"),
     or spread over all of them? A part is chosen by the episodes' own outcomes, so "only the
     action's fell" is a loss by construction."""
     action = next((a for a in settings["selectors"] if a != estimators.BASELINE), None)
     column = {c: EPISODES_HEADER.index(c) for c in ("return", "end")}
+    ends = {r[column["end"]] for group in episodes.values() for r in group}
+    early = next((why for why in report.SHARE_ENDS if why in ends), None)
+    if early is None:
+        return []
     rows = []
     for run, about in sorted(settings["runs"].items(), key=lambda kv: kv[1]["seed"]):
         for step in sorted({s for r, s, _ in episodes if r == run}):
@@ -674,20 +678,19 @@ def fall_split(settings: dict, episodes: dict[tuple[str, int, str], list[list[st
             parts: dict[tuple[bool, bool], list[float]] = {
                 (False, False): [], (True, False): [], (False, True): [], (True, True): []}
             for it, base in pairs:
-                parts[it[column["end"]] == FELL, base[column["end"]] == FELL].append(
+                parts[it[column["end"]] == early, base[column["end"]] == early].append(
                     float(it[column["return"]]) - float(base[column["return"]]))
             rows.append([about["seed"], report.format_step(step), *(
                 f"{len(v)}" + (f", {v[0]:+.2f}" if v else "") if len(v) < 2 else
                 f"{len(v)}, {np.mean(v):+.2f} +- {estimators.standard_error(v):.2f}"
                 for v in parts.values())])
-    if not any(FELL in (r[column["end"]] for r in group) for group in episodes.values()):
-        return []
     return ["## Where the differences are", "",
             f"Per policy, {action} minus tanh(mu) split by how the two episodes from each start "
             "ended; each cell: starts, and the mean difference over them +- the standard error "
             "of those differences.", "",
-            report.markdown_table(["seed", "step", "neither fell", f"only the {action}'s fell",
-                                   "only tanh(mu)'s fell", "both fell"], rows), ""]
+            report.markdown_table(["seed", "step", f"neither {early}",
+                                   f"only the {action}'s {early}", f"only tanh(mu)'s {early}",
+                                   f"both {early}"], rows), ""]
 
 
 def campaign_markdown(settings: dict, per_seed: list[dict],

@@ -944,10 +944,11 @@ def test_per_seed_tests_the_paired_share_of_falls_as_it_tests_the_returns():
 def test_a_gymnasium_termination_is_tested_paired_as_a_fall_is():
     """Hopper, Walker2d, Ant and Humanoid end early ("terminated") only when the body leaves its
     healthy range: per_seed.csv tests the paired share of such ends as it does the h1hand falls,
-    and summary.md counts them beside the time limits."""
+    summary.md counts them beside the time limits and splits the return difference by them."""
     ends = {"tanh_mu": [0, 0, 0, 0, 1, 0] * 5, "mode": [1, 1, 0, 1, 1, 0] * 5}
+    cost = {"tanh_mu": 0.0, "mode": 2.0}  # the mode's terminated episodes return 2 less
     episodes = {("run", 100, action): [
-        ["100", action, str(i), str(1000 + i), str(float(i % 5)), "10", "", "0",
+        ["100", action, str(i), str(1000 + i), str(i % 5 - cost[action] * e), "10", "", "0",
          "terminated" if e else "time_limit"] for i, e in enumerate(flags)]
         for action, flags in ends.items()}
     settings = {"runs": {"run": {"env_id": "Hopper-v5", "seed": 0}},
@@ -968,3 +969,7 @@ def test_a_gymnasium_termination_is_tested_paired_as_a_fall_is():
     assert f"| 20 / 5 (+0.50 +- {se:.2f}: **more**, {0.5 / se:.2g} SE) | 10 / 25 |" in table
     assert "| terminated (mode / tanh(mu)) | time limit (mode / tanh(mu)) |" in table
     assert "terminated, minus tanh(mu) |" in table and "body left its healthy range" in table
+    # starts per part (pattern of six: 2 neither, 3 only the mode's, 1 both), each difference
+    assert ("| neither terminated | only the mode's terminated | only tanh(mu)'s terminated | "
+            "both terminated |") in table
+    assert "| 0 | 100 | 10, +0.00 +- 0.00 | 15, -2.00 +- 0.00 | 0 | 5, -2.00 +- 0.00 |" in table
