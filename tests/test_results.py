@@ -242,6 +242,29 @@ def test_cube_hb_scene_figure_draws_from_the_committed_runs(tmp_path: Path) -> N
     assert out.stat().st_size > 10_000
 
 
+def test_cube_hb_scene_reading_is_the_issues_rule() -> None:
+    """The 4M reading that beside_humanoidbench.py prints is issue 86's rule, set before the
+    runs: the env only where both runs reach HumanoidBench's lowest seed and rose from 3M."""
+    import importlib.util
+    path = RESULTS / "cube-hb-scene" / "beside_humanoidbench.py"
+    spec = importlib.util.spec_from_file_location("beside_humanoidbench", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+
+    def read(three: tuple[float, float], four: tuple[float, float] | None) -> str:
+        means = {seed: {3_000_000: a, **({4_000_000: four[k]} if four else {})}
+                 for k, (seed, a) in enumerate(zip((2, 3), three, strict=True))}
+        return module.reading(means, 27.3)
+
+    assert "not yet" in read((28.8, 22.4), None)
+    assert ": the env:" in read((28.8, 26.0), (30.0, 27.3))
+    assert ": between:" in read((28.8, 28.0), (30.0, 27.5))  # seed 3 fell from 3M
+    assert ": between:" in read((28.8, 22.4), (30.0, 22.0))
+    assert ": cleared:" in read((28.8, 22.4), (23.0, 21.0))
+    assert "seed 2: 28.8 at 3M, 23.0 at 4M; seed 3: 22.4 at 3M, 21.0 at 4M" in read(
+        (28.8, 22.4), (23.0, 21.0))
+
+
 def beside_published():
     """results/classic-1M/beside_published.py as a module (it is run as a file)."""
     import importlib.util

@@ -7,6 +7,10 @@ Lines: each run's training-log round (eval.csv's tanh_mu_return_mean, 10 episode
 Markers with bars: the 300-start robust evaluations (mean +- 1 SE) where a robust-*/ folder has
 the snapshot. HumanoidBench's: its published curves at each million (humanoidbench-sac-cube.csv,
 read as cube-10M's README says), mean of its deterministic evaluation episodes.
+
+It then prints the reading that issue 86 set before the runs, applied to the robust evaluations
+(`reading`): "the env" where both runs score at or above HumanoidBench's lowest seed at 4M and
+rose from 3M, "cleared" where both score at or below ours (<= ~23), "between" otherwise.
 """
 
 import csv
@@ -26,6 +30,8 @@ from analysis import data  # noqa: E402
 CUBE_10M = HERE.parent / "cube-10M"
 LAST = 4_000_000
 COLORS = {2: "tab:blue", 3: "tab:orange"}
+# The issue's "at or below ours (<= ~23)": cube-10M's better seed scored 22.3 at 4M.
+OURS = 23.0
 
 
 def log_curves(campaign: Path) -> list[data.Curve]:
@@ -38,6 +44,28 @@ def robust_rows(campaign: Path) -> pd.DataFrame:
     """Every robust-*/ folder's tanh(mu) rows up to LAST, as analyze.py's --robust reads them."""
     rows = data.load_robust(sorted(campaign.glob("robust-*/"))).rows
     return rows[(rows.selector == data.BASELINE) & (rows.step <= LAST)]
+
+
+def reading(means: dict[int, dict[int, float]], bar: float) -> str:
+    """Issue 86's rule on the robust tanh(mu) means, means[seed][step]: both runs at or above
+    `bar` (HumanoidBench's lowest seed at 4M) and above their own 3M: the env; both at or below
+    OURS: cleared; otherwise between. Not yet while a run has no 4M evaluation."""
+    if not means or any(LAST not in steps for steps in means.values()):
+        return "the reading (issue 86's rule): not yet, a run has no 4M evaluation"
+    numbers = "; ".join(f"seed {seed}: {steps.get(LAST - 1_000_000, float('nan')):.1f} at 3M, "
+                        f"{steps[LAST]:.1f} at 4M" for seed, steps in sorted(means.items()))
+    at_4m = [steps[LAST] for steps in means.values()]
+    rising = all(steps[LAST] > steps.get(LAST - 1_000_000, float("inf"))
+                 for steps in means.values())
+    if all(x >= bar for x in at_4m) and rising:
+        verdict = (f"the env: both at or above HumanoidBench's lowest seed ({bar:g}) and rising, "
+                   "so the cube results must say that their env learns differently")
+    elif all(x <= OURS for x in at_4m):
+        verdict = f"cleared: both at or below ours (<= {OURS:g}), the gap is the SAC or chance"
+    else:
+        verdict = (f"between: neither both at or above {bar:g} and rising, nor both at or below "
+                   f"{OURS:g}")
+    return f"the reading (issue 86's rule): {verdict} ({numbers})"
 
 
 def main(out: Path) -> None:
@@ -75,6 +103,9 @@ def main(out: Path) -> None:
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     print(out)
+    means = {seed: dict(zip(points.step, points.return_mean, strict=True))
+             for seed, points in robust_rows(HERE).groupby("seed")}
+    print(reading(means, lowest))
 
 
 if __name__ == "__main__":
