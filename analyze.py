@@ -66,6 +66,7 @@ from analysis.data import (
     paired_groups,
     resolve_normalization,
     restart_marks,
+    robust_dimension_study,
     robust_paired_differences,
     robust_shared_steps,
     shift_curves,
@@ -222,6 +223,12 @@ def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str,
              f"[{t_values[1]:.3f}, {t_values[2]:.3f}]", above_zero(scores)])
 
 
+def episodes_span(episodes: np.ndarray) -> str:
+    """Episodes per seed as the labels write them: "300", or "100-300" where seeds differ."""
+    low, high = int(episodes.min()), int(episodes.max())
+    return f"{low}" if low == high else f"{low}-{high}"
+
+
 # ------------------------------------------------------------------------- labels and colours
 @dataclasses.dataclass(frozen=True)
 class GroupLabels:
@@ -280,6 +287,15 @@ def aggregate_title(agg: Aggregate) -> str:
     """Figures 7 and 8 name what they aggregate: the tasks and the runs per task."""
     runs = sorted({scores.shape[0] for scores in agg.final.values()})
     return f"{', '.join(agg.tasks)}: {' or '.join(map(str, runs))} runs per task and group"
+
+
+def robust_labels_colors(actions: Sequence[str]) -> tuple[dict[str, str], dict[str, tuple]]:
+    """Each evaluate.py action's name and colour: those of the group it stands for, tanh(mu)
+    Standard SAC's, every other Corrected SAC's actors'."""
+    keys = {a: (STANDARD if a == own_action(STANDARD) else CORRECTED, a) for a in actions}
+    colors = group_colors(list(keys.values()))
+    return ({a: GroupLabels().action_first(k) for a, k in keys.items()},
+            {a: colors[k] for a, k in keys.items()})
 
 
 # ============================================================================== the reports
@@ -500,21 +516,6 @@ def report_paired_difference(report: Report, analysis: Analysis) -> None:
 
 
 # --------------------------------------------------- 3. the robust evaluation (evaluate.py)
-def robust_labels_colors(actions: Sequence[str]) -> tuple[dict[str, str], dict[str, tuple]]:
-    """Each evaluate.py action's name and colour: those of the group it stands for, tanh(mu)
-    Standard SAC's, every other Corrected SAC's actors'."""
-    keys = {a: (STANDARD if a == own_action(STANDARD) else CORRECTED, a) for a in actions}
-    colors = group_colors(list(keys.values()))
-    return ({a: GroupLabels().action_first(k) for a, k in keys.items()},
-            {a: colors[k] for a, k in keys.items()})
-
-
-def episodes_span(episodes: np.ndarray) -> str:
-    """Episodes per seed as the labels write them: "300", or "100-300" where seeds differ."""
-    low, high = int(episodes.min()), int(episodes.max())
-    return f"{low}" if low == high else f"{low}-{high}"
-
-
 def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[int, RobustStep]]
                     ) -> tuple[list[list], dict]:
     """Per task, step and action: the mean return and paired difference over seeds. Writes
@@ -1055,6 +1056,69 @@ def report_dimension_study(report: Report, analysis: Analysis) -> None:
         markdown_table(["task", "action dims", *DIMENSION_SHIFT_COLUMNS], shift_table))
 
 
+# ------------------------------------------------------------------- 12. the robust dimension study
+def short_task(task: str) -> str:
+    """A tick's task name: h1hand-cube-v0 as cube, Hopper-v5 as Hopper."""
+    return task.removeprefix("h1hand-").rsplit("-v", 1)[0]
+
+
+def report_robust_dimension(report: Report, analysis: Analysis) -> None:
+    """Figure `robust_dimension` (only with --robust, over tasks of two or more action
+    dimensions): the dimension study on the robust evaluations, each task at its last robust
+    step (robust_dimension_study). Estimator: per seed, the action's paired difference as a
+    share of that seed's tanh(mu) return; over seeds, the mean with Student's t-interval and,
+    labelled, the bootstrap (seed_mean_estimates). Tasks are not pooled."""
+    if analysis.robust is None:
+        return
+    args = analysis.args
+    by_task = robust_paired_differences(analysis.robust)
+    study, notes = robust_dimension_study(by_task, analysis.runs)
+    report.notes.extend(notes)
+    if len({d.action_dim for d in study.values()}) < 2:
+        return  # one task's or one body's campaign: nothing to set against the dimension
+    study = dict(sorted(study.items(), key=lambda item: (item[1].action_dim, item[0])))
+    estimates = seed_mean_estimates({(t, a): v for t, d in study.items()
+                                     for a, v in d.relative.items()}, args.reps, args.seed)
+    table, cells, ticks = [], {}, []
+    for i, (task, d) in enumerate(study.items()):
+        at = by_task[task][d.step]
+        ticks.append(f"{short_task(task)}\n{d.action_dim} dims\n{format_step(d.step)}, "
+                     f"{at.episodes.size} x {episodes_span(at.episodes)}")
+        tanh_mu = at.returns[BASELINE]
+        for action, relative in d.relative.items():
+            boot, t_values = estimates[task, action], t_interval(relative)
+            for metric, values in (("relative_difference", boot),
+                                   ("relative_difference_t", t_values)):
+                report.row("robust_dimension", task, action, metric, d.step, relative.size,
+                           *values)
+            counts = " / ".join(str(d.verdicts[action].count(v))
+                                for v in ("ahead", "level", "behind"))
+            table.append([task, d.action_dim, format_step(d.step), action, relative.size,
+                          f"{tanh_mu.mean():.1f}",
+                          *seed_cells(100 * relative, [100 * v for v in boot], 1), counts])
+            cells[i, action] = PairedCell(100 * relative, [100 * v for v in boot],
+                                          [100 * v for v in t_values],
+                                          100 * at.errors[action] / tanh_mu, seeds=at.seeds)
+    labels, colors = robust_labels_colors(analysis.robust.actions)
+    row = PairedRow("Against the action dimension: each x a different task (its own body and "
+                    "reward),\nat its last robust step (seeds x starts)", ticks, cells,
+                    "minus tanh(mu), % of its return")
+    report.figure(plot_paired([row], colors, labels, "the robust evaluation, as a share of "
+                              "each seed's tanh(mu) return"), "robust_dimension")
+    report.section(
+        "Beyond the paper: the robust evaluation against the action dimension",
+        "Each task at its last robust step: per seed, each action's paired difference from the "
+        "same starts divided by that seed's tanh(mu) return; over seeds, the mean (in %) with "
+        f"rliable's bootstrap ({args.reps:,} replications) and Student's 95% t-interval; "
+        f"'ahead / level / behind': seeds beyond {VERDICT_SE:g} standard errors of their paired "
+        "episodes. Each dimension is a different task, with its own body and reward: the points "
+        "compare tasks, they are not one task swept over its action dimension.",
+        *few_seeds_lines([v.size for d in study.values() for v in d.relative.values()]), "",
+        markdown_table(["task", "action dims", "step", "action", "seeds", "tanh(mu)'s return",
+                        "minus tanh(mu), % of its return (bootstrap CI)", "t-interval",
+                        "ahead / level / behind"], table))
+
+
 # ============================================================================== the pipeline
 REPORT_SECTIONS: tuple[Callable[[Report, Analysis], None], ...] = (
     report_standard_provenance,
@@ -1068,6 +1132,7 @@ REPORT_SECTIONS: tuple[Callable[[Report, Analysis], None], ...] = (
     report_sample_efficiency,
     report_probability_of_improvement,
     report_dimension_study,
+    report_robust_dimension,
 )
 
 

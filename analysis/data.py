@@ -699,6 +699,45 @@ def blowups_recorded(by_task: dict[str, dict[int, RobustStep]]) -> bool:
 
 
 # ------------------------------------------------------------------------------------- normalise
+@dataclasses.dataclass
+class RobustDimension:
+    """One task of the dimension study from the robust evaluations: at its last robust step,
+    each action's paired difference per seed as a share of that seed's tanh(mu) return."""
+
+    action_dim: int
+    step: int
+    relative: dict[str, np.ndarray]  # action -> per seed: difference / tanh(mu)'s mean return
+    verdicts: dict[str, list[str]]  # action -> per seed: ahead / level / behind (verdict())
+
+
+def robust_dimension_study(by_task: dict[str, dict[int, RobustStep]], runs: Runs
+                           ) -> tuple[dict[str, RobustDimension], list[str]]:
+    """Each task's RobustDimension (the action dimension from its runs' config.json), and notes
+    on the tasks left out. Relative, not range-normalised as build_study's: the robust
+    evaluation has one or a few steps, and "the mode costs 5% of the return" reads alike on
+    every task; a seed whose tanh(mu) return is not positive leaves its task out."""
+    study, notes = {}, []
+    for task, steps in by_task.items():
+        dims = {c.action_dim for curves in runs.get(task, {}).values() for c in curves}
+        if None in dims or len(dims) != 1:
+            notes.append(f"{task}: its runs' config.json give no single action_dim "
+                         f"({sorted(dims, key=str)}); left out of the robust dimension study")
+            continue
+        step = max(steps)
+        at = steps[step]
+        tanh_mu = at.returns[BASELINE]
+        if (tanh_mu <= 0).any():
+            notes.append(f"{task}: a seed's tanh(mu) return at {format_step(step)} is not "
+                         "positive; left out of the robust dimension study (its differences "
+                         "are relative to it)")
+            continue
+        study[task] = RobustDimension(
+            dims.pop(), step, {a: d / tanh_mu for a, d in at.differences.items()},
+            {a: [estimators.verdict(m, se) for m, se in zip(d, at.errors[a], strict=True)]
+             for a, d in at.differences.items()})
+    return study, notes
+
+
 def resolve_normalization(mode: str, tasks: Sequence[str]) -> tuple[str, str]:
     """`auto` made concrete, and a sentence for summary.md saying what was chosen and why."""
     if mode != "auto":

@@ -1419,3 +1419,42 @@ def test_robust_aggregate_from_one_seed_prints_no_interval(tmp_path):
     text = (out / "summary.md").read_text()
     table = [line for line in text.splitlines() if line.startswith("| tanh_mu |")][-1]
     assert table.count("(n/a)") == 4, table
+
+
+def test_robust_dimension_study_is_each_seeds_share_of_its_tanh_mu_return(tmp_path):
+    """With robust evaluations of tasks of two action dimensions: per task at its last robust
+    step, each action's paired difference over that seed's tanh(mu) return, mean over seeds
+    with its t-interval; with one dimension there is none."""
+    tasks = {"Hopper-v5": 3, "h1hand-cube-v0": 61}
+    for task, dim in tasks.items():
+        for seed in range(3):
+            run = write_run(tmp_path / "runs", task, "corrected", seed, 10_000 * np.arange(1, 4),
+                            np.ones(3), np.zeros(3))
+            config = json.loads((run / "config.json").read_text())
+            (run / "config.json").write_text(json.dumps(config | {"action_dim": dim}))
+    written = write_robust_folder(tmp_path / "robust", list(tasks))
+    out = tmp_path / "out"
+    assert run_analysis(tmp_path / "runs", out, "--robust", str(tmp_path / "robust")) == 0
+    rows = read_rows(out)
+    quantile = scipy.stats.t.ppf(0.975, 2)  # three seeds
+    last = ROBUST_STEPS[-1]
+    for task in tasks:
+        for action in ("mode", "mean"):
+            shares = np.array([np.mean(e[action] - e["tanh_mu"]) / e["tanh_mu"].mean()
+                               for e in (written[task, seed, last] for seed in range(3))])
+            mean, half = shares.mean(), quantile * shares.std(ddof=1) / np.sqrt(3)
+            assert np.allclose(row_at(rows, "robust_dimension", task, action,
+                                      "relative_difference_t", last),
+                               (mean, mean - half, mean + half))
+            assert np.isclose(row_at(rows, "robust_dimension", task, action,
+                                     "relative_difference", last)[0], mean)
+    assert (out / "robust_dimension.png").is_file()
+    text = (out / "summary.md").read_text()
+    assert "## Beyond the paper: the robust evaluation against the action dimension" in text
+    assert "| Hopper-v5 | 3 | 1M | mode | 3 |" in text and "| h1hand-cube-v0 | 61 | 1M |" in text
+
+    one = tmp_path / "one"
+    write_robust_folder(tmp_path / "robust-one", ["h1hand-cube-v0"])
+    assert run_analysis(tmp_path / "runs", one, "--robust", str(tmp_path / "robust-one")) == 0
+    assert not (one / "robust_dimension.png").exists()
+    assert "robust evaluation against the action dimension" not in (one / "summary.md").read_text()
