@@ -1073,9 +1073,9 @@ def report_robust_dimension(report: Report, analysis: Analysis) -> None:
     args = analysis.args
     by_task = robust_paired_differences(analysis.robust)
     study, notes = robust_dimension_study(by_task, analysis.runs)
-    report.notes.extend(notes)
     if len({d.action_dim for d in study.values()}) < 2:
         return  # one task's or one body's campaign: nothing to set against the dimension
+    report.notes.extend(notes)
     study = dict(sorted(study.items(), key=lambda item: (item[1].action_dim, item[0])))
     estimates = seed_mean_estimates({(t, a): v for t, d in study.items()
                                      for a, v in d.relative.items()}, args.reps, args.seed)
