@@ -587,6 +587,15 @@ def read_campaign(out: Path) -> tuple[dict, dict[tuple[str, int, str], list[list
     return settings, episodes
 
 
+def read_shifts(out: Path, settings: dict) -> dict[tuple[str, int], list[str]]:
+    """shift.csv's row by (run, step), where a run has the file (older campaigns may not)."""
+    shifts = {}
+    for run in settings["runs"]:
+        for step, rows in (rows_by_step(out / run / "shift.csv", SHIFT_HEADER) or {}).items():
+            shifts[run, step] = rows[0]
+    return shifts
+
+
 def per_seed_rows(settings: dict, episodes: dict[tuple[str, int, str], list[list[str]]]
                   ) -> list[dict]:
     """unstable_ends and end_<why> only where some episode records them: a folder of older
@@ -647,7 +656,7 @@ def summarize_campaign(out: Path) -> None:
     settings, episodes = read_campaign(out)
     per_seed = per_seed_rows(settings, episodes)
     write_rows(out / "per_seed.csv", per_seed)
-    text = campaign_markdown(settings, per_seed, episodes)
+    text = campaign_markdown(settings, per_seed, episodes, read_shifts(out, settings))
     write_text_atomically(out / "summary.md", text)
     print(text, end="")
     print(f"wrote {out / 'summary.md'} and per_seed.csv; across seeds: analyze.py RUNS "
@@ -693,8 +702,40 @@ def fall_split(settings: dict, episodes: dict[tuple[str, int, str], list[list[st
                                    f"both {early}"], rows), ""]
 
 
+def shift_table(settings: dict, shifts: dict[tuple[str, int], list[str]]) -> list[str]:
+    """Per policy (shift.csv): the shift the mode makes at the states the mode's episodes (else
+    the first action's) visited, per dimension and summed, the policy's sigma and its share of
+    two-mode dimensions there; and which action q_best picked in its own episodes."""
+    if not shifts:
+        return []
+    column = {c: SHIFT_HEADER.index(c) for c in SHIFT_HEADER}
+    rows = []
+    about = settings["runs"]
+    for (run, step), row in sorted(shifts.items(), key=lambda kv: (
+            about[kv[0][0]]["env_id"], about[kv[0][0]]["seed"], kv[0][1])):
+        cells = {c: float(row[column[c]]) for c in SHIFT_HEADER[1:] if row[column[c]]}
+        picks = " / ".join(f"{100 * cells[f'q_best_share_{c}']:.0f}%" if
+                           f"q_best_share_{c}" in cells else "-" for c in Q_BEST_CANDIDATES)
+        number = {c: f"{cells[c]:.4g}" if c in cells else "-" for c in SHIFT_COLUMNS}
+        if "bimodal_fraction" in cells:
+            number["bimodal_fraction"] = f"{100 * cells['bimodal_fraction']:.1f}%"
+        rows.append([about[run]["env_id"], about[run]["seed"], report.format_step(step),
+                     *number.values(), picks])
+    visited = "mode" if "mode" in settings["selectors"] else settings["selectors"][0]
+    return ["## The shift at the visited states", "",
+            f"Per policy, over the states its {visited} episodes visited: |mode - tanh(mu)| "
+            "per action dimension (mean) and summed over dimensions, the policy's sigma (mean "
+            "over dimensions) and the share of dimensions whose tanh-Gaussian has two modes; and, "
+            "over q_best's own episodes, the share of its states where it picked tanh(mu) / the "
+            "mode / the mean.", "",
+            report.markdown_table(["task", "seed", "step", "mean abs(mode - tanh(mu))",
+                                   "summed over dimensions", "sigma", "two-mode dimensions",
+                                   "q_best's picks (tanh(mu) / mode / mean)"], rows), ""]
+
+
 def campaign_markdown(settings: dict, per_seed: list[dict],
-                      episodes: dict[tuple[str, int, str], list[list[str]]] | None = None) -> str:
+                      episodes: dict[tuple[str, int, str], list[list[str]]] | None = None,
+                      shifts: dict[tuple[str, int], list[str]] | None = None) -> str:
     noise = settings["reset_noise"]
     lines = [f"# Evaluation of {len(settings['runs'])} runs from `{settings['source']}`", "",
              f"`{' '.join(settings['command'])}`", "",
@@ -711,7 +752,8 @@ def campaign_markdown(settings: dict, per_seed: list[dict],
     lines += [f"Precision check: {'every' if not failed else 'not every'} seed's paired "
               f"difference has a standard error below {PRECISION:.0%} of tanh(mu)'s mean return"
               + (f"; above it: {', '.join(failed)} (more --episodes would narrow it)."
-                 if failed else "."), "", *fall_split(settings, episodes or {})]
+                 if failed else "."), "", *fall_split(settings, episodes or {}),
+              *shift_table(settings, shifts or {})]
     return "\n".join(lines)
 
 

@@ -973,3 +973,23 @@ def test_a_gymnasium_termination_is_tested_paired_as_a_fall_is():
     assert ("| neither terminated | only the mode's terminated | only tanh(mu)'s terminated | "
             "both terminated |") in table
     assert "| 0 | 100 | 10, +0.00 +- 0.00 | 15, -2.00 +- 0.00 | 0 | 5, -2.00 +- 0.00 |" in table
+
+
+def test_summary_tabulates_the_shift_each_policy_makes_at_its_visited_states(tmp_path):
+    """summary.md's last table is shift.csv's, per policy: the mode's shift per dimension and
+    summed, sigma, the two-mode share and q_best's picks; a campaign without shift.csv (an
+    older one) has no such table."""
+    settings = {"runs": {"b": {"env_id": "Hopper-v5", "seed": 1},
+                         "a": {"env_id": "Hopper-v5", "seed": 0}},
+                "selectors": ["mode", "tanh_mu", "q_best"]}
+    for run, rows in {"a": [["500", "0.05", "0.15", "0.3", "0.25", "0.1", "0.85", "0.05"]],
+                      "b": [["500", "0.125", "0.375", "0.5", "0.0", "", "", ""]]}.items():
+        (tmp_path / run).mkdir()
+        (tmp_path / run / "shift.csv").write_text(
+            "\n".join([",".join(evaluate.SHIFT_HEADER), *(",".join(r) for r in rows)]) + "\n")
+    table = "\n".join(evaluate.shift_table(settings, evaluate.read_shifts(tmp_path, settings)))
+    assert "over the states its mode episodes visited" in table
+    assert table.index("| Hopper-v5 | 0 | 500 |") < table.index("| Hopper-v5 | 1 | 500 |")
+    assert "| Hopper-v5 | 0 | 500 | 0.05 | 0.15 | 0.3 | 25.0% | 10% / 85% / 5% |" in table
+    assert "| Hopper-v5 | 1 | 500 | 0.125 | 0.375 | 0.5 | 0.0% | - / - / - |" in table
+    assert evaluate.shift_table(settings, evaluate.read_shifts(tmp_path / "none", settings)) == []
