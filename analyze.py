@@ -223,6 +223,12 @@ def over_tasks(report: Report, section: str, key: Key | str, per_task: dict[str,
              f"[{t_values[1]:.3f}, {t_values[2]:.3f}]", above_zero(scores)])
 
 
+def verdict_counts(means: np.ndarray, errors: np.ndarray) -> str:
+    """summary.md's "ahead / level / behind": how many seeds each verdict() gives."""
+    said = [verdict(m, se) for m, se in zip(means, errors, strict=True)]
+    return " / ".join(str(said.count(v)) for v in ("ahead", "level", "behind"))
+
+
 def episodes_span(episodes: np.ndarray) -> str:
     """Episodes per seed as the labels write them: "300", or "100-300" where seeds differ."""
     low, high = int(episodes.min()), int(episodes.max())
@@ -550,10 +556,8 @@ def robust_per_task(report: Report, analysis: Analysis, by_task: dict[str, dict[
                 diffs, boot = at.differences[action], estimates[key, action]
                 difference_rows(report, "robust_difference", task, action, step, diffs, boot,
                                 SUCCESS_BARS.get(task))
-                said = [verdict(m, se) for m, se in zip(diffs, at.errors[action], strict=True)]
-                verdicts = " / ".join(str(said.count(v)) for v in ("ahead", "level", "behind"))
-                table.append([*cells, *seed_cells(diffs, boot, 1), above_zero(diffs), verdicts,
-                              *blowups])
+                table.append([*cells, *seed_cells(diffs, boot, 1), above_zero(diffs),
+                              verdict_counts(diffs, at.errors[action]), *blowups])
     return table, estimates
 
 
@@ -1091,11 +1095,10 @@ def report_robust_dimension(report: Report, analysis: Analysis) -> None:
                                    ("relative_difference_t", t_values)):
                 report.row("robust_dimension", task, action, metric, d.step, relative.size,
                            *values)
-            counts = " / ".join(str(d.verdicts[action].count(v))
-                                for v in ("ahead", "level", "behind"))
             table.append([task, d.action_dim, format_step(d.step), action, relative.size,
                           f"{tanh_mu.mean():.1f}",
-                          *seed_cells(100 * relative, [100 * v for v in boot], 1), counts])
+                          *seed_cells(100 * relative, [100 * v for v in boot], 1),
+                          verdict_counts(at.differences[action], at.errors[action])])
             cells[i, action] = PairedCell(100 * relative, [100 * v for v in boot],
                                           [100 * v for v in t_values],
                                           100 * at.errors[action] / tanh_mu, seeds=at.seeds)

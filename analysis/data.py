@@ -538,6 +538,17 @@ def logged_at(curves: list[Curve], columns: Sequence[str], step: int) -> dict[st
             logged[column] = values[np.isfinite(values)]
     return logged
 
+def single_action_dim(task: str, curves: Sequence[Curve], study: str
+                      ) -> tuple[int | None, str | None]:
+    """The one action_dim the runs' config.json give, else None and the note that leaves the
+    task out of `study`."""
+    dims = {c.action_dim for c in curves}
+    if None in dims or len(dims) != 1:
+        return None, (f"{task}: its runs' config.json give no single action_dim "
+                      f"({sorted(dims, key=str)}); left out of {study}")
+    return dims.pop(), None
+
+
 def build_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
                 ) -> tuple[dict[str, Dimension], list[str]]:
     """Each task's Dimension, and notes on the tasks left out."""
@@ -547,10 +558,11 @@ def build_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
         if not pairs:
             continue
         algorithms = {group[0] for group, _ in pairs}
-        dims = {c.action_dim for a in algorithms for c in runs[task].get((a, own_action(a)), [])}
-        if None in dims or len(dims) != 1:
-            notes.append(f"{task}: its runs' config.json give no single action_dim "
-                         f"({sorted(dims, key=str)}); left out of the dimension study")
+        dim, note = single_action_dim(task, [c for a in algorithms
+                                             for c in runs[task].get((a, own_action(a)), [])],
+                                      "the dimension study")
+        if note:
+            notes.append(note)
             continue
         baselines = np.concatenate([data.returns[b].ravel() for b in {b for _, b in pairs}])
         scale = float(baselines.max() - baselines.min()) or 1.0
@@ -561,7 +573,7 @@ def build_study(runs: Runs, tasks: dict[str, Task], derived: Sequence[str]
         for key in sorted(((a, own_action(a)) for a in algorithms), key=group_rank):
             shift = shift or logged_at(runs[task][key], DIMENSION_SHIFT_COLUMNS,
                                        data.scored_step)
-        study[task] = Dimension(dims.pop(), scale, steps, differences, shift)
+        study[task] = Dimension(dim, scale, steps, differences, shift)
     return study, notes
 
 # ------------------------------------------------------------- robust evaluation (evaluate.py)
@@ -707,7 +719,6 @@ class RobustDimension:
     action_dim: int
     step: int
     relative: dict[str, np.ndarray]  # action -> per seed: difference / tanh(mu)'s mean return
-    verdicts: dict[str, list[str]]  # action -> per seed: ahead / level / behind (verdict())
 
 
 def robust_dimension_study(by_task: dict[str, dict[int, RobustStep]], runs: Runs
@@ -718,10 +729,10 @@ def robust_dimension_study(by_task: dict[str, dict[int, RobustStep]], runs: Runs
     every task; a seed whose tanh(mu) return is not positive leaves its task out."""
     study, notes = {}, []
     for task, steps in by_task.items():
-        dims = {c.action_dim for curves in runs.get(task, {}).values() for c in curves}
-        if None in dims or len(dims) != 1:
-            notes.append(f"{task}: its runs' config.json give no single action_dim "
-                         f"({sorted(dims, key=str)}); left out of the robust dimension study")
+        dim, note = single_action_dim(task, [c for curves in runs.get(task, {}).values()
+                                             for c in curves], "the robust dimension study")
+        if note:
+            notes.append(note)
             continue
         step = max(steps)
         at = steps[step]
@@ -731,10 +742,8 @@ def robust_dimension_study(by_task: dict[str, dict[int, RobustStep]], runs: Runs
                          "positive; left out of the robust dimension study (its differences "
                          "are relative to it)")
             continue
-        study[task] = RobustDimension(
-            dims.pop(), step, {a: d / tanh_mu for a, d in at.differences.items()},
-            {a: [estimators.verdict(m, se) for m, se in zip(d, at.errors[a], strict=True)]
-             for a, d in at.differences.items()})
+        study[task] = RobustDimension(dim, step,
+                                      {a: d / tanh_mu for a, d in at.differences.items()})
     return study, notes
 
 
