@@ -147,7 +147,7 @@ def check_args(args: Args) -> None:
 # ----------------------------------------------------------------------------- evaluate
 def make_jobs(actor: nn.Module, critic: nn.Module | None, env_id: str, seeds: list[int],
               actions: list[str], args: Args, label: str = "") -> list[Round]:
-    shift_of = "mode" if "mode" in actions else actions[0]
+    shift_of = shift_action(actions)
     jobs = []
     for start in range(0, len(seeds), JOB_EPISODES):
         part = seeds[start:start + JOB_EPISODES]
@@ -702,18 +702,22 @@ def fall_split(settings: dict, episodes: dict[tuple[str, int, str], list[list[st
                                    f"both {early}"], rows), ""]
 
 
+def shift_action(actions: list[str]) -> str:
+    """The action whose visited states the shift statistics are taken at."""
+    return "mode" if "mode" in actions else actions[0]
+
+
 def shift_table(settings: dict, shifts: dict[tuple[str, int], list[str]]) -> list[str]:
     """Per policy (shift.csv): the shift the mode makes at the states the mode's episodes (else
     the first action's) visited, per dimension and summed, the policy's sigma and its share of
     two-mode dimensions there; and which action q_best picked in its own episodes."""
     if not shifts:
         return []
-    column = {c: SHIFT_HEADER.index(c) for c in SHIFT_HEADER}
     rows = []
     about = settings["runs"]
     for (run, step), row in sorted(shifts.items(), key=lambda kv: (
             about[kv[0][0]]["env_id"], about[kv[0][0]]["seed"], kv[0][1])):
-        cells = {c: float(row[column[c]]) for c in SHIFT_HEADER[1:] if row[column[c]]}
+        cells = {c: float(v) for c, v in zip(SHIFT_HEADER[1:], row[1:], strict=True) if v}
         picks = " / ".join(f"{100 * cells[f'q_best_share_{c}']:.0f}%" if
                            f"q_best_share_{c}" in cells else "-" for c in Q_BEST_CANDIDATES)
         number = {c: f"{cells[c]:.4g}" if c in cells else "-" for c in SHIFT_COLUMNS}
@@ -721,7 +725,7 @@ def shift_table(settings: dict, shifts: dict[tuple[str, int], list[str]]) -> lis
             number["bimodal_fraction"] = f"{100 * cells['bimodal_fraction']:.1f}%"
         rows.append([about[run]["env_id"], about[run]["seed"], report.format_step(step),
                      *number.values(), picks])
-    visited = "mode" if "mode" in settings["selectors"] else settings["selectors"][0]
+    visited = shift_action(settings["selectors"])
     return ["## The shift at the visited states", "",
             f"Per policy, over the states its {visited} episodes visited: |mode - tanh(mu)| "
             "per action dimension (mean) and summed over dimensions, the policy's sigma (mean "

@@ -29,6 +29,7 @@ from analysis import data  # noqa: E402
 
 CUBE_10M = HERE.parent / "cube-10M"
 LAST = 4_000_000
+BEFORE = LAST - 1_000_000  # "rising": above the run's own evaluation a million steps before
 COLORS = {2: "tab:blue", 3: "tab:orange"}
 # The issue's "at or below ours (<= ~23)": cube-10M's better seed scored 22.3 at 4M.
 OURS = 23.0
@@ -52,10 +53,10 @@ def reading(means: dict[int, dict[int, float]], bar: float) -> str:
     OURS: cleared; otherwise between. Not yet while a run has no 4M evaluation."""
     if not means or any(LAST not in steps for steps in means.values()):
         return "the reading (issue 86's rule): not yet, a run has no 4M evaluation"
-    numbers = "; ".join(f"seed {seed}: {steps.get(LAST - 1_000_000, float('nan')):.1f} at 3M, "
+    numbers = "; ".join(f"seed {seed}: {steps.get(BEFORE, float('nan')):.1f} at 3M, "
                         f"{steps[LAST]:.1f} at 4M" for seed, steps in sorted(means.items()))
     at_4m = [steps[LAST] for steps in means.values()]
-    rising = all(steps[LAST] > steps.get(LAST - 1_000_000, float("inf"))
+    rising = all(steps[LAST] > steps.get(BEFORE, float("inf"))
                  for steps in means.values())
     if all(x >= bar for x in at_4m) and rising:
         verdict = (f"the env: both at or above HumanoidBench's lowest seed ({bar:g}) and rising, "
@@ -70,13 +71,14 @@ def reading(means: dict[int, dict[int, float]], bar: float) -> str:
 
 def main(out: Path) -> None:
     fig, ax = plt.subplots(figsize=(8, 5))
+    robust = {HERE: robust_rows(HERE), CUBE_10M: robust_rows(CUBE_10M)}
     for campaign, style, name in ((HERE, "-", "HumanoidBench's scene, MuJoCo 3.1.6"),
                                   (CUBE_10M, "--", "cube-10M: our scene, MuJoCo 4.0.0")):
         for curve in log_curves(campaign):
             kept = curve.steps <= LAST
             ax.plot(curve.steps[kept] / 1e6, curve.returns[kept], style,
                     color=COLORS[curve.seed], lw=1.4, label=f"ours, seed {curve.seed}, {name}")
-        for seed, points in robust_rows(campaign).groupby("seed"):
+        for seed, points in robust[campaign].groupby("seed"):
             ax.errorbar(points.step / 1e6, points.return_mean, yerr=points.return_se,
                         fmt="o" if style == "-" else "s", color=COLORS[seed],
                         mfc=COLORS[seed] if style == "-" else "white", ms=6, capsize=2, lw=0)
@@ -104,7 +106,7 @@ def main(out: Path) -> None:
     fig.savefig(out, dpi=110)
     print(out)
     means = {seed: dict(zip(points.step, points.return_mean, strict=True))
-             for seed, points in robust_rows(HERE).groupby("seed")}
+             for seed, points in robust[HERE].groupby("seed")}
     print(reading(means, lowest))
 
 
