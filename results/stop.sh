@@ -3,13 +3,13 @@
 # with a checkpoint at their current step, then copy what lets each run of each CAMPAIGN folder
 # (~/campaign/<name>, whose results/<name>/runs/ holds its copy) go on without this machine into
 # the checkout: the CSVs, config.json, sweep_run.json, the run's own snapshots and, where the run
-# is 500,000 steps or more past its newest snapshot there, one made from the checkpoint
-# (`sweep.py restart` continues from it if the checkpoint is lost). A finished run (done.json) is
+# is GAP steps or more past its newest snapshot there (500,000 unless GAP says), one made from the
+# checkpoint (`sweep.py restart` continues from it if the checkpoint is lost). A finished run (done.json) is
 # copied whole: its final_model.pt and done.json, no stop snapshot. Then each campaign's report
 # is rebuilt from its reports.json where a run's CSVs changed.
 #
 #   results/stop.sh [--checkpoint-only] SRC CAMPAIGN...
-#   e.g. results/stop.sh ~/campaign/hbsrc ~/campaign/cube-hb-scene
+#   e.g. GAP=1 results/stop.sh ~/campaign/hbsrc ~/campaign/cube-hb-scene
 #        results/stop.sh ~/campaign/src ~/campaign/cube-10M ~/campaign/powerlift-10M
 #
 # --checkpoint-only: only the stop, for a session's last minutes after its commit, so that a kept
@@ -17,7 +17,9 @@
 # checkout (~/campaign/notes/stop.sh), as bash reads a script while it runs; CHECKOUT (default
 # /work/main) is the checkout with its .venv.
 set -u
-GAP=500000  # a lost machine costs a run at most this many steps; each stop snapshot is 1.6 MB
+# A lost machine costs a run at most GAP steps (and a restart's refill); each stop snapshot of a
+# 61-actuator run is 1.6 MB, in git's history for good, so a campaign's last stretch may lower it.
+GAP=${GAP:-500000}
 CHECKOUT=${CHECKOUT:-/work/main}
 only=0; [ "${1:-}" = --checkpoint-only ] && { only=1; shift; }
 [ $# -ge 2 ] || { echo "usage: stop.sh [--checkpoint-only] SRC CAMPAIGN... (SRC: the clone the runs were launched from)"; exit 2; }
