@@ -30,7 +30,8 @@ RTOL = 1e-9
 # A robust evaluation repeated, on another kind of CPU (machine-check*/) or from other starts
 # (recheck*/): no report reads it (its million is there).
 REPEATS = ("machine-check", "recheck")
-# Every evaluation folder's name begins with one of these.
+# Every evaluation folder's name begins with one of these, or it lies in reset-noise/ (a
+# repeat at other reset noises, noise-<n>/).
 EVALUATIONS = ("robust", *REPEATS)
 
 
@@ -140,11 +141,22 @@ def test_report_reproduces_from_the_committed_runs(campaign: Path, report: str,
 
 def robust_cases() -> list:
     """Every committed robust evaluation (evaluate.py over a campaign's runs): its folder. A
-    machine-check*/ or recheck*/ folder is a million evaluated again (REPEATS), which no report
-    reads."""
+    machine-check*/, recheck*/ or reset-noise/noise-*/ folder is a million evaluated again
+    (is_repeat), which no report reads."""
+    patterns = [*(f"*/{prefix}*/evaluation.json" for prefix in EVALUATIONS),
+                "*/reset-noise/*/evaluation.json"]
     return [pytest.param(folder.parent, id=str(folder.parent.relative_to(RESULTS)))
-            for prefix in EVALUATIONS
-            for folder in sorted(RESULTS.glob(f"*/{prefix}*/evaluation.json"))]
+            for pattern in patterns for folder in sorted(RESULTS.glob(pattern))]
+
+
+def campaign_of(folder: Path) -> Path:
+    """results/<campaign>/ of an evaluation folder, however deep it lies."""
+    return RESULTS / folder.relative_to(RESULTS).parts[0]
+
+
+def is_repeat(folder: Path) -> bool:
+    return any(part.startswith((*REPEATS, "reset-noise"))
+               for part in folder.relative_to(RESULTS).parts[1:])
 
 
 @pytest.mark.parametrize("folder", robust_cases())
@@ -178,11 +190,15 @@ def test_robust_summary_reproduces_from_the_committed_episodes(folder: Path,
                     assert new[column] == old[column], (name, column)
     assert (copy / "summary.md").read_text().replace(str(copy), str(folder)) == \
         (folder / "summary.md").read_text()
-    readme = (folder.parent / "README.md").read_text()
-    assert " ".join(settings["command"][1:]) in readme, "the README must give the command"
+    readme = (campaign_of(folder) / "README.md").read_text()
+    given = " ".join(settings["command"][1:])
+    # the reset noises' evaluations share one command line, the noise written $n
+    noise = settings["command"][settings["command"].index("--reset-noise") + 1]
+    assert given in readme or given.replace(noise, "$n") in readme, \
+        "the README must give the command"
     # Its numbers across seeds are a report's: its campaign's report reads it with --robust
     # (a repeat evaluates a million the report has).
-    if not folder.name.startswith(REPEATS):
+    if not is_repeat(folder):
         assert any(str(folder.relative_to(ROOT)) in spec["args"]
                    for spec in reports_of(folder.parent).values()), (
             f"no report of {folder.parent.name} reads {folder.name} with --robust")
