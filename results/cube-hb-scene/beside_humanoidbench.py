@@ -3,7 +3,9 @@ HumanoidBench's three SAC seeds, 0-4M steps.
 
     .venv/bin/python results/cube-hb-scene/beside_humanoidbench.py [OUT]  # default: beside it
 
-Lines: each run's training-log round (eval.csv's tanh_mu_return_mean, 10 episodes every 100k).
+Lines: each run's training-log round (eval.csv's tanh_mu_return_mean, 10 episodes every 100k);
+dotted, where a run was restarted from a snapshot (`sweep.py restart`), its rounds past that step
+as it first ran them (restarts/step<N>/eval.csv).
 Markers with bars: the 300-start robust evaluations (mean +- 1 SE) where a robust-*/ folder has
 the snapshot. HumanoidBench's: its published curves at each million (humanoidbench-sac-cube.csv,
 read as cube-10M's README says), mean of its deterministic evaluation episodes.
@@ -39,6 +41,18 @@ def log_curves(campaign: Path) -> list[data.Curve]:
     """Each run's tanh(mu) rounds, as analyze.py reads them (the corrected runs' paired curve)."""
     runs, _ = data.load_runs([campaign / "runs"])
     return [c for groups in runs.values() for c in groups[(data.CORRECTED, data.BASELINE)]]
+
+
+def lost_rounds(campaign: Path) -> list[tuple[int, pd.DataFrame]]:
+    """Per restarted run, (seed, its first rounds past the restart's step), from the CSVs that
+    the restart kept in restarts/step<N>/, with the round at the step itself to join the line."""
+    lost = []
+    for kept in sorted(campaign.glob("runs/*/restarts/step*/eval.csv")):
+        step = int(kept.parent.name.removeprefix("step"))
+        seed = data.read_config(kept.parents[2] / data.CONFIG_FILE)["seed"]
+        rounds = pd.read_csv(kept)
+        lost.append((seed, rounds[(rounds.global_step >= step) & (rounds.global_step <= LAST)]))
+    return lost
 
 
 def robust_rows(campaign: Path) -> pd.DataFrame:
@@ -78,6 +92,9 @@ def main(out: Path) -> None:
             kept = curve.steps <= LAST
             ax.plot(curve.steps[kept] / 1e6, curve.returns[kept], style,
                     color=COLORS[curve.seed], lw=1.4, label=f"ours, seed {curve.seed}, {name}")
+        for seed, rounds in lost_rounds(campaign):
+            ax.plot(rounds.global_step / 1e6, rounds.tanh_mu_return_mean, ":",
+                    color=COLORS[seed], lw=1.2)
         for seed, points in robust[campaign].groupby("seed"):
             ax.errorbar(points.step / 1e6, points.return_mean, yerr=points.return_se,
                         fmt="o" if style == "-" else "s", color=COLORS[seed],
@@ -99,7 +116,8 @@ def main(out: Path) -> None:
                  " HumanoidBench's\n"
                  "lines: training log (10 episodes / 100k); markers: 300 noisy starts, mean"
                  " +- 1 SE\n(filled: HB scene; open: cube-10M); triangles: HumanoidBench's"
-                 " published curves at each million", fontsize="medium")
+                 " published curves at each million;\ndotted: the rounds lost with a machine,"
+                 " each run restarted from its 3M snapshot", fontsize="medium")
     ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(0, 0.93))
     ax.grid(alpha=0.3)
     fig.tight_layout()
