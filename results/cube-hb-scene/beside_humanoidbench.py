@@ -23,6 +23,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -43,15 +44,19 @@ def log_curves(campaign: Path) -> list[data.Curve]:
     return [c for groups in runs.values() for c in groups[(data.CORRECTED, data.BASELINE)]]
 
 
-def lost_rounds(campaign: Path) -> list[tuple[int, pd.DataFrame]]:
-    """Per restarted run, (seed, its first rounds past the restart's step), from the CSVs that
-    the restart kept in restarts/step<N>/, with the round at the step itself to join the line."""
+def lost_rounds(campaign: Path) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """Per restarted run, (seed, steps, tanh(mu) returns) of its first rounds past the restart's
+    step, read as analyze.py reads eval.csv from the copy the restart kept in restarts/step<N>/,
+    with the round at the step itself to join the line."""
     lost = []
-    for kept in sorted(campaign.glob("runs/*/restarts/step*/eval.csv")):
+    for kept in sorted(campaign.glob(f"runs/*/restarts/step*/{data.EVAL_FILE}")):
         step = int(kept.parent.name.removeprefix("step"))
         seed = data.read_config(kept.parents[2] / data.CONFIG_FILE)["seed"]
-        rounds = pd.read_csv(kept)
-        lost.append((seed, rounds[(rounds.global_step >= step) & (rounds.global_step <= LAST)]))
+        columns, _ = data.read_eval_csv(kept)
+        steps = columns[data.STEP_COLUMN]
+        after = (steps >= step) & (steps <= LAST)
+        lost.append((seed, steps[after],
+                     columns[f"{data.BASELINE}_{data.RETURN_COLUMN}"][after]))
     return lost
 
 
@@ -92,9 +97,8 @@ def main(out: Path) -> None:
             kept = curve.steps <= LAST
             ax.plot(curve.steps[kept] / 1e6, curve.returns[kept], style,
                     color=COLORS[curve.seed], lw=1.4, label=f"ours, seed {curve.seed}, {name}")
-        for seed, rounds in lost_rounds(campaign):
-            ax.plot(rounds.global_step / 1e6, rounds.tanh_mu_return_mean, ":",
-                    color=COLORS[seed], lw=1.2)
+        for seed, steps, returns in lost_rounds(campaign):
+            ax.plot(steps / 1e6, returns, ":", color=COLORS[seed], lw=1.2)
         for seed, points in robust[campaign].groupby("seed"):
             ax.errorbar(points.step / 1e6, points.return_mean, yerr=points.return_se,
                         fmt="o" if style == "-" else "s", color=COLORS[seed],
