@@ -5,8 +5,8 @@
 # the checkout: the CSVs, config.json, sweep_run.json, the run's own snapshots and, where the run
 # is GAP steps or more past its newest snapshot there (500,000 unless GAP says), one made from
 # the checkpoint (`sweep.py restart` continues from it if the checkpoint is lost). A finished run
-# (done.json) is copied whole: its final_model.pt and done.json, no stop snapshot. Then each campaign's report
-# is rebuilt from its reports.json where a run's CSVs changed.
+# (done.json) is copied whole: its final_model.pt and done.json, no stop snapshot. Then each
+# campaign's report is rebuilt from its reports.json where a run's CSVs changed.
 #
 #   results/stop.sh [--checkpoint-only] SRC CAMPAIGN...
 #   e.g. GAP=1 results/stop.sh ~/campaign/hbsrc ~/campaign/cube-hb-scene
