@@ -111,10 +111,25 @@ def test_the_compiled_update_is_the_textbook_update_in_one_graph():
     # One graph for the whole update, compiled once: no graph break (fullgraph would have
     # failed) and no recompile in 200 calls.
     assert torch._dynamo.utils.counters["stats"]["unique_graphs"] == 1
-    # Inductor fuses kernels and orders float sums its own way. Measured here (torch 2.13, one
-    # thread): after 200 updates every logged tensor and parameter within ~1e-6 of the textbook
-    # path's. The tolerances leave room.
-    assert_close_runs(compiled, textbook, rtol=1e-4, atol=1e-4)
+    # Inductor fuses kernels and orders float sums its own way, and Adam, normalising each
+    # gradient, carries that rounding into every later step: the paths part slowly. Measured
+    # (torch 2.13, one thread) on an AMD EPYC: over the first 20 updates the logged tensors within
+    # 1.7e-5 (a per-sample log-probability); after 200, 3.2e-3 there and 7.8e-4 on a parameter (an
+    # Intel Xeon stayed within ~1e-6; CI's runner, 3.4e-4 at 200). So the update is held tight
+    # over 20 steps, and the long run by where it went: each parameter's displacement from its
+    # initial value within 5% of the textbook path's (measured at most 0.4%).
+    assert_close_runs((compiled[0][:20], {}), (textbook[0][:20], {}), rtol=1e-4, atol=1e-4)
+    agent = small_learner(0)
+    start = {f"{name}.{k}": v for name in ("actor", "qf", "qf_target")
+             for k, v in agent[name].state_dict().items()} | {"log_alpha": agent["log_alpha"]}
+    assert start.keys() == textbook[1].keys() == compiled[1].keys()
+    for name, value in start.items():
+        moved, compiled_moved = textbook[1][name] - value, compiled[1][name] - value
+        if not moved.any():  # a buffer (the action scale and bias)
+            assert torch.equal(compiled[1][name], value), name
+            continue
+        gap = ((compiled_moved - moved).norm() / moved.norm()).item()
+        assert gap < 0.05, (name, gap)
 
 
 def test_the_fast_update_steps_adam_as_torch_optim_adam_does():
