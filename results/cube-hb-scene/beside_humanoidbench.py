@@ -120,8 +120,8 @@ def main(out: Path) -> None:
                  " HumanoidBench's\n"
                  "lines: training log (10 episodes / 100k); markers: 300 noisy starts, mean"
                  " +- 1 SE\n(filled: HB scene; open: cube-10M); triangles: HumanoidBench's"
-                 " published curves at each million;\ndotted: the rounds lost with a machine,"
-                 " each run restarted from its 3M snapshot", fontsize="medium")
+                 " published curves at each million;\ndotted: rounds lost with a machine (restarts"
+                 " from the 3M snapshots; a second at 3.85M lost none)", fontsize="medium")
     ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(0, 0.93))
     ax.grid(alpha=0.3)
     fig.tight_layout()
