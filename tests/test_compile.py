@@ -79,9 +79,14 @@ def updates(path: str, steps: int = 200) -> tuple[list, dict]:
         logs = [[t.detach().clone() for t in update(*b)] for b in batches(steps)]
     finally:
         torch.set_num_threads(threads)
+    return logs, agent_tensors(agent)
+
+
+def agent_tensors(agent: dict) -> dict[str, torch.Tensor]:
+    """Copies of an agent's networks' state and its log alpha, by name."""
     state = {f"{name}.{k}": v.detach().clone() for name in ("actor", "qf", "qf_target")
              for k, v in agent[name].state_dict().items()}
-    return logs, state | {"log_alpha": agent["log_alpha"].detach().clone()}
+    return state | {"log_alpha": agent["log_alpha"].detach().clone()}
 
 
 def assert_close_runs(a: tuple, b: tuple, rtol: float, atol: float) -> None:
@@ -119,9 +124,7 @@ def test_the_compiled_update_is_the_textbook_update_in_one_graph():
     # over 20 steps, and the long run by where it went: each parameter's displacement from its
     # initial value within 5% of the textbook path's (measured at most 0.4%).
     assert_close_runs((compiled[0][:20], {}), (textbook[0][:20], {}), rtol=1e-4, atol=1e-4)
-    agent = small_learner(0)
-    start = {f"{name}.{k}": v for name in ("actor", "qf", "qf_target")
-             for k, v in agent[name].state_dict().items()} | {"log_alpha": agent["log_alpha"]}
+    start = agent_tensors(small_learner(0))
     assert start.keys() == textbook[1].keys() == compiled[1].keys()
     for name, value in start.items():
         moved, compiled_moved = textbook[1][name] - value, compiled[1][name] - value
