@@ -335,6 +335,14 @@ def test_classic_beside_published_reads_ours_with_the_t_interval(tmp_path: Path,
         for seed, final in enumerate(finals):
             curve = final * steps / steps[-1]
             run = write_run(tmp_path / "runs", env_id, "corrected", seed, steps, curve + 5, curve)
+            config = json.loads((run / "config.json").read_text())
+            config["learning_starts"] = 10_000
+            if env_id == "Hopper-v5":  # seed 0 never restarted; 1 once; 2 with a refill past 1M
+                config["restarts"] = [
+                    [], [{"step": 263_373, "updates_from": 363_373}],
+                    [{"step": 400_000, "updates_from": 500_000},
+                     {"step": 950_000, "updates_from": 1_050_000}]][seed]
+            (run / "config.json").write_text(json.dumps(config))
             for selector, value in (("mode", final + 5), ("tanh_mu", final)):
                 rows.append({"env_id": env_id, "run": run.name, "seed": seed, "step": 1_000_000,
                              "selector": selector, "episodes": 300, "return_mean": value,
@@ -363,6 +371,9 @@ def test_classic_beside_published_reads_ours_with_the_t_interval(tmp_path: Path,
     assert "above every one" in lines["Ant"]  # 6254-7013, over the highest (5850)
     assert "6232 +- 280 at 2M (none at 1M)" in lines["Humanoid"]
     assert "within (4996-5489)" in lines["Humanoid"]  # RL Zoo's 2M figure is not in the range
+    # updates at 1M: 990,000 / 890,000 / 990,000 - 100,000 - 50,000 (the refill past 1M stops there)
+    assert "906,667 (840,000-990,000); 3" in lines["Hopper"]
+    assert "990,000 (990,000-990,000); 0" in lines["Ant"]
     assert out.stat().st_size > 10_000
     assert module.main(["--runs", str(tmp_path / "none"), "--robust", str(robust)]) == 2
     error = capsys.readouterr().err.strip()

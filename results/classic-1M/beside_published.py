@@ -14,6 +14,7 @@ the range of all of them, never against one.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -76,6 +77,22 @@ def ours(robust: data.Robust, step: int = STEP) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
+def updates(runs: Path, step: int = STEP) -> pd.DataFrame:
+    """Per task: how many updates its runs' policies had at `step`, mean and range over seeds.
+    A run makes one update per env step from --learning-starts on, except while it refills its
+    buffer after a restart from a snapshot (config.json's `restarts`): each one costs its
+    refill's updates, so a restarted run meets the published SACs with fewer."""
+    out = []
+    for config_path in sorted(runs.glob("*/config.json")):
+        config = json.loads(config_path.read_text())
+        lost = sum(min(r["updates_from"], step) - r["step"]
+                   for r in config.get("restarts", []) if r["step"] < step)
+        out.append({"task": task_name(config["env_id"]), "seed": config["seed"],
+                    "updates": step - config["learning_starts"] - lost,
+                    "restarts": len(config.get("restarts", []))})
+    return pd.DataFrame(out, columns=["task", "seed", "updates", "restarts"])
+
+
 def placement(mean: float, low: float, high: float, values: np.ndarray) -> str:
     """Where our interval falls against the published values at 1M."""
     if values.size == 0:
@@ -93,11 +110,15 @@ def placement(mean: float, low: float, high: float, values: np.ndarray) -> str:
     return f"within ({span})"
 
 
-def table(our: pd.DataFrame, peers: pd.DataFrame) -> str:
-    """The README's markdown table: a row per task, ours then each source, then the reading."""
+def table(our: pd.DataFrame, peers: pd.DataFrame, done: pd.DataFrame | None = None) -> str:
+    """The README's markdown table: a row per task, ours then each source, then the reading;
+    with `done` (updates()), a column of our updates at 1M."""
     sources = list(PROTOCOLS)
     head = ["task", "ours (v5): tanh(mu) at 1M, mean [95% t-interval], seeds x starts",
             *(f"{s} ({PROTOCOLS[s]})" for s in sources), "ours against the published at 1M"]
+    if done is not None:
+        head.append(f"our updates at 1M, mean (min-max) over seeds; restarts "
+                    f"({STEP - 10_000:,} without one)")
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for task in TASKS:
         mine = our[our.task == task]
@@ -118,6 +139,11 @@ def table(our: pd.DataFrame, peers: pd.DataFrame) -> str:
             cells.append(f"{r.value} +- {r.spread}{at}")
         at_step = theirs[theirs.step == STEP].value.to_numpy(dtype=float)
         cells.append("" if mine.empty else placement(m["mean"], m.low, m.high, at_step))
+        if done is not None:
+            runs = done[done.task == task]
+            cells.append("no runs" if runs.empty else
+                         f"{runs.updates.mean():,.0f} ({runs.updates.min():,}-"
+                         f"{runs.updates.max():,}); {runs.restarts.sum()}")
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -177,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise BesideError(f"{folder} is not a folder: pass --runs and --robust, or "
                                   "commit the campaign's runs/ and robust-1M/ first")
         our, peers = ours(data.load_robust([args.robust])), published()
-        print(table(our, peers))
+        print(table(our, peers, updates(args.runs)))
         figure(args.runs, our, peers, args.out)
     except (BesideError, data.AnalysisError) as error:
         print(f"beside_published.py: {error}", file=sys.stderr)
