@@ -229,9 +229,29 @@ def quoted_tables(folder: Path) -> list[list[str]]:
 
 
 def table_cases() -> list:
-    return [pytest.param(folder, id=str(folder.relative_to(RESULTS)))
-            for pattern in (f"*/{p}*/" for p in EVALUATIONS)
-            for folder in sorted(RESULTS.glob(pattern)) if quoted_tables(folder)]
+    """Every finished evaluation (evaluation.json) whose summary.md its README quotes."""
+    return [pytest.param(marker.parent, id=str(marker.parent.relative_to(RESULTS)))
+            for pattern in (f"*/{p}*/evaluation.json" for p in EVALUATIONS)
+            for marker in sorted(RESULTS.glob(pattern)) if quoted_tables(marker.parent)]
+
+
+def test_evaluations_are_finished_or_say_they_are_not() -> None:
+    """An evaluation folder is finished (evaluation.json and its summary.md) or still under way
+    beside a campaign that is training (evaluation.partial.json, no summary yet), and then its
+    README calls it unfinished: nothing half-written passes for a result."""
+    folders = [f for p in EVALUATIONS for f in sorted(RESULTS.glob(f"*/{p}*/"))]
+    assert folders
+    for folder in folders:
+        finished = (folder / "evaluation.json").is_file()
+        partial = (folder / "evaluation.partial.json").is_file()
+        assert finished != partial, f"{folder}: needs evaluation.json or .partial.json, not both"
+        if finished:
+            assert (folder / "summary.md").is_file(), f"{folder} is finished without summary.md"
+        else:
+            assert not (folder / "summary.md").exists(), folder
+            readme = (folder.parent / "README.md").read_text()
+            assert f"`{folder.name}/`, unfinished" in readme, (
+                f"{folder.parent.name}/README.md does not call {folder.name}/ unfinished")
 
 
 @pytest.mark.parametrize("folder", table_cases())
