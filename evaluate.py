@@ -354,11 +354,14 @@ def is_campaign(source: Path) -> bool:
 
 def campaign_policies(root: Path, steps: tuple[int, ...]) -> tuple[list[Policy], list[str]]:
     """The policies there, and those at --steps not there yet ("run step N"). The final weights
-    stand for a snapshot at their step."""
+    stand for a snapshot at their step. A sweep's run not started yet (sweep_run.json without
+    config.json) has none of its steps there: the campaign is not complete without it."""
     run_dirs = sorted(p.parent for p in root.rglob("config.json"))
+    planned = sorted(p.parent.name for p in root.rglob("sweep_run.json")
+                     if not (p.parent / "config.json").is_file())
     if len({d.name for d in run_dirs}) < len(run_dirs):  # the output is one folder per name
         fail(f"{root}: two run folders share a name; evaluate them separately")
-    policies, missing = [], []
+    policies, missing = [], [f"{name} (not started)" for name in planned]
     for run_dir in run_dirs:
         config = read_config(run_dir)
         files = {int(p.stem.removeprefix("step")): p

@@ -24,12 +24,23 @@ CHECKOUT=${CHECKOUT:-/work/main}
 only=0; [ "${1:-}" = --checkpoint-only ] && { only=1; shift; }
 [ $# -ge 2 ] || { echo "usage: stop.sh [--checkpoint-only] SRC CAMPAIGN... (SRC: the clone the runs were launched from)"; exit 2; }
 src=$(realpath "$1"); shift
+# The sweep launched from SRC first (its working directory: its command line names no path),
+# or it launches the next runs as soon as these stop.
+for p in $(pgrep -f "sweep.py" || true); do
+  [ "$(readlink /proc/$p/cwd)" = "$src" ] && kill -KILL $p
+done
 pids=$(pgrep -f "$src/sac_(standard|corrected).py" || true)
 [ -n "$pids" ] && kill -TERM $pids
 for p in $pids; do while kill -0 $p 2>/dev/null; do sleep 1; done; done
 [ $only = 1 ] && { echo "stopped:" $pids; exit 0; }
 for campaign in "$@"; do
   task=$(basename $campaign); R=results/$task; OUT=$CHECKOUT/$R/runs; changed=0
+  # a sweep's run not started yet: its sweep_run.json, so that evaluate.py keeps the campaign's
+  # evaluations open for it and a new machine's sweep launches it
+  for plan in $campaign/*/sweep_run.json; do
+    [ -e "$plan" ] && [ ! -e $(dirname $plan)/config.json ] || continue
+    mkdir -p $OUT/$(basename $(dirname $plan)) && cp $plan $OUT/$(basename $(dirname $plan))/
+  done
   for config in $campaign/*/config.json; do
     [ -e "$config" ] || continue
     d=$(dirname $config); r=$(basename $d); mkdir -p $OUT/$r/snapshots

@@ -706,11 +706,13 @@ def test_a_campaign_still_training_stays_unfinished_until_its_steps_are_there(ca
                                                                               capsys):
     source, out = tmp_path / "runs", tmp_path / "out"
     shutil.copytree(campaign, source)
+    (source / "run2").mkdir()  # a sweep's run not started yet: its plan, no config.json
+    (source / "run2" / "sweep_run.json").write_text(json.dumps({"seed": 2}))
     asked = (*CAMPAIGN_ARGS, "--steps", "800", "2400")
     code, printed, err = run(capsys, str(source), "--out", str(out), *asked)
-    assert code == 0 and "0 of 2 policies already evaluated, 2 left, 2 not there yet" in err, err
-    assert ("not there yet at --steps: run0 step 2400, run1 step 2400; once they are, the same "
-            "command evaluates them") in err and printed == ""
+    assert code == 0 and "0 of 2 policies already evaluated, 2 left, 3 not there yet" in err, err
+    assert ("not there yet at --steps: run2 (not started), run0 step 2400, run1 step 2400; once "
+            "they are, the same command evaluates them") in err and printed == ""
     # Not sealed: the step-800 rows and the marker, no evaluation.json, no summary.
     assert sorted(p.name for p in out.iterdir() if p.is_file()) == [evaluate.PARTIAL_FILE]
     assert {r["step"] for r in read_rows(out / "run1" / "episodes.csv")} == {"800"}
@@ -719,7 +721,11 @@ def test_a_campaign_still_training_stays_unfinished_until_its_steps_are_there(ca
         shutil.copy(source / f"run{seed}" / "snapshots" / "step800.pt",
                     source / f"run{seed}" / "snapshots" / "step2400.pt")
     code, printed, err = run(capsys, str(source), "--out", str(out), *asked)
-    assert code == 0 and "2 of 4 policies already evaluated, 2 left" in err, err
+    assert code == 0 and "2 of 4 policies already evaluated, 2 left, 1 not there yet" in err, err
+    assert "run2 (not started)" in err and printed == "" and not (out / "evaluation.json").exists()
+    shutil.rmtree(source / "run2")  # dropped from the sweep
+    code, printed, err = run(capsys, str(source), "--out", str(out), *asked)
+    assert code == 0 and "4 of 4 policies already evaluated, 0 left" in err, err
     assert "not there yet" not in err and "Precision check" in printed
     code, _, err = run(capsys, str(source), "--out", str(tmp_path / "whole"), *asked)
     assert code == 0, err
