@@ -14,7 +14,6 @@ the range of all of them, never against one.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -84,7 +83,7 @@ def updates(runs: Path, step: int = STEP) -> pd.DataFrame:
     refill's updates, so a restarted run meets the published SACs with fewer."""
     out = []
     for config_path in sorted(runs.glob("*/config.json")):
-        config = json.loads(config_path.read_text())
+        config = data.read_config(config_path)
         lost = sum(min(r["updates_from"], step) - r["step"]
                    for r in config.get("restarts", []) if r["step"] < step)
         out.append({"task": task_name(config["env_id"]), "seed": config["seed"],
@@ -117,8 +116,8 @@ def table(our: pd.DataFrame, peers: pd.DataFrame, done: pd.DataFrame | None = No
     head = ["task", "ours (v5): tanh(mu) at 1M, mean [95% t-interval], seeds x starts",
             *(f"{s} ({PROTOCOLS[s]})" for s in sources), "ours against the published at 1M"]
     if done is not None:
-        head.append(f"our updates at 1M, mean (min-max) over seeds; restarts "
-                    f"({STEP - 10_000:,} without one)")
+        head.append("our updates at 1M, mean (min-max) over seeds; restarts (without one: 1M "
+                    "less its --learning-starts)")
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for task in TASKS:
         mine = our[our.task == task]
