@@ -50,6 +50,8 @@ for campaign in "$@"; do
     [ -d $d/restarts ] && cp -r $d/restarts $OUT/$r/
     [ -d $d/snapshots ] && cp $d/snapshots/*.pt $OUT/$r/snapshots/ 2>/dev/null
     if [ -e $d/done.json ]; then
+      # an earlier stop's snapshot (one the run has not) is not needed once the run is done
+      for f in $OUT/$r/snapshots/*.pt; do [ -e $d/snapshots/$(basename $f) ] || rm -f $f; done
       cp $d/final_model.pt $d/done.json $OUT/$r/; echo "$r finished"; continue
     fi
     # The run's own snapshots (the 1M grid, a restart's) are copied above; one the checkout has
