@@ -26,7 +26,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -421,9 +421,11 @@ def evaluate_campaign(args: Args) -> None:
         for run in dict.fromkeys(p.run for p in policies):  # as one attempt would leave them:
             write_run_files(args.out, run, finished)  # rows of policies now gone, dropped
         if missing:  # a campaign still training: --out stays open for them, to be resumed
+            summarize_unfinished(args.out, settings | {"seconds": round(seconds, 1)},
+                                 policies, missing)
             print(f"{args.out} is not finished ({PARTIAL_FILE}): not there yet at --steps: "
                   f"{', '.join(missing)}; once they are, the same command evaluates them and "
-                  "writes the summary", file=sys.stderr)
+                  f"writes the summary ({PARTIAL_SUMMARY}: the policies so far)", file=sys.stderr)
             return
         # evaluation.json marks --out complete: written last, in one step. The machine too: on
         # another kind of CPU the same command's episodes are other draws (docs/evaluate.md).
@@ -432,6 +434,7 @@ def evaluate_campaign(args: Args) -> None:
             "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
         write_json(args.out / CAMPAIGN_FILE, complete)
         (args.out / PARTIAL_FILE).unlink(missing_ok=True)
+        (args.out / PARTIAL_SUMMARY).unlink(missing_ok=True)
     except OSError as error:
         fail(f"--out {args.out}: cannot write there ({error.strerror}); give a writable folder")
     summarize_campaign(args.out)
@@ -485,6 +488,8 @@ def evaluate_policies(args: Args, settings: dict,
 # While a campaign is evaluated, --out holds PARTIAL_FILE (the settings, the command and the
 # seconds so far) and every finished policy's rows.
 PARTIAL_FILE = "evaluation.partial.json"
+# An unfinished campaign's per-policy tables so far: no across-seed figure is read from them.
+PARTIAL_SUMMARY = "summary.partial.md"
 # The settings that decide a policy's rows: a resumed evaluation must be given the same.
 RESUME_SETTINGS = ("source", "episodes", "eval_round", "reset_noise", "selectors", "solver",
                    "steps")
@@ -575,8 +580,14 @@ def csv_text(rows: list[list]) -> str:
 def read_campaign(out: Path) -> tuple[dict, dict[tuple[str, int, str], list[list[str]]]]:
     """evaluation.json, and episodes.csv's rows by (run, step, action)."""
     settings = json_object_or_fail(out / CAMPAIGN_FILE, DAMAGED_RECORD)
+    return settings, campaign_episodes(out, settings["runs"])
+
+
+def campaign_episodes(out: Path, runs: Iterable[str]
+                      ) -> dict[tuple[str, int, str], list[list[str]]]:
+    """episodes.csv's rows of these runs by (run, step, action)."""
     episodes: dict[tuple[str, int, str], list[list[str]]] = {}
-    for run in settings["runs"]:
+    for run in runs:
         path = out / run / "episodes.csv"
         if not path.is_file():
             fail(f"{path} is missing: {out} is incomplete; evaluate the campaign again")
@@ -587,7 +598,7 @@ def read_campaign(out: Path) -> tuple[dict, dict[tuple[str, int, str], list[list
         for step, rows in by_step.items():
             for row in rows:
                 episodes.setdefault((run, step, row[selector]), []).append(row)
-    return settings, episodes
+    return episodes
 
 
 def read_shifts(out: Path, settings: dict) -> dict[tuple[str, int], list[str]]:
@@ -666,6 +677,18 @@ def summarize_campaign(out: Path) -> None:
           f"--robust {out}")
 
 
+def summarize_unfinished(out: Path, settings: dict, policies: list[Policy],
+                         missing: list[str]) -> None:
+    """summary.partial.md: summary.md's per-policy tables for the policies evaluated so far
+    (all of `policies`, once evaluate_policies returns), headed by those not there yet."""
+    settings = settings | {"runs": {p.run: {"env_id": p.env_id, "seed": p.seed}
+                                    for p in policies}}
+    episodes = campaign_episodes(out, settings["runs"])
+    text = campaign_markdown(settings, per_seed_rows(settings, episodes), episodes,
+                             read_shifts(out, settings), missing)
+    write_text_atomically(out / PARTIAL_SUMMARY, text)
+
+
 def fall_split(settings: dict, episodes: dict[tuple[str, int, str], list[list[str]]]
                ) -> list[str]:
     """Per policy, the first action's paired return differences against tanh(mu) split by how
@@ -679,8 +702,11 @@ def fall_split(settings: dict, episodes: dict[tuple[str, int, str], list[list[st
     early = next((why for why in report.SHARE_ENDS if why in ends), None)
     if early is None:
         return []
+    # a task column where the runs span several (a campaign's rows are otherwise one task's)
+    several = len({about["env_id"] for about in settings["runs"].values()}) > 1
     rows = []
-    for run, about in sorted(settings["runs"].items(), key=lambda kv: kv[1]["seed"]):
+    for run, about in sorted(settings["runs"].items(),
+                             key=lambda kv: (kv[1]["env_id"] if several else "", kv[1]["seed"])):
         for step in sorted({s for r, s, _ in episodes if r == run}):
             pairs = list(zip(episodes.get((run, step, action), []),
                              episodes.get((run, step, estimators.BASELINE), []), strict=False))
@@ -692,7 +718,8 @@ def fall_split(settings: dict, episodes: dict[tuple[str, int, str], list[list[st
             for it, base in pairs:
                 parts[it[column["end"]] == early, base[column["end"]] == early].append(
                     float(it[column["return"]]) - float(base[column["return"]]))
-            rows.append([about["seed"], report.format_step(step), *(
+            rows.append([*([about["env_id"]] if several else []), about["seed"],
+                         report.format_step(step), *(
                 f"{len(v)}" + (f", {v[0]:+.2f}" if v else "") if len(v) < 2 else
                 f"{len(v)}, {np.mean(v):+.2f} +- {estimators.standard_error(v):.2f}"
                 for v in parts.values())])
@@ -700,7 +727,8 @@ def fall_split(settings: dict, episodes: dict[tuple[str, int, str], list[list[st
             f"Per policy, {action} minus tanh(mu) split by how the two episodes from each start "
             "ended; each cell: starts, and the mean difference over them +- the standard error "
             "of those differences.", "",
-            report.markdown_table(["seed", "step", f"neither {early}",
+            report.markdown_table([*(["task"] if several else []), "seed", "step",
+                                   f"neither {early}",
                                    f"only the {action}'s {early}", f"only tanh(mu)'s {early}",
                                    f"both {early}"], rows), ""]
 
@@ -742,10 +770,16 @@ def shift_table(settings: dict, shifts: dict[tuple[str, int], list[str]]) -> lis
 
 def campaign_markdown(settings: dict, per_seed: list[dict],
                       episodes: dict[tuple[str, int, str], list[list[str]]] | None = None,
-                      shifts: dict[tuple[str, int], list[str]] | None = None) -> str:
+                      shifts: dict[tuple[str, int], list[str]] | None = None,
+                      missing: Sequence[str] = ()) -> str:
+    """missing: an unfinished campaign's policies not there yet (summary.partial.md)."""
     noise = settings["reset_noise"]
-    lines = [f"# Evaluation of {len(settings['runs'])} runs from `{settings['source']}`", "",
+    lines = [f"# {'Unfinished evaluation' if missing else 'Evaluation'} of "
+             f"{len(settings['runs'])} runs from `{settings['source']}`", "",
              f"`{' '.join(settings['command'])}`", "",
+             *([f"**Not finished**: the policies evaluated so far; not there yet: "
+                f"{', '.join(missing)}. The same command evaluates them once they are, and "
+                "writes summary.md.", ""] if missing else []),
              f"Each policy (a run's snapshot or final weights) acted with "
              f"{', '.join(settings['selectors'])} for {settings['episodes']} episodes; episode k "
              f"of every action and every step of a run starts from the same state (reset seeds "

@@ -713,9 +713,15 @@ def test_a_campaign_still_training_stays_unfinished_until_its_steps_are_there(ca
     assert code == 0 and "0 of 2 policies already evaluated, 2 left, 3 not there yet" in err, err
     assert ("not there yet at --steps: run2 (not started), run0 step 2400, run1 step 2400; once "
             "they are, the same command evaluates them") in err and printed == ""
-    # Not sealed: the step-800 rows and the marker, no evaluation.json, no summary.
-    assert sorted(p.name for p in out.iterdir() if p.is_file()) == [evaluate.PARTIAL_FILE]
+    # Not sealed: the step-800 rows, the marker and the tables so far; no evaluation.json.
+    assert sorted(p.name for p in out.iterdir() if p.is_file()) == [evaluate.PARTIAL_FILE,
+                                                                    evaluate.PARTIAL_SUMMARY]
     assert {r["step"] for r in read_rows(out / "run1" / "episodes.csv")} == {"800"}
+    so_far = (out / evaluate.PARTIAL_SUMMARY).read_text()
+    assert so_far.startswith("# Unfinished evaluation of 2 runs") and (
+        "not there yet: run2 (not started), run0 step 2400, run1 step 2400." in so_far)
+    # summary.md's per-policy tables, of the two step-800 policies only
+    assert "Precision check" in so_far and "2,400" not in so_far and "| 0 | 800 |" in so_far
     refused(capsys, "not finished yet (evaluation.partial.json): run its command again", str(out))
     for seed in (0, 1):  # the runs trained on to their next snapshot
         shutil.copy(source / f"run{seed}" / "snapshots" / "step800.pt",
@@ -727,6 +733,7 @@ def test_a_campaign_still_training_stays_unfinished_until_its_steps_are_there(ca
     code, printed, err = run(capsys, str(source), "--out", str(out), *asked)
     assert code == 0 and "4 of 4 policies already evaluated, 0 left" in err, err
     assert "not there yet" not in err and "Precision check" in printed
+    assert not (out / evaluate.PARTIAL_SUMMARY).exists()  # summary.md replaces it
     code, _, err = run(capsys, str(source), "--out", str(tmp_path / "whole"), *asked)
     assert code == 0, err
     assert files(out) == files(tmp_path / "whole")
@@ -979,6 +986,29 @@ def test_a_gymnasium_termination_is_tested_paired_as_a_fall_is():
     assert ("| neither terminated | only the mode's terminated | only tanh(mu)'s terminated | "
             "both terminated |") in table
     assert "| 0 | 100 | 10, +0.00 +- 0.00 | 15, -2.00 +- 0.00 | 0 | 5, -2.00 +- 0.00 |" in table
+
+
+def test_where_the_differences_are_names_the_task_when_the_runs_span_several():
+    """A campaign of several tasks has one seed 0 per task: the split's rows name their task,
+    so that Hopper's seed 0 is not read as HalfCheetah's."""
+    def rows(end: str, cost: float) -> dict:
+        return {("run-" + end, 100, action): [
+            ["100", action, str(i), str(i), str(i - (cost if action == "mode" else 0)), "10", "",
+             "0", end] for i in range(4)] for action in ("mode", "tanh_mu")}
+
+    episodes = rows("time_limit", 1.0) | rows("terminated", 3.0)
+    settings = {"runs": {"run-time_limit": {"env_id": "HalfCheetah-v5", "seed": 0},
+                         "run-terminated": {"env_id": "Hopper-v5", "seed": 0}},
+                "selectors": ["mode", "tanh_mu"]}
+    table = "\n".join(evaluate.fall_split(settings, episodes))
+    assert ("| task | seed | step | neither terminated |" in table
+            and "| HalfCheetah-v5 | 0 | 100 | 4, -1.00 +- 0.00 | 0 | 0 | 0 |\n"
+                "| Hopper-v5 | 0 | 100 | 0 | 0 | 0 | 4, -3.00 +- 0.00 |" in table), table
+    one_task = {"runs": {"run-terminated": settings["runs"]["run-terminated"]},
+                "selectors": settings["selectors"]}
+    table = "\n".join(evaluate.fall_split(one_task, rows("terminated", 3.0)))
+    assert "| seed | step | neither terminated |" in table and "task" not in table
+    assert "\n| 0 | 100 | 0 | 0 | 0 | 4, -3.00 +- 0.00 |" in table
 
 
 def test_summary_tabulates_the_shift_each_policy_makes_at_its_visited_states(tmp_path):

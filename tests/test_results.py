@@ -216,29 +216,38 @@ def quoted_tables(folder: Path) -> list[list[str]]:
              for line in (folder.parent / "README.md").read_text().splitlines()
              if not (repeat and line.startswith("| seed | step |"))}
     tables, rows = [], []
-    for line in [*(folder / "summary.md").read_text().splitlines(), ""]:
+    summary = folder / "summary.md"
+    if not summary.is_file():  # an unfinished evaluation's tables so far
+        summary = folder / "summary.partial.md"
+    for line in [*summary.read_text().splitlines(), ""]:
         if line.startswith("|---"):
             continue
         if line.startswith("| "):
             rows.append(line.split(" | ", 2)[2] if repeat else line)
             continue
-        if rows and rows[0] in lines and lines.intersection(rows[1:]):
+        # quoted: its header there and a row's first three cells (a row changed after them is
+        # then caught, not taken for a table the README does not quote)
+        if rows and rows[0] in lines and any(line.startswith(" | ".join(
+                row.split(" | ")[:3]) + " |") for row in rows[1:] for line in lines):
             tables.append(rows)
         rows = []
     return tables
 
 
 def table_cases() -> list:
-    """Every finished evaluation (evaluation.json) whose summary.md its README quotes."""
+    """Every evaluation whose summary.md (an unfinished one's summary.partial.md) its README
+    quotes."""
     return [pytest.param(marker.parent, id=str(marker.parent.relative_to(RESULTS)))
-            for pattern in (f"*/{p}*/evaluation.json" for p in EVALUATIONS)
+            for pattern in (f"*/{p}*/evaluation{part}.json" for p in EVALUATIONS
+                            for part in ("", ".partial"))
             for marker in sorted(RESULTS.glob(pattern)) if quoted_tables(marker.parent)]
 
 
 def test_evaluations_are_finished_or_say_they_are_not() -> None:
     """An evaluation folder is finished (evaluation.json and its summary.md) or still under way
-    beside a campaign that is training (evaluation.partial.json, no summary yet), and then its
-    README calls it unfinished: nothing half-written passes for a result."""
+    beside a campaign that is training (evaluation.partial.json and the tables so far in
+    summary.partial.md, no summary.md), and then its README calls it unfinished: nothing
+    half-written passes for a result."""
     folders = [f for p in EVALUATIONS for f in sorted(RESULTS.glob(f"*/{p}*/"))]
     assert folders
     for folder in folders:
@@ -247,8 +256,11 @@ def test_evaluations_are_finished_or_say_they_are_not() -> None:
         assert finished != partial, f"{folder}: needs evaluation.json or .partial.json, not both"
         if finished:
             assert (folder / "summary.md").is_file(), f"{folder} is finished without summary.md"
+            assert not (folder / "summary.partial.md").exists(), folder
         else:
             assert not (folder / "summary.md").exists(), folder
+            assert (folder / "summary.partial.md").is_file(), (
+                f"{folder}: no summary.partial.md; run its command again (evaluation.partial.json)")
             readme = (folder.parent / "README.md").read_text()
             assert f"`{folder.name}/`, unfinished" in readme, (
                 f"{folder.parent.name}/README.md does not call {folder.name}/ unfinished")
