@@ -5,8 +5,9 @@
 # the checkout: the CSVs, config.json, sweep_run.json, the run's own snapshots and, where the run
 # is GAP steps or more past its newest snapshot there (500,000 unless GAP says), one made from
 # the checkpoint (`sweep.py restart` continues from it if the checkpoint is lost). A finished run
-# (done.json) is copied whole: its final_model.pt and done.json, no stop snapshot. Then each
-# campaign's report is rebuilt from its reports.json where a run's CSVs changed.
+# (done.json) is copied whole: its final_model.pt and done.json, no stop snapshot, and no snapshot
+# at its last step (the final weights). Then each campaign's report is rebuilt from its
+# reports.json where a run's CSVs changed.
 #
 #   results/stop.sh [--checkpoint-only] SRC CAMPAIGN...
 #   e.g. GAP=1 results/stop.sh ~/campaign/hbsrc ~/campaign/cube-hb-scene
@@ -50,8 +51,12 @@ for campaign in "$@"; do
     [ -d $d/restarts ] && cp -r $d/restarts $OUT/$r/
     [ -d $d/snapshots ] && cp $d/snapshots/*.pt $OUT/$r/snapshots/ 2>/dev/null
     if [ -e $d/done.json ]; then
-      # an earlier stop's snapshot (one the run has not) is not needed once the run is done
-      for f in $OUT/$r/snapshots/*.pt; do [ -e $d/snapshots/$(basename $f) ] || rm -f $f; done
+      # an earlier stop's snapshot (one the run has not) is not needed once the run is done, nor
+      # the one at its last step: final_model.pt holds the same weights (and evaluate.py reads it)
+      last=$(python3 -c "import json; print(json.load(open('$d/done.json'))['global_step'])")
+      for f in $OUT/$r/snapshots/*.pt; do
+        [ -e $d/snapshots/$(basename $f) ] && [ $(basename $f) != step$last.pt ] || rm -f $f
+      done
       cp $d/final_model.pt $d/done.json $OUT/$r/; echo "$r finished"; continue
     fi
     # The run's own snapshots (the 1M grid, a restart's) are copied above; one the checkout has
