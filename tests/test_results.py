@@ -354,6 +354,7 @@ def test_classic_beside_published_reads_ours_with_the_t_interval(tmp_path: Path,
                                                                   capsys) -> None:
     """On a synthetic campaign: our mean and t-interval per task, placed against the published
     values at 1M, and a figure; a missing folder is one line and exit 2."""
+    import pandas as pd
     import scipy.stats
 
     from tests.test_analyze import write_run
@@ -375,6 +376,13 @@ def test_classic_beside_published_reads_ours_with_the_t_interval(tmp_path: Path,
                     [{"step": 400_000, "updates_from": 500_000},
                      {"step": 950_000, "updates_from": 1_050_000}]][seed]
             (run / "config.json").write_text(json.dumps(config))
+            # training episodes: the last 100 to 1M are 50 at 3000 and 50 of the 60 at 2000 (plus
+            # 1000 per seed), the row past 1M not counted; Ant's log stops short of 1M
+            last = 900_000 if env_id == "Ant-v5" else 1_000_000
+            pd.DataFrame({"global_step": [500_000, last - 10_000, last, last + 10_000],
+                          "episodes": [50, 60, 50, 5],
+                          "episode_return_mean": np.array([1, 2, 3, 100]) * 1000.0 + 1000 * seed
+                          }).to_csv(run / "train.csv", index=False)
             for selector, value in (("mode", final + 5), ("tanh_mu", final)):
                 rows.append({"env_id": env_id, "run": run.name, "seed": seed, "step": 1_000_000,
                              "selector": selector, "episodes": 300, "return_mean": value,
@@ -406,6 +414,13 @@ def test_classic_beside_published_reads_ours_with_the_t_interval(tmp_path: Path,
     # updates at 1M: 990,000 / 890,000 / 990,000 - 100,000 - 50,000 (the refill past 1M stops there)
     assert "906,667 (840,000-990,000); 3" in lines["Hopper"]
     assert "990,000 (990,000-990,000); 0" in lines["Ant"]
+    # ours in CleanRL's measure, beside CleanRL's: 2500, 3500, 4500 over the seeds, population std
+    assert "| 9635 +- 1424 | 3500 +- 816; 3 |" in lines["HalfCheetah"]
+    assert "| not published | no run at 1M |" in lines["Ant"]
+    assert "last 100 training episodes to 1M" in table.splitlines()[0]
+    assert module.main(["--runs", str(tmp_path / "runs"), "--training-only"]) == 0
+    alone = capsys.readouterr().out
+    assert "| HalfCheetah | 3500 +- 816; 3 | 9635 +- 1424 |" in alone and "Ant" not in alone
     assert out.stat().st_size > 10_000
     assert module.main(["--runs", str(tmp_path / "none"), "--robust", str(robust)]) == 2
     error = capsys.readouterr().err.strip()

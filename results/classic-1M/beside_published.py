@@ -4,6 +4,11 @@ figure (published-sacs.csv, from published-sacs.md: library, version of the task
 its number is), as a markdown table on stdout and a figure.
 
     .venv/bin/python results/classic-1M/beside_published.py [--runs DIR] [--robust DIR] [--out PNG]
+    .venv/bin/python results/classic-1M/beside_published.py --training-only  # from train.csv
+
+Ours also in CleanRL's own measure, beside CleanRL's figure: each seed's mean over its last 100
+training episodes to 1M, then mean and population std over seeds (--training-only: that alone,
+while the runs go on).
 
 Defaults: this folder's runs/, robust-1M/ and beside-published.png. Ours run the v5 tasks; no
 source publishes SAC on v5, and the sources' numbers are of different kinds (CleanRL's are
@@ -14,6 +19,7 @@ the range of all of them, never against one.
 from __future__ import annotations
 
 import argparse
+import io
 import sys
 from pathlib import Path
 
@@ -27,8 +33,12 @@ import pandas as pd  # noqa: E402
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))  # run as a file from the checkout: analysis/ beside it
 from analysis import data, estimators  # noqa: E402
+from sac_utils.files import complete_lines  # noqa: E402
 
 STEP = 1_000_000
+# CleanRL's figure is each seed's mean over its last 100 training episodes (openrlbenchmark's
+# metric_last_n_average_window), then mean and population std over seeds: ours the same way.
+LAST_EPISODES = 100
 TASKS = ("Hopper", "HalfCheetah", "Walker2d", "Ant", "Humanoid")
 # What each source's number is, for the table's header (published-sacs.md has the detail).
 PROTOCOLS = {
@@ -92,6 +102,34 @@ def updates(runs: Path, step: int = STEP) -> pd.DataFrame:
     return pd.DataFrame(out, columns=["task", "seed", "updates", "restarts"])
 
 
+def training_returns(runs: Path, step: int = STEP, last: int = LAST_EPISODES) -> pd.DataFrame:
+    """Per task, ours in CleanRL's own measure: each seed's mean return over its last `last`
+    training episodes up to `step` (the sampled actions it trained with), then the mean and the
+    population std over the seeds whose train.csv reaches `step`. A train.csv row gives the
+    episodes that ended in it and their mean return; the earliest row used counts in part."""
+    seeds = []
+    for config_path in sorted(runs.glob("*/config.json")):
+        config, path = data.read_config(config_path), config_path.parent / "train.csv"
+        if not path.is_file():
+            continue
+        log = pd.read_csv(io.StringIO("".join(complete_lines(path))))
+        lacking = {"global_step", "episodes", "episode_return_mean"} - set(log.columns)
+        if lacking:
+            raise BesideError(f"{path} lacks column(s) {sorted(lacking)}: not a train.csv the "
+                              "scripts write; restore it")
+        if log.empty or log.global_step.max() < step:
+            continue
+        log = log[(log.global_step <= step) & (log.episodes > 0)].iloc[::-1]
+        counts, means = log.episodes.to_numpy(float), log.episode_return_mean.to_numpy(float)
+        before = np.concatenate(([0.0], np.cumsum(counts)[:-1]))
+        taken = np.clip(last - before, 0, counts)
+        seeds.append({"task": task_name(config["env_id"]), "seed": config["seed"],
+                      "return": float(taken @ means / taken.sum())})
+    per_seed = pd.DataFrame(seeds, columns=["task", "seed", "return"])
+    return per_seed.groupby("task")["return"].agg(
+        mean="mean", std=lambda r: float(np.std(r)), seeds="size").reset_index()
+
+
 def placement(mean: float, low: float, high: float, values: np.ndarray) -> str:
     """Where our interval falls against the published values at 1M."""
     if values.size == 0:
@@ -109,12 +147,17 @@ def placement(mean: float, low: float, high: float, values: np.ndarray) -> str:
     return f"within ({span})"
 
 
-def table(our: pd.DataFrame, peers: pd.DataFrame, done: pd.DataFrame | None = None) -> str:
+def table(our: pd.DataFrame, peers: pd.DataFrame, done: pd.DataFrame | None = None,
+          trained: pd.DataFrame | None = None) -> str:
     """The README's markdown table: a row per task, ours then each source, then the reading;
-    with `done` (updates()), a column of our updates at 1M."""
+    with `done` (updates()), a column of our updates at 1M; with `trained`
+    (training_returns()), ours in CleanRL's measure beside CleanRL's."""
     sources = list(PROTOCOLS)
     head = ["task", "ours (v5): tanh(mu) at 1M, mean [95% t-interval], seeds x starts",
             *(f"{s} ({PROTOCOLS[s]})" for s in sources), "ours against the published at 1M"]
+    if trained is not None:
+        head.insert(3, f"ours in CleanRL's measure (last {LAST_EPISODES} training episodes to "
+                       "1M, +- std over seeds; seeds)")
     if done is not None:
         head.append("our updates at 1M, mean (min-max) over seeds; restarts (without one: 1M "
                     "less its --learning-starts)")
@@ -136,6 +179,11 @@ def table(our: pd.DataFrame, peers: pd.DataFrame, done: pd.DataFrame | None = No
             r = row.iloc[0]
             at = "" if r.step == STEP else f" at {r.step // 1_000_000}M (none at 1M)"
             cells.append(f"{r.value} +- {r.spread}{at}")
+        if trained is not None:
+            mine_trained = trained[trained.task == task]
+            cells.insert(3, "no run at 1M" if mine_trained.empty else
+                         f"{mine_trained.iloc[0]['mean']:.0f} +- {mine_trained.iloc[0]['std']:.0f}"
+                         f"; {mine_trained.iloc[0].seeds}")
         at_step = theirs[theirs.step == STEP].value.to_numpy(dtype=float)
         cells.append("" if mine.empty else placement(m["mean"], m.low, m.high, at_step))
         if done is not None:
@@ -144,6 +192,22 @@ def table(our: pd.DataFrame, peers: pd.DataFrame, done: pd.DataFrame | None = No
                          f"{runs.updates.mean():,.0f} ({runs.updates.min():,}-"
                          f"{runs.updates.max():,}); {runs.restarts.sum()}")
         lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def training_table(trained: pd.DataFrame, peers: pd.DataFrame) -> str:
+    """Ours in CleanRL's measure beside CleanRL's, a row per task with a run at 1M."""
+    cleanrl = peers[(peers.source == "CleanRL") & (peers.step == STEP)]
+    lines = [f"| task | ours (v5): last {LAST_EPISODES} training episodes to 1M, mean +- std over "
+             f"seeds; seeds | CleanRL ({PROTOCOLS['CleanRL']}) |", "|---|---|---|"]
+    for task in TASKS:
+        mine, theirs = trained[trained.task == task], cleanrl[cleanrl.task == task]
+        if mine.empty:
+            continue
+        m = mine.iloc[0]
+        lines.append(f"| {task} | {m['mean']:.0f} +- {m['std']:.0f}; {m.seeds} | "
+                     + (f"{theirs.iloc[0].value} +- {theirs.iloc[0].spread}" if not theirs.empty
+                        else "not published") + " |")
     return "\n".join(lines)
 
 
@@ -195,14 +259,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=Path, default=HERE / "runs")
     parser.add_argument("--robust", type=Path, default=HERE / "robust-1M")
     parser.add_argument("--out", type=Path, default=HERE / "beside-published.png")
+    parser.add_argument("--training-only", action="store_true",
+                        help="only ours in CleanRL's measure beside CleanRL's, from the runs' "
+                             "train.csv (no robust evaluation needed: while the runs go on)")
     args = parser.parse_args(argv)
     try:
+        if args.training_only:
+            if not args.runs.is_dir():
+                raise BesideError(f"{args.runs} is not a folder: pass --runs")
+            print(training_table(training_returns(args.runs), published()))
+            return 0
         for folder in (args.runs, args.robust):
             if not folder.is_dir():
                 raise BesideError(f"{folder} is not a folder: pass --runs and --robust, or "
                                   "commit the campaign's runs/ and robust-1M/ first")
         our, peers = ours(data.load_robust([args.robust])), published()
-        print(table(our, peers, updates(args.runs)))
+        print(table(our, peers, updates(args.runs), training_returns(args.runs)))
         figure(args.runs, our, peers, args.out)
     except (BesideError, data.AnalysisError) as error:
         print(f"beside_published.py: {error}", file=sys.stderr)
