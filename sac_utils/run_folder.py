@@ -321,15 +321,21 @@ def git_commit() -> str | None:
 
 def machine() -> dict:
     """The machine a run (or its restart) trains on, as config.json records it: a seed's run
-    repeats only on the same kind of CPU (kernels and MuJoCo round by its instruction set)."""
-    cpu = platform.processor() or platform.machine()
+    repeats only on the same kind of CPU (kernels and MuJoCo round by its instruction set). A
+    VM's model name may hide the model ("AMD EPYC"), so its vector instruction sets go beside
+    it (`isa`: /proc/cpuinfo's avx*, amx* and fma flags; absent where it cannot be read)."""
+    cpu, isa = platform.processor() or platform.machine(), None
     try:
-        names = [line for line in Path("/proc/cpuinfo").read_text().splitlines()
-                 if line.startswith("model name")]
-        cpu = names[0].split(":", 1)[1].strip() if names else cpu
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
     except OSError:
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count()}
+        lines = []
+    names = [line for line in lines if line.startswith("model name")]
+    cpu = names[0].split(":", 1)[1].strip() if names else cpu
+    flags = next((line.split(":", 1)[1].split() for line in lines
+                  if line.startswith("flags")), None)
+    if flags is not None:
+        isa = sorted(f for f in set(flags) if f.startswith(("avx", "amx")) or f == "fma")
+    return {"cpu": cpu, "cores": os.cpu_count(), **({"isa": isa} if isa is not None else {})}
 
 
 def open_csv(path: Path, columns: list[str], keep_until_step: int | None):

@@ -104,6 +104,11 @@ def test_run_folder_outputs(standard_run):
     assert (config["obs_dim"], config["action_dim"]) == (3, 1)
     assert set(config["versions"]) == {"python", "torch", "numpy", "gymnasium", "mujoco"}
     assert config["machine"]["cores"] == os.cpu_count() and config["machine"]["cpu"].strip()
+    # the vector instruction sets beside the name, which a VM may reduce to "AMD EPYC"
+    flags = next(line.split(":", 1)[1].split() for line in
+                 Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("flags"))
+    assert config["machine"]["isa"] == sorted(
+        {f for f in flags if f.startswith(("avx", "amx")) or f == "fma"})
     # The flags ask for CUDA, graphs and a GPU buffer; on this CPU run none was used.
     assert config["cuda"] and config["cudagraphs"] and config["gpu_buffer"]
     expected_device = "cuda" if torch.cuda.is_available() else "cpu"
