@@ -870,7 +870,8 @@ def report_reward_curves(report: Report, analysis: Analysis) -> None:
         {t: data.steps for t, data in tasks.items()},
         {t: {g: curves[t][g] for g in groups if g in data.returns} for t, data in tasks.items()},
         colors, labels, styles, SUCCESS_BARS,
-        f"Mean evaluation return over {' or '.join(map(str, seeds))} seeds, 95% {interval}",
+        f"Mean evaluation return over {' or '.join(map(str, seeds))} "
+        f"seed{'' if seeds == [1] else 's'}, 95% {interval}",
         restart_marks(analysis.runs)), "reward_curves")
     finals = seed_mean_estimates({(t, g): data.scored(g) for t, data in tasks.items()
                                   for g in data.returns}, args.reps, args.seed)
