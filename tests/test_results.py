@@ -227,8 +227,8 @@ def quoted_tables(folder: Path) -> list[list[str]]:
             continue
         # quoted: its header there and a row's first three cells (a row changed after them is
         # then caught, not taken for a table the README does not quote)
-        if rows and rows[0] in lines and any(line.startswith(" | ".join(
-                row.split(" | ")[:3]) + " |") for row in rows[1:] for line in lines):
+        if rows and rows[0] in lines and any(quoted.startswith(" | ".join(
+                row.split(" | ")[:3]) + " |") for row in rows[1:] for quoted in lines):
             tables.append(rows)
         rows = []
     return tables
