@@ -420,9 +420,10 @@ def evaluate_campaign(args: Args) -> None:
                                     recorded.get("seconds", 0.0) if recorded else 0.0)
         for run in dict.fromkeys(p.run for p in policies):  # as one attempt would leave them:
             write_run_files(args.out, run, finished)  # rows of policies now gone, dropped
+        done = {"seconds": round(seconds, 1),
+                "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
         if missing:  # a campaign still training: --out stays open for them, to be resumed
-            summarize_unfinished(args.out, settings | {"seconds": round(seconds, 1)},
-                                 policies, missing)
+            summarize_unfinished(args.out, settings | done, missing)
             print(f"{args.out} is not finished ({PARTIAL_FILE}): not there yet at --steps: "
                   f"{', '.join(missing)}; once they are, the same command evaluates them and "
                   f"writes the summary ({PARTIAL_SUMMARY}: the policies so far)", file=sys.stderr)
@@ -430,8 +431,8 @@ def evaluate_campaign(args: Args) -> None:
         # evaluation.json marks --out complete: written last, in one step. The machine too: on
         # another kind of CPU the same command's episodes are other draws (docs/evaluate.md).
         complete = {k: v for k, v in settings.items() if k != "steps"} | {
-            "seconds": round(seconds, 1), "workers": args.workers, "machine": machine(),
-            "runs": {p.run: {"env_id": p.env_id, "seed": p.seed} for p in policies}}
+            "seconds": done["seconds"], "workers": args.workers, "machine": machine(),
+            "runs": done["runs"]}
         write_json(args.out / CAMPAIGN_FILE, complete)
         (args.out / PARTIAL_FILE).unlink(missing_ok=True)
         (args.out / PARTIAL_SUMMARY).unlink(missing_ok=True)
@@ -668,25 +669,28 @@ def write_rows(path: Path, rows: list[dict]) -> None:
 def summarize_campaign(out: Path) -> None:
     """per_seed.csv and summary.md from the CSVs; across seeds is analyze.py's (--robust)."""
     settings, episodes = read_campaign(out)
-    per_seed = per_seed_rows(settings, episodes)
+    per_seed, text = campaign_summary(out, settings, episodes)
     write_rows(out / "per_seed.csv", per_seed)
-    text = campaign_markdown(settings, per_seed, episodes, read_shifts(out, settings))
     write_text_atomically(out / "summary.md", text)
     print(text, end="")
     print(f"wrote {out / 'summary.md'} and per_seed.csv; across seeds: analyze.py RUNS "
           f"--robust {out}")
 
 
-def summarize_unfinished(out: Path, settings: dict, policies: list[Policy],
-                         missing: list[str]) -> None:
+def summarize_unfinished(out: Path, settings: dict, missing: list[str]) -> None:
     """summary.partial.md: summary.md's per-policy tables for the policies evaluated so far
-    (all of `policies`, once evaluate_policies returns), headed by those not there yet."""
-    settings = settings | {"runs": {p.run: {"env_id": p.env_id, "seed": p.seed}
-                                    for p in policies}}
-    episodes = campaign_episodes(out, settings["runs"])
-    text = campaign_markdown(settings, per_seed_rows(settings, episodes), episodes,
-                             read_shifts(out, settings), missing)
+    (settings' runs), headed by those not there yet."""
+    _, text = campaign_summary(out, settings, campaign_episodes(out, settings["runs"]), missing)
     write_text_atomically(out / PARTIAL_SUMMARY, text)
+
+
+def campaign_summary(out: Path, settings: dict,
+                     episodes: dict[tuple[str, int, str], list[list[str]]],
+                     missing: Sequence[str] = ()) -> tuple[list[dict], str]:
+    """per_seed.csv's rows and the summary's text (an unfinished one's with `missing`)."""
+    per_seed = per_seed_rows(settings, episodes)
+    return per_seed, campaign_markdown(settings, per_seed, episodes, read_shifts(out, settings),
+                                       missing)
 
 
 def fall_split(settings: dict, episodes: dict[tuple[str, int, str], list[list[str]]]

@@ -324,18 +324,20 @@ def machine() -> dict:
     repeats only on the same kind of CPU (kernels and MuJoCo round by its instruction set). A
     VM's model name may hide the model ("AMD EPYC"), so its vector instruction sets go beside
     it (`isa`: /proc/cpuinfo's avx*, amx* and fma flags; absent where it cannot be read)."""
-    cpu, isa = platform.processor() or platform.machine(), None
     try:
         lines = Path("/proc/cpuinfo").read_text().splitlines()
     except OSError:
         lines = []
-    names = [line for line in lines if line.startswith("model name")]
-    cpu = names[0].split(":", 1)[1].strip() if names else cpu
-    flags = next((line.split(":", 1)[1].split() for line in lines
-                  if line.startswith("flags")), None)
+    def first(key: str) -> str | None:  # the first CPU's entry
+        return next((line.split(":", 1)[1] for line in lines if line.startswith(key)), None)
+
+    name, flags = first("model name"), first("flags")
+    found = {"cpu": name.strip() if name else platform.processor() or platform.machine(),
+             "cores": os.cpu_count()}
     if flags is not None:
-        isa = sorted(f for f in set(flags) if f.startswith(("avx", "amx")) or f == "fma")
-    return {"cpu": cpu, "cores": os.cpu_count(), **({"isa": isa} if isa is not None else {})}
+        found["isa"] = sorted({f for f in flags.split()
+                               if f.startswith(("avx", "amx")) or f == "fma"})
+    return found
 
 
 def open_csv(path: Path, columns: list[str], keep_until_step: int | None):

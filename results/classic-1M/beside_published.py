@@ -180,10 +180,7 @@ def table(our: pd.DataFrame, peers: pd.DataFrame, done: pd.DataFrame | None = No
             at = "" if r.step == STEP else f" at {r.step // 1_000_000}M (none at 1M)"
             cells.append(f"{r.value} +- {r.spread}{at}")
         if trained is not None:
-            mine_trained = trained[trained.task == task]
-            cells.insert(3, "no run at 1M" if mine_trained.empty else
-                         f"{mine_trained.iloc[0]['mean']:.0f} +- {mine_trained.iloc[0]['std']:.0f}"
-                         f"; {mine_trained.iloc[0].seeds}")
+            cells.insert(3, trained_cell(trained, task))
         at_step = theirs[theirs.step == STEP].value.to_numpy(dtype=float)
         cells.append("" if mine.empty else placement(m["mean"], m.low, m.high, at_step))
         if done is not None:
@@ -195,17 +192,25 @@ def table(our: pd.DataFrame, peers: pd.DataFrame, done: pd.DataFrame | None = No
     return "\n".join(lines)
 
 
+def trained_cell(trained: pd.DataFrame, task: str) -> str:
+    """A task's cell of ours in CleanRL's measure (training_returns())."""
+    mine = trained[trained.task == task]
+    if mine.empty:
+        return "no run at 1M"
+    m = mine.iloc[0]
+    return f"{m['mean']:.0f} +- {m['std']:.0f}; {m.seeds}"
+
+
 def training_table(trained: pd.DataFrame, peers: pd.DataFrame) -> str:
     """Ours in CleanRL's measure beside CleanRL's, a row per task with a run at 1M."""
     cleanrl = peers[(peers.source == "CleanRL") & (peers.step == STEP)]
     lines = [f"| task | ours (v5): last {LAST_EPISODES} training episodes to 1M, mean +- std over "
              f"seeds; seeds | CleanRL ({PROTOCOLS['CleanRL']}) |", "|---|---|---|"]
     for task in TASKS:
-        mine, theirs = trained[trained.task == task], cleanrl[cleanrl.task == task]
-        if mine.empty:
+        if task not in set(trained.task):
             continue
-        m = mine.iloc[0]
-        lines.append(f"| {task} | {m['mean']:.0f} +- {m['std']:.0f}; {m.seeds} | "
+        theirs = cleanrl[cleanrl.task == task]
+        lines.append(f"| {task} | {trained_cell(trained, task)} | "
                      + (f"{theirs.iloc[0].value} +- {theirs.iloc[0].spread}" if not theirs.empty
                         else "not published") + " |")
     return "\n".join(lines)
