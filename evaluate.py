@@ -343,7 +343,7 @@ class Policy:
     seed: int
     env_id: str
     step: int
-    path: Path
+    path: Path | None  # None: evaluated in --out, its weights since gone from the runs' folder
     config: dict
 
 
@@ -352,10 +352,14 @@ def is_campaign(source: Path) -> bool:
         and next(source.rglob("config.json"), None) is not None
 
 
-def campaign_policies(root: Path, steps: tuple[int, ...]) -> tuple[list[Policy], list[str]]:
+def campaign_policies(root: Path, steps: tuple[int, ...], out: Path | None = None
+                      ) -> tuple[list[Policy], list[str]]:
     """The policies there, and those at --steps not there yet ("run step N"). The final weights
     stand for a snapshot at their step. A sweep's run not started yet (sweep_run.json without
-    config.json) has none of its steps there: the campaign is not complete without it."""
+    config.json) has none of its steps there: the campaign is not complete without it. A step
+    with rows in `out` stays a policy when its weights have left the run folder (a long
+    campaign's evaluated snapshots may leave the repository to keep it small): its rows are
+    kept, and the campaign can still be completed."""
     run_dirs = sorted(p.parent for p in root.rglob("config.json"))
     planned = sorted(p.parent.name for p in root.rglob("sweep_run.json")
                      if not (p.parent / "config.json").is_file())
@@ -364,7 +368,7 @@ def campaign_policies(root: Path, steps: tuple[int, ...]) -> tuple[list[Policy],
     policies, missing = [], [f"{name} (not started)" for name in planned]
     for run_dir in run_dirs:
         config = read_config(run_dir)
-        files = {int(p.stem.removeprefix("step")): p
+        files: dict[int, Path | None] = {int(p.stem.removeprefix("step")): p
                  for p in (run_dir / "snapshots").glob("step*.pt")
                  if p.stem.removeprefix("step").isdigit()}
         if (run_dir / "final_model.pt").is_file():
@@ -372,6 +376,9 @@ def campaign_policies(root: Path, steps: tuple[int, ...]) -> tuple[list[Policy],
             final = json.loads(done.read_text())["global_step"] if done.is_file() \
                 else config.get("total_timesteps")
             files[int(final)] = run_dir / "final_model.pt"
+        evaluated = rows_by_step(out / run_dir.name / "episodes.csv", EPISODES_HEADER,
+                                 OLD_EPISODES_HEADERS) if out is not None else None
+        files |= {s: None for s in evaluated or {} if s not in files and (not steps or s in steps)}
         missing += [f"{run_dir.name} step {s}" for s in steps if s not in files]
         policies += [Policy(run_dir.name, int(config["seed"]), config["env_id"], step, path, config)
                      for step, path in sorted(files.items()) if not steps or step in steps]
@@ -388,7 +395,7 @@ def evaluate_campaign(args: Args) -> None:
     if args.out is None or args.video is not None:
         fail(f"{args.source} is a folder of runs: give --out (where each run's episodes.csv and "
              "the summary go), and no --video")
-    policies, missing = campaign_policies(args.source, args.steps)
+    policies, missing = campaign_policies(args.source, args.steps, args.out)
     for env_id in sorted({p.env_id for p in policies}):
         check_reset_noise(sac.make_env(env_id), env_id, args.reset_noise, "--reset-noise")
     actions = list(dict.fromkeys(args.selectors))
@@ -402,6 +409,10 @@ def evaluate_campaign(args: Args) -> None:
     # Rows in --out count only under a record of the settings they were evaluated with.
     finished = {} if recorded is None else finished_policies(args.out, policies, actions, args)
     left = [p for p in policies if (p.run, p.step) not in finished]
+    for gone in (p for p in left if p.path is None):
+        fail(f"{gone.run} step {gone.step}: its rows in {args.out} are incomplete and its weights "
+             f"are gone from {args.source}; put its snapshot back (from git: git checkout COMMIT "
+             "-- PATH) and run the command again")
     if (args.out / CAMPAIGN_FILE).is_file():
         # evaluation.json marks --out complete: nothing is evaluated again, nor added to it.
         print(f"{args.out} is complete ({CAMPAIGN_FILE}): nothing evaluated, its summary again"

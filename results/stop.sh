@@ -6,8 +6,9 @@
 # is GAP steps or more past its newest snapshot there (500,000 unless GAP says), one made from
 # the checkpoint (`sweep.py restart` continues from it if the checkpoint is lost). A finished run
 # (done.json) is copied whole: its final_model.pt and done.json, no stop snapshot, and no snapshot
-# at its last step (the final weights). Then each campaign's report is rebuilt from its
-# reports.json where a run's CSVs changed.
+# at its last step (the final weights); one finished at an earlier stop is left as it is in the
+# checkout. Then each campaign's report is rebuilt from its reports.json where a run's CSVs
+# changed.
 #
 #   results/stop.sh [--checkpoint-only] SRC CAMPAIGN...
 #   e.g. GAP=1 results/stop.sh ~/campaign/hbsrc ~/campaign/cube-hb-scene
@@ -44,7 +45,10 @@ for campaign in "$@"; do
   done
   for config in $campaign/*/config.json; do
     [ -e "$config" ] || continue
-    d=$(dirname $config); r=$(basename $d); mkdir -p $OUT/$r/snapshots
+    d=$(dirname $config); r=$(basename $d)
+    # finished at an earlier stop: as committed (its evaluated snapshots may have left the tree)
+    [ -e $d/done.json ] && cmp -s $d/done.json $OUT/$r/done.json && continue
+    mkdir -p $OUT/$r/snapshots
     cmp -s $d/train.csv $OUT/$r/train.csv && cmp -s $d/eval.csv $OUT/$r/eval.csv || changed=1
     cp $d/config.json $d/train.csv $d/eval.csv $d/sweep_run.json $OUT/$r/
     # a restart from a snapshot keeps the CSVs as they were in restarts/step<N>/

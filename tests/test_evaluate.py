@@ -740,6 +740,39 @@ def test_a_campaign_still_training_stays_unfinished_until_its_steps_are_there(ca
 
 
 @pytest.mark.slow
+def test_an_evaluated_snapshot_may_leave_the_runs_folder(campaign, tmp_path, capsys):
+    """A long campaign's evaluated snapshots may leave the repository (results/classic-1M):
+    their rows stay and the campaign still completes as if they were there; weights gone with
+    their rows cut short are refused, not dropped."""
+    source, out = tmp_path / "runs", tmp_path / "out"
+    shutil.copytree(campaign, source)
+    asked = (*CAMPAIGN_ARGS, "--steps", "800", "2400")
+    code, _, err = run(capsys, str(source), "--out", str(out), *asked)
+    assert code == 0 and "2 not there yet" in err, err
+    rows = {seed: (out / f"run{seed}" / "episodes.csv").read_bytes() for seed in (0, 1)}
+    (source / "run0" / "snapshots" / "step800.pt").unlink()
+    code, _, err = run(capsys, str(source), "--out", str(out), *asked)
+    assert code == 0 and "2 of 2 policies already evaluated, 0 left, 2 not there yet" in err, err
+    assert (out / "run0" / "episodes.csv").read_bytes() == rows[0]
+    (source / "run1" / "snapshots" / "step800.pt").unlink()
+    (out / "run1" / "episodes.csv").write_bytes(rows[1][:rows[1].rindex(b"\n", 0, -1) + 1])
+    refused(capsys, "run1 step 800: its rows in", str(source), "--out", str(out), *asked)
+    (out / "run1" / "episodes.csv").write_bytes(rows[1])
+    for seed in (0, 1):  # the runs trained on to their next snapshot
+        shutil.copy(campaign / "run1" / "snapshots" / "step800.pt",
+                    source / f"run{seed}" / "snapshots" / "step2400.pt")
+    code, _, err = run(capsys, str(source), "--out", str(out), *asked)
+    assert code == 0 and "2 of 4 policies already evaluated, 2 left" in err, err
+    assert "not there yet" not in err and (out / "evaluation.json").is_file()
+    for seed in (0, 1):
+        shutil.copy(campaign / f"run{seed}" / "snapshots" / "step800.pt",
+                    source / f"run{seed}" / "snapshots" / "step800.pt")
+    code, _, err = run(capsys, str(source), "--out", str(tmp_path / "whole"), *asked)
+    assert code == 0, err
+    assert files(out) == files(tmp_path / "whole")
+
+
+@pytest.mark.slow
 def test_a_resume_with_other_settings_is_refused(campaign, tmp_path, monkeypatch, capsys):
     out = tmp_path / "out"
     interrupted(campaign, out, monkeypatch, capsys)
