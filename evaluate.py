@@ -409,7 +409,7 @@ def evaluate_campaign(args: Args) -> None:
     # Rows in --out count only under a record of the settings they were evaluated with.
     finished = {} if recorded is None else finished_policies(args.out, policies, actions, args)
     left = [p for p in policies if (p.run, p.step) not in finished]
-    for gone in (p for p in left if p.path is None):
+    if (gone := next((p for p in left if p.path is None), None)) is not None:
         fail(f"{gone.run} step {gone.step}: its rows in {args.out} are incomplete and its weights "
              f"are gone from {args.source}; put its snapshot back (from git: git checkout COMMIT "
              "-- PATH) and run the command again")
