@@ -208,12 +208,18 @@ def frame_panel(ax: plt.Axes, row: PairedRow) -> None:
     ax.grid(axis="y", alpha=0.25)
 
 
+def panel_width(rows: Sequence[PairedRow]) -> float:
+    """Inches: wider with more x's, so that tick labels such as "bookshelf_simple" (one per task in
+    the dimension study) do not run into each other."""
+    return max(8.0, 1.3 * max(len(row.ticks) for row in rows) + 1.5)
+
+
 def plot_paired(rows: Sequence[PairedRow], colors: dict, labels: dict, how: str) -> plt.Figure:
     """The headline figure, the training log's and the robust evaluation's: a panel per row, in
     each every series' paired difference at each x (draw_seed_summary). `how`: the protocol."""
     series, slot, offsets = series_slots(rows)
-    fig, axes = plt.subplots(len(rows), 1, figsize=(8, 3.1 * len(rows) + 1.0), squeeze=False,
-                             layout="constrained")
+    fig, axes = plt.subplots(len(rows), 1, figsize=(panel_width(rows), 3.1 * len(rows) + 1.0),
+                             squeeze=False, layout="constrained")
     for ax, row in zip(axes[:, 0], rows, strict=True):
         ax.set_ylim(*summary_range(list(row.cells.values())))
         for (i, s), cell in row.cells.items():
@@ -242,8 +248,8 @@ def plot_per_seed(rows: Sequence[PairedRow], colors: dict, labels: dict, how: st
     series, slot, offsets = series_slots(rows)
     every = sorted({int(seed) for row in rows for c in row.cells.values() for seed in c.seeds})
     shapes = dict(zip(every, "osD^vP*Xph", strict=False))
-    fig, axes = plt.subplots(len(rows), 1, figsize=(8, 2.8 * len(rows) + 1.2), squeeze=False,
-                             layout="constrained")
+    fig, axes = plt.subplots(len(rows), 1, figsize=(panel_width(rows), 2.8 * len(rows) + 1.2),
+                             squeeze=False, layout="constrained")
     for ax, row in zip(axes[:, 0], rows, strict=True):
         seeds = sorted({int(seed) for c in row.cells.values() for seed in c.seeds})
         spread = np.linspace(-0.35, 0.35, len(seeds)) * slot if len(seeds) > 1 else [0.0]
@@ -454,7 +460,7 @@ def plot_dimension_study(study: dict[str, Dimension], estimates: dict, colors: l
     found = {g[1] for d in study.values() for g in d.differences}
     actions = [a for a in order if a in found] + sorted(found - set(order))
     fig, axes = plt.subplots(len(actions) + 1, 2, figsize=(13, 4.75 * (len(actions) + 1)),
-                             squeeze=False)
+                             squeeze=False, layout="constrained")  # constrained: room for suptitle
     (ax_shift, ax_sigma) = axes[-1]
     ax_bimodal = ax_sigma.twinx()
     xs = dimension_positions(study)
@@ -510,7 +516,6 @@ def plot_dimension_study(study: dict[str, Dimension], estimates: dict, colors: l
     ax_shift.legend(fontsize=7, loc="upper left")
     fig.suptitle("Each point is a different task (its own body, reward and action dimension), "
                  "not one task swept over the dimension", fontsize="large")
-    fig.tight_layout()
     return fig
 
 
