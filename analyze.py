@@ -78,6 +78,7 @@ from analysis.estimators import (
     VERDICT_SE,
     aggregate_estimates,
     difference_over_tasks,
+    excludes_zero,
     interval_estimates,
     iqm_per_step,
     mean_curves,
@@ -1084,7 +1085,7 @@ def report_robust_dimension(report: Report, analysis: Analysis) -> None:
     study = dict(sorted(study.items(), key=lambda item: (item[1].action_dim, item[0])))
     estimates = seed_mean_estimates({(t, a): v for t, d in study.items()
                                      for a, v in d.relative.items()}, args.reps, args.seed)
-    table, cells, ticks = [], {}, []
+    table, cells, ticks, disagree = [], {}, [], []
     for i, (task, d) in enumerate(study.items()):
         at = by_task[task][d.step]
         ticks.append(f"{short_task(task)}\n{d.action_dim} dims\n{format_step(d.step)}, "
@@ -1103,9 +1104,17 @@ def report_robust_dimension(report: Report, analysis: Analysis) -> None:
             cells[i, action] = PairedCell(100 * relative, [100 * v for v in boot],
                                           [100 * v for v in t_values],
                                           100 * at.errors[action] / tanh_mu, seeds=at.seeds)
+            # Dividing by each seed's return weighs the seeds differently, so the shares'
+            # interval can exclude zero where the returns' (the task's verdict) does not.
+            returns_t = t_interval(at.differences[action])
+            if excludes_zero(t_values) != excludes_zero(returns_t):
+                disagree.append(f"{short_task(task)} {action}: shares {100 * t_values[1]:+.1f}% "
+                                f"to {100 * t_values[2]:+.1f}%, returns {returns_t[1]:+.3g} to "
+                                f"{returns_t[2]:+.3g}")
     labels, colors = robust_labels_colors(analysis.robust.actions)
     row = PairedRow("Against the action dimension: each x a different task (its own body and "
-                    "reward),\nat its last robust step (seeds x starts)", ticks, cells,
+                    "reward),\nat its last robust step (seeds x starts); intervals of shares, "
+                    "not a task's verdict (summary.md)", ticks, cells,
                     "minus tanh(mu), % of its return")
     report.figure(plot_paired([row], colors, labels, "the robust evaluation, as a share of "
                               "each seed's tanh(mu) return"), "robust_dimension")
@@ -1116,7 +1125,11 @@ def report_robust_dimension(report: Report, analysis: Analysis) -> None:
         f"rliable's bootstrap ({args.reps:,} replications) and Student's 95% t-interval; "
         f"'ahead / level / behind': seeds beyond {VERDICT_SE:g} standard errors of their paired "
         "episodes. Each dimension is a different task, with its own body and reward: the points "
-        "compare tasks, they are not one task swept over its action dimension.",
+        "compare tasks, they are not one task swept over its action dimension. A task's "
+        "verdict is the t-interval of its return differences (the robust evaluation's "
+        "section), not of these shares"
+        + ("; the two disagree on whether zero is inside for " + "; ".join(disagree) + "."
+           if disagree else ", and here the two agree on whether zero is inside."),
         *few_seeds_lines([v.size for d in study.values() for v in d.relative.values()]), "",
         markdown_table(["task", "action dims", "step", "action", "seeds", "tanh(mu)'s return",
                         "minus tanh(mu), % of its return (bootstrap CI)", "t-interval",

@@ -63,6 +63,13 @@ def t_interval(values: np.ndarray) -> tuple[float, float, float]:
     return mean, mean - half, mean + half
 
 
+def excludes_zero(interval: tuple[float, float, float]) -> bool:
+    """Whether a (mean, low, high) interval lies wholly on one side of zero (False with NaN
+    bounds: one seed decides nothing)."""
+    _, low, high = interval
+    return bool(low > 0 or high < 0)
+
+
 def welch_interval(per_task: Sequence[np.ndarray]) -> tuple[float, float, float]:
     """(mean, low, high) of the mean over tasks of each task's mean over seeds: Welch's interval
     with Satterthwaite's degrees of freedom, the tasks' seeds independent (as rliable's

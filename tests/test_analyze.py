@@ -1421,6 +1421,41 @@ def test_robust_aggregate_from_one_seed_prints_no_interval(tmp_path):
     assert table.count("(n/a)") == 4, table
 
 
+def test_robust_dimension_says_where_shares_and_returns_disagree_about_zero(tmp_path):
+    """Dividing by each seed's return weighs the seeds differently: on cube below every seed's
+    mode loses 10% of its return (the shares' interval excludes zero) while the losses in return,
+    0.1 to 10, leave zero inside theirs (the task's verdict). summary.md names that pair, and
+    only that pair."""
+    tasks = {"Hopper-v5": 3, "h1hand-cube-v0": 61}
+    settings = {"episodes": 4, "reset_noise": 0.01, "selectors": ["mode", "tanh_mu", "mean"],
+                "runs": {}}
+    for task, dim in tasks.items():
+        for seed in range(3):
+            run = write_run(tmp_path / "runs", task, "corrected", seed, 10_000 * np.arange(1, 4),
+                            np.ones(3), np.zeros(3))
+            config = json.loads((run / "config.json").read_text())
+            (run / "config.json").write_text(json.dumps(config | {"action_dim": dim}))
+            scale = 10.0 ** seed if dim == 61 else 100.0
+            tanh_mu = scale * (1 + 0.01 * np.arange(4))
+            returns = {"mode": 0.9 * tanh_mu if dim == 61 else tanh_mu + 1, "tanh_mu": tanh_mu,
+                       "mean": tanh_mu + np.array([1.0, -1.0, 1.0, -1.0])}
+            name = f"{task}__corrected__seed{seed}__0000"
+            settings["runs"][name] = {"env_id": task, "seed": seed}
+            lines = [ROBUST_HEADER] + [
+                f"1000000,{selector},{k},{1000 + k},{float(values[k])!r},1000,False"
+                for selector, values in returns.items() for k in range(4)]
+            (tmp_path / "robust" / name).mkdir(parents=True)
+            (tmp_path / "robust" / name / "episodes.csv").write_text("\n".join(lines) + "\n")
+    (tmp_path / "robust" / "evaluation.json").write_text(json.dumps(settings))
+    write_per_seed(tmp_path / "robust")
+    out = tmp_path / "out"
+    assert run_analysis(tmp_path / "runs", out, "--robust", str(tmp_path / "robust")) == 0
+    text = (out / "summary.md").read_text()
+    assert "disagree on whether zero is inside for cube mode: shares -10.0% to -10.0%" in text
+    assert "cube mean:" not in text and "Hopper mode:" not in text
+    assert "Hopper mean:" not in text
+
+
 def test_robust_dimension_study_is_each_seeds_share_of_its_tanh_mu_return(tmp_path):
     """With robust evaluations of tasks of two action dimensions: per task at its last robust
     step, each action's paired difference over that seed's tanh(mu) return, mean over seeds
