@@ -19,6 +19,11 @@ def test_t_interval_is_students_and_welchs():
     assert np.allclose((low, high), (-555.7, 148.7), atol=0.05)  # bookshelf_simple at 1M
     assert np.isnan(estimators.t_interval(np.array([3.0]))[1:]).all()
     assert estimators.t_interval(np.full(4, 2.0)) == (2.0, 2.0, 2.0)
+    # Zero inside [-555.7, 148.7]; a bound on zero leaves it inside; one seed decides nothing.
+    assert not estimators.excludes_zero((mean, low, high))
+    assert estimators.excludes_zero((-1.0, -2.0, -0.5)) and estimators.excludes_zero((1, 0.5, 2))
+    assert not estimators.excludes_zero((1.0, 0.0, 2.0))
+    assert not estimators.excludes_zero(estimators.t_interval(np.array([3.0])))
     # Over tasks: one task is Student's interval; two are Welch's, Satterthwaite's df.
     assert np.allclose(estimators.welch_interval([values]), (mean, low, high))
     other = np.array([0.1, 0.4, 0.2])
