@@ -1421,6 +1421,16 @@ def test_robust_aggregate_from_one_seed_prints_no_interval(tmp_path):
     assert table.count("(n/a)") == 4, table
 
 
+def write_dimension_runs(root: Path, tasks: dict[str, int]) -> None:
+    """Three seeds' training logs per task, each config.json with the task's action dimension."""
+    for task, dim in tasks.items():
+        for seed in range(3):
+            run = write_run(root, task, "corrected", seed, 10_000 * np.arange(1, 4), np.ones(3),
+                            np.zeros(3))
+            config = json.loads((run / "config.json").read_text())
+            (run / "config.json").write_text(json.dumps(config | {"action_dim": dim}))
+
+
 def test_robust_dimension_says_where_shares_and_returns_disagree_about_zero(tmp_path):
     """Dividing by each seed's return weighs the seeds differently: on cube below every seed's
     mode loses 10% of its return (the shares' interval excludes zero) while the losses in return,
@@ -1429,12 +1439,9 @@ def test_robust_dimension_says_where_shares_and_returns_disagree_about_zero(tmp_
     tasks = {"Hopper-v5": 3, "h1hand-cube-v0": 61}
     settings = {"episodes": 4, "reset_noise": 0.01, "selectors": ["mode", "tanh_mu", "mean"],
                 "runs": {}}
+    write_dimension_runs(tmp_path / "runs", tasks)
     for task, dim in tasks.items():
         for seed in range(3):
-            run = write_run(tmp_path / "runs", task, "corrected", seed, 10_000 * np.arange(1, 4),
-                            np.ones(3), np.zeros(3))
-            config = json.loads((run / "config.json").read_text())
-            (run / "config.json").write_text(json.dumps(config | {"action_dim": dim}))
             scale = 10.0 ** seed if dim == 61 else 100.0
             tanh_mu = scale * (1 + 0.01 * np.arange(4))
             returns = {"mode": 0.9 * tanh_mu if dim == 61 else tanh_mu + 1, "tanh_mu": tanh_mu,
@@ -1461,12 +1468,7 @@ def test_robust_dimension_study_is_each_seeds_share_of_its_tanh_mu_return(tmp_pa
     step, each action's paired difference over that seed's tanh(mu) return, mean over seeds
     with its t-interval; with one dimension there is none."""
     tasks = {"Hopper-v5": 3, "h1hand-cube-v0": 61}
-    for task, dim in tasks.items():
-        for seed in range(3):
-            run = write_run(tmp_path / "runs", task, "corrected", seed, 10_000 * np.arange(1, 4),
-                            np.ones(3), np.zeros(3))
-            config = json.loads((run / "config.json").read_text())
-            (run / "config.json").write_text(json.dumps(config | {"action_dim": dim}))
+    write_dimension_runs(tmp_path / "runs", tasks)
     written = write_robust_folder(tmp_path / "robust", list(tasks))
     out = tmp_path / "out"
     assert run_analysis(tmp_path / "runs", out, "--robust", str(tmp_path / "robust")) == 0
