@@ -28,7 +28,7 @@ TASKS = ["h1hand-powerlift-v0", "h1hand-cube-v0", "h1hand-bookshelf_simple-v0",
 
 def write_run(root: Path, env_id: str, algorithm: str, seed: int, steps: np.ndarray,
               returns: np.ndarray, paired: np.ndarray | None = None,
-              name: str | None = None) -> Path:
+              name: str | None = None, action_dim: int = 61) -> Path:
     """One run folder as the SAC scripts write it: config.json and eval.csv (paired columns
     when `paired` is given)."""
     run_dir = root / (name or f"{env_id}__{algorithm}__seed{seed}__20261121-120000")
@@ -36,7 +36,7 @@ def write_run(root: Path, env_id: str, algorithm: str, seed: int, steps: np.ndar
     config = {"env_id": env_id, "seed": seed, "algorithm": algorithm,
               "script": f"sac_{algorithm}.py", "total_timesteps": int(steps[-1]),
               "eval_interval": int(steps[1] - steps[0]) if len(steps) > 1 else 0,
-              "obs_dim": 164, "action_dim": 61, "git_commit": None,
+              "obs_dim": 164, "action_dim": action_dim, "git_commit": None,
               "versions": {"python": "3.11", "numpy": np.__version__},
               "start_time": "2026-11-21T12:00:00"}
     (run_dir / "config.json").write_text(json.dumps(config, indent=2))
@@ -581,9 +581,7 @@ def test_dimension_study_recovers_known_offsets_per_dimension(tmp_path):
             paired = 100.0 * np.arange(8) + seed  # range over seeds and steps: 704
             offset = base * np.arange(1, 9) / 8 + spread * (seed - 2)
             run_dir = write_run(tmp_path / "runs", task, "corrected", int(seed), steps,
-                                paired + offset, paired)
-            config = json.loads((run_dir / "config.json").read_text())
-            (run_dir / "config.json").write_text(json.dumps({**config, "action_dim": dims}))
+                                paired + offset, paired, action_dim=dims)
             set_columns(run_dir, mode_shift_abs_sum=0.04 * dims * (1 + 0.1 * (seed - 2)),
                         sigma_mean=0.3, bimodal_fraction=0.01 * seed)
     assert run_analysis(tmp_path / "runs", tmp_path / "out", "--normalize", "min-max",
@@ -1425,10 +1423,8 @@ def write_dimension_runs(root: Path, tasks: dict[str, int]) -> None:
     """Three seeds' training logs per task, each config.json with the task's action dimension."""
     for task, dim in tasks.items():
         for seed in range(3):
-            run = write_run(root, task, "corrected", seed, 10_000 * np.arange(1, 4), np.ones(3),
-                            np.zeros(3))
-            config = json.loads((run / "config.json").read_text())
-            (run / "config.json").write_text(json.dumps(config | {"action_dim": dim}))
+            write_run(root, task, "corrected", seed, 10_000 * np.arange(1, 4), np.ones(3),
+                      np.zeros(3), action_dim=dim)
 
 
 def test_robust_dimension_says_where_shares_and_returns_disagree_about_zero(tmp_path):
