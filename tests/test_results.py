@@ -326,6 +326,22 @@ def beside_published():
     return module
 
 
+def test_classic_run_counts_are_the_finished_runs() -> None:
+    """While the classic suite trains, each README that counts its runs at 1M counts the runs
+    whose done.json is committed (a count typed by hand went wrong once)."""
+    runs = sorted((RESULTS / "classic-1M" / "runs").glob("*/config.json"))
+    assert len(runs) >= 5
+    done = sum((run.parent / "done.json").is_file() for run in runs)
+    if done == 25:
+        return
+    said = {"README.md": f"{done} of 25 runs done",
+            "results/README.md": f"running: {done} of 25 runs at 1M",
+            "results/classic-1M/README.md": f"**So far** ({done} of 25 runs at 1M"}
+    for path, phrase in said.items():
+        text = " ".join((ROOT / path).read_text().split())
+        assert phrase in text, f"{path} does not say {phrase!r} ({done} runs have done.json)"
+
+
 def test_classic_published_figures_are_the_readmes_digit_for_digit() -> None:
     """published-sacs.csv, which the table and figure beside ours read, is the README's table of
     published SACs (Spinning Up's spread: half its plotted +-1 std band, published-sacs.md)."""
