@@ -4,6 +4,7 @@ the numbers come from analyze.py's report sections, which save them."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections.abc import Callable, Sequence
 
@@ -172,7 +173,9 @@ def draw_seed_summary(ax, x: float, width: float, cell: PairedCell, color: tuple
 
 
 def task_markers(tasks: Sequence[str]) -> dict[str, str]:
-    return dict(zip(tasks, "osD^vP*X", strict=False))
+    # Twelve shapes, repeated beyond: a report over the classic suite and the HumanoidBench
+    # tasks has nine.
+    return dict(zip(tasks, itertools.cycle("osD^vP*Xhp<>")))
 
 
 def summary_range(cells: Sequence[PairedCell]) -> tuple[float, float]:

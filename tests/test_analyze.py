@@ -205,6 +205,15 @@ def test_iqm_is_rliables_iqm_to_the_bit():
     assert np.isnan(estimators.iqm(scores)) and np.isnan(metrics.aggregate_iqm(scores))
 
 
+def test_every_task_gets_a_marker_beyond_the_twelve_shapes():
+    # The classic suite's five tasks beside HumanoidBench's four are nine; a report over them
+    # once raised a KeyError when the shapes ran out at eight.
+    tasks = [f"task{i}" for i in range(14)]
+    markers = figures.task_markers(tasks)
+    assert list(markers) == tasks
+    assert len(set(markers[t] for t in tasks[:12])) == 12  # distinct while shapes last
+
+
 def test_a_figures_band_line_says_how_many_runs_and_warns_when_few():
     few = figures.band_line({"a": np.zeros((2, 1)), "b": np.zeros((3, 1))}, "bars")
     assert few.startswith("bars: 95% stratified-bootstrap CIs (rliable), 2 or 3 runs x 1 task")
