@@ -169,8 +169,9 @@ def table(our: pd.DataFrame, peers: pd.DataFrame, done: pd.DataFrame | None = No
             cells = [task, "not evaluated"]
         else:
             m = mine.iloc[0]
-            cells = [task, f"{m['mean']:.0f} [{m.low:.0f}, {m.high:.0f}], "
-                           f"{m.seeds} x {m.episodes}"]
+            spread = (f"[{m.low:.0f}, {m.high:.0f}]" if m.seeds > 1
+                      else "(one seed: no interval)")
+            cells = [task, f"{m['mean']:.0f} {spread}, {m.seeds} x {m.episodes}"]
         for source in sources:
             row = theirs[theirs.source == source]
             if row.empty:
@@ -233,7 +234,8 @@ def figure(runs: Path | None, our: pd.DataFrame, peers: pd.DataFrame, out: Path)
             m = mine.iloc[0]
             ax.errorbar([1.0], [m["mean"]], yerr=[[m["mean"] - m.low], [m.high - m["mean"]]],
                         fmt="s", color="black", ms=6, capsize=3, zorder=5,
-                        label=f"ours, 1M: mean of {m.seeds} seeds, 95% t-interval")
+                        label=f"ours, 1M: mean of {m.seeds} seeds, 95% t-interval"
+                        if m.seeds > 1 else "ours, 1M: one seed")
         for k, source in enumerate(PROTOCOLS):
             row = peers[(peers.task == task) & (peers.source == source) & (peers.step == STEP)]
             if row.empty:
