@@ -90,6 +90,7 @@ from analysis.estimators import (
 from analysis.figures import (
     PairedCell,
     PairedRow,
+    marker_shapes,
     plot_aggregate_metrics,
     plot_dimension_study,
     plot_over_training,
@@ -100,7 +101,6 @@ from analysis.figures import (
     plot_reward_curves,
     plot_sample_efficiency,
     profile_thresholds,
-    task_markers,
 )
 from analysis.report import (
     Report,
@@ -386,7 +386,7 @@ def paired_over_tasks(report: Report, analysis: Analysis, differences: dict
     summary.md's lines and the figure's panel."""
     args, norms = analysis.args, analysis.norms
     name = SCORE_NAMES[args.normalize].lower()
-    shapes = task_markers(list(differences))
+    shapes = marker_shapes(list(differences))
     cells, table = {}, []
     for key in sorted({g for by_group in differences.values() for g in by_group}, key=group_rank):
         per_task = {t: d[key] / norms[t][1] for t, d in differences.items() if key in d}
@@ -578,7 +578,7 @@ def robust_over_tasks(report: Report, analysis: Analysis,
              "bootstrap CI and Welch's t-interval; the returns' aggregate metrics.", ""]
     scores = {a: np.stack([by_task[t][step].returns[a][:seeds] / SUCCESS_BARS[t]
                            for t in tasks], axis=1) for a in actions}
-    cells, table, shapes = {}, [], task_markers(tasks)
+    cells, table, shapes = {}, [], marker_shapes(tasks)
     for action in actions:
         if action in by_task[tasks[0]][step].differences:
             per_task = {t: by_task[t][step].differences[action][:seeds] / SUCCESS_BARS[t]

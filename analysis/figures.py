@@ -172,10 +172,11 @@ def draw_seed_summary(ax, x: float, width: float, cell: PairedCell, color: tuple
                     t_values[0]]], color=color, lw=1.5, capsize=3, zorder=4)
 
 
-def task_markers(tasks: Sequence[str]) -> dict[str, str]:
-    # Twelve shapes, repeated beyond: a report over the classic suite and the HumanoidBench
-    # tasks has nine.
-    return dict(zip(tasks, itertools.cycle("osD^vP*Xhp<>")))
+def marker_shapes(keys: Sequence) -> dict:
+    """A marker shape per key (task or seed): twelve shapes, repeated beyond, so that no count of
+    tasks or seeds runs out of them (the classic suite beside the HumanoidBench tasks is nine)."""
+    return dict(zip(keys, itertools.cycle("osD^vP*Xph<>")))
+
 
 
 def summary_range(cells: Sequence[PairedCell]) -> tuple[float, float]:
@@ -250,7 +251,7 @@ def plot_per_seed(rows: Sequence[PairedRow], colors: dict, labels: dict, how: st
     hide them); filled where estimators.verdict says ahead or behind, hollow where level."""
     series, slot, offsets = series_slots(rows)
     every = sorted({int(seed) for row in rows for c in row.cells.values() for seed in c.seeds})
-    shapes = dict(zip(every, "osD^vP*Xph", strict=False))
+    shapes = marker_shapes(every)
     fig, axes = plt.subplots(len(rows), 1, figsize=(panel_width(rows), 2.8 * len(rows) + 1.2),
                              squeeze=False, layout="constrained")
     for ax, row in zip(axes[:, 0], rows, strict=True):

@@ -209,7 +209,7 @@ def test_every_task_gets_a_marker_beyond_the_twelve_shapes():
     # The classic suite's five tasks beside HumanoidBench's four are nine; a report over them
     # once raised a KeyError when the shapes ran out at eight.
     tasks = [f"task{i}" for i in range(14)]
-    markers = figures.task_markers(tasks)
+    markers = figures.marker_shapes(tasks)
     assert list(markers) == tasks
     assert len(set(markers[t] for t in tasks[:12])) == 12  # distinct while shapes last
 
