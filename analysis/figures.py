@@ -178,7 +178,6 @@ def marker_shapes(keys: Sequence) -> dict:
     return dict(zip(keys, itertools.cycle("osD^vP*Xph<>")))
 
 
-
 def summary_range(cells: Sequence[PairedCell]) -> tuple[float, float]:
     """A y-range holding the intervals, zero and the middle 90% of the dots (not an outlier)."""
     bounds = [v for c in cells for v in (*c.boot, *c.t) if np.isfinite(v)] + [0.0]
